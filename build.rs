@@ -1,0 +1,352 @@
+//! Build script for rsmodbus.
+//!
+//! It makes the cdylib a drop-in for `libmodbus.so.5`:
+//!
+//! 1. sets the ELF soname to `libmodbus.so.5`;
+//! 2. creates `libmodbus.so.5` and `libmodbus.so.5.1.0` symlinks next to the built
+//!    `libmodbus.so` in `target/<profile>/`, so that programs linked with `-lmodbus`
+//!    against the build tree load this library and not the system's libmodbus;
+//! 3. writes `target/<profile>/libmodbus.pc` (from `libmodbus.pc.in`) and
+//!    `target/<profile>/libmodbus-uninstalled.pc` (for building against the tree);
+//! 4. generates the four public headers with cbindgen into `$OUT_DIR/include/` and,
+//!    when `RSMODBUS_UPDATE_HEADERS=1`, into the committed `include/`. A committed
+//!    header that differs from the generated one only produces a cargo warning here;
+//!    `scripts/check-headers.sh` turns it into a failure.
+//!
+//! Environment: `RSMODBUS_PREFIX` (default `/usr/local`), `RSMODBUS_LIBDIR` (default
+//! `${exec_prefix}/lib`), `RSMODBUS_INCLUDEDIR` (default `${prefix}/include`) and
+//! `RSMODBUS_UPDATE_HEADERS`.
+
+use std::env;
+use std::fs;
+use std::io;
+use std::path::{Path, PathBuf};
+
+/// The libmodbus API level implemented (headers, pkg-config version).
+const LIBMODBUS_VERSION: (u32, u32, u32) = (3, 1, 12);
+/// libtool `current - age`: the soname major of libmodbus 3.1.x.
+const SONAME: &str = "libmodbus.so.5";
+/// libtool 6:0:1 gives this real file name for libmodbus 3.1.6 through 3.1.12.
+const REAL_NAME: &str = "libmodbus.so.5.1.0";
+/// `rustc --print native-static-libs` for the staticlib on x86_64-linux-gnu.
+const LIBS_PRIVATE_LINUX_GNU: &str = "-lgcc_s -lutil -lrt -lpthread -lm -ldl -lc";
+
+/// Where the exported functions and objects are declared.
+const FFI_ROOT: &str = "src/ffi/mod.rs";
+
+/// Declarations whose top-level `const` qualifier on a by-value parameter cannot be
+/// spelt in Rust. The qualifier does not change the function's type, but libmodbus'
+/// headers show it, so the generated prototypes get it back: (function, parameter
+/// as generated, parameter as libmodbus declares it).
+const CONST_VALUE_PARAMS: &[(&str, &str, &str)] = &[
+    (
+        "modbus_write_register",
+        "uint16_t value",
+        "const uint16_t value",
+    ),
+    (
+        "modbus_set_bits_from_byte",
+        "uint8_t value",
+        "const uint8_t value",
+    ),
+];
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Part {
+    Main,
+    Rtu,
+    Tcp,
+    Version,
+}
+
+struct Header {
+    file: &'static str,
+    config: &'static str,
+    part: Part,
+}
+
+const HEADERS: &[Header] = &[
+    Header {
+        file: "modbus.h",
+        config: "cbindgen/modbus.toml",
+        part: Part::Main,
+    },
+    Header {
+        file: "modbus-rtu.h",
+        config: "cbindgen/modbus-rtu.toml",
+        part: Part::Rtu,
+    },
+    Header {
+        file: "modbus-tcp.h",
+        config: "cbindgen/modbus-tcp.toml",
+        part: Part::Tcp,
+    },
+    Header {
+        file: "modbus-version.h",
+        config: "cbindgen/modbus-version.toml",
+        part: Part::Version,
+    },
+];
+
+/// Which header declares the exported symbol `name`.
+fn part_of(name: &str) -> Part {
+    if name == "modbus_new_rtu" || name.starts_with("modbus_rtu_") {
+        Part::Rtu
+    } else if name.starts_with("modbus_new_tcp") || name.starts_with("modbus_tcp_") {
+        Part::Tcp
+    } else {
+        Part::Main
+    }
+}
+
+fn main() {
+    println!("cargo:rerun-if-changed=build.rs");
+    println!("cargo:rerun-if-changed=src/ffi");
+    println!("cargo:rerun-if-changed=cbindgen");
+    println!("cargo:rerun-if-changed=libmodbus.pc.in");
+    for var in [
+        "RSMODBUS_PREFIX",
+        "RSMODBUS_LIBDIR",
+        "RSMODBUS_INCLUDEDIR",
+        "RSMODBUS_UPDATE_HEADERS",
+    ] {
+        println!("cargo:rerun-if-env-changed={var}");
+    }
+
+    let manifest_dir = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("CARGO_MANIFEST_DIR"));
+    let out_dir = PathBuf::from(env::var_os("OUT_DIR").expect("OUT_DIR"));
+    let target_os = env::var("CARGO_CFG_TARGET_OS").unwrap_or_default();
+    let target_env = env::var("CARGO_CFG_TARGET_ENV").unwrap_or_default();
+    let elf = !matches!(
+        target_os.as_str(),
+        "macos" | "ios" | "tvos" | "watchos" | "windows"
+    );
+
+    if elf {
+        println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,{SONAME}");
+    }
+
+    // OUT_DIR is target/[<triple>/]<profile>/build/<pkg>-<hash>/out.
+    let profile_dir = out_dir.ancestors().nth(3).map(Path::to_path_buf);
+    if let Some(profile_dir) = &profile_dir {
+        if elf {
+            for link in [SONAME, REAL_NAME] {
+                if let Err(e) = ensure_symlink(&profile_dir.join(link), "libmodbus.so") {
+                    println!("cargo:warning=cannot create {link} symlink: {e}");
+                }
+            }
+        }
+        let libs_private = if target_os == "linux" && target_env == "gnu" {
+            LIBS_PRIVATE_LINUX_GNU
+        } else {
+            ""
+        };
+        if let Err(e) = write_pkg_config(&manifest_dir, profile_dir, libs_private) {
+            println!("cargo:warning=cannot write libmodbus.pc: {e}");
+        }
+    } else {
+        println!("cargo:warning=unexpected OUT_DIR layout, no symlinks or libmodbus.pc");
+    }
+
+    generate_headers(&manifest_dir, &out_dir);
+}
+
+/// Makes `link` a symlink to `target` (relative), replacing anything else there.
+fn ensure_symlink(link: &Path, target: &str) -> io::Result<()> {
+    if let Ok(meta) = fs::symlink_metadata(link) {
+        if meta.file_type().is_symlink() && fs::read_link(link)? == Path::new(target) {
+            return Ok(());
+        }
+        fs::remove_file(link)?;
+    }
+    make_symlink(target, link)
+}
+
+#[cfg(unix)]
+fn make_symlink(target: &str, link: &Path) -> io::Result<()> {
+    std::os::unix::fs::symlink(target, link)
+}
+
+#[cfg(not(unix))]
+fn make_symlink(_target: &str, _link: &Path) -> io::Result<()> {
+    Ok(())
+}
+
+fn env_or(var: &str, default: &str) -> String {
+    env::var(var)
+        .ok()
+        .filter(|v| !v.is_empty())
+        .unwrap_or_else(|| default.to_owned())
+}
+
+fn version_string() -> String {
+    let (major, minor, micro) = LIBMODBUS_VERSION;
+    format!("{major}.{minor}.{micro}")
+}
+
+/// Writes `libmodbus.pc` (installed layout) and `libmodbus-uninstalled.pc` (this
+/// build tree: the library in `target/<profile>`, the committed `include/`).
+fn write_pkg_config(manifest_dir: &Path, profile_dir: &Path, libs_private: &str) -> io::Result<()> {
+    let template = fs::read_to_string(manifest_dir.join("libmodbus.pc.in"))?;
+    let fill = |prefix: &str, libdir: &str, includedir: &str, cflags: &str| {
+        template
+            .replace("@PREFIX@", prefix)
+            .replace("@LIBDIR@", libdir)
+            .replace("@INCLUDEDIR@", includedir)
+            .replace("@CFLAGS@", cflags)
+            .replace("@VERSION@", &version_string())
+            .replace("@LIBS_PRIVATE@", libs_private)
+    };
+
+    let installed = fill(
+        &env_or("RSMODBUS_PREFIX", "/usr/local"),
+        &env_or("RSMODBUS_LIBDIR", "${exec_prefix}/lib"),
+        &env_or("RSMODBUS_INCLUDEDIR", "${prefix}/include"),
+        "-I${includedir}/modbus",
+    );
+    write_if_changed(&profile_dir.join("libmodbus.pc"), installed.as_bytes())?;
+
+    let tree = fill(
+        &manifest_dir.display().to_string(),
+        &profile_dir.display().to_string(),
+        "${prefix}/include",
+        "-I${includedir}",
+    );
+    write_if_changed(&profile_dir.join("libmodbus-uninstalled.pc"), tree.as_bytes())?;
+    Ok(())
+}
+
+fn write_if_changed(path: &Path, contents: &[u8]) -> io::Result<bool> {
+    if fs::read(path).is_ok_and(|old| old == contents) {
+        return Ok(false);
+    }
+    if let Some(parent) = path.parent() {
+        fs::create_dir_all(parent)?;
+    }
+    fs::write(path, contents)?;
+    Ok(true)
+}
+
+fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
+    let ffi_root = manifest_dir.join(FFI_ROOT);
+    if !ffi_root.exists() {
+        println!("cargo:warning={FFI_ROOT} does not exist yet; headers not generated");
+        return;
+    }
+    let update = env::var("RSMODBUS_UPDATE_HEADERS").is_ok_and(|v| v == "1");
+    let gen_dir = out_dir.join("include");
+
+    // First pass: every exported symbol, to decide which header declares it.
+    let symbols: Vec<String> = match load_config(manifest_dir, "cbindgen/modbus.toml")
+        .and_then(|config| run_cbindgen(config, Some(&ffi_root)))
+    {
+        Ok(bindings) => bindings
+            .dynamic_symbols_names()
+            .map(str::to_owned)
+            .collect(),
+        Err(e) => {
+            println!("cargo:warning=cbindgen failed, headers not generated: {e}");
+            return;
+        }
+    };
+
+    let mut stale = Vec::new();
+    for header in HEADERS {
+        let text = match render_header(manifest_dir, &ffi_root, header, &symbols) {
+            Ok(text) => text,
+            Err(e) => {
+                println!("cargo:warning=cannot generate {}: {e}", header.file);
+                continue;
+            }
+        };
+        if let Err(e) = write_if_changed(&gen_dir.join(header.file), text.as_bytes()) {
+            println!("cargo:warning=cannot write {}: {e}", header.file);
+        }
+        let committed = manifest_dir.join("include").join(header.file);
+        if update {
+            if let Err(e) = write_if_changed(&committed, text.as_bytes()) {
+                println!("cargo:warning=cannot update include/{}: {e}", header.file);
+            }
+        } else if fs::read(&committed).map_or(true, |old| old != text.as_bytes()) {
+            stale.push(header.file);
+        }
+    }
+    if !stale.is_empty() {
+        println!(
+            "cargo:warning=committed header(s) out of date: include/{}; run \
+             `RSMODBUS_UPDATE_HEADERS=1 cargo build` (scripts/check-headers.sh fails until then)",
+            stale.join(", include/")
+        );
+    }
+}
+
+fn load_config(manifest_dir: &Path, rel: &str) -> Result<cbindgen::Config, String> {
+    cbindgen::Config::from_file(manifest_dir.join(rel)).map_err(|e| format!("{rel}: {e}"))
+}
+
+fn run_cbindgen(config: cbindgen::Config, src: Option<&Path>) -> Result<cbindgen::Bindings, String> {
+    let mut builder = cbindgen::Builder::new().with_config(config);
+    if let Some(src) = src {
+        builder = builder.with_src(src);
+    }
+    builder.generate().map_err(|e| e.to_string())
+}
+
+fn render_header(
+    manifest_dir: &Path,
+    ffi_root: &Path,
+    header: &Header,
+    symbols: &[String],
+) -> Result<String, String> {
+    let mut config = load_config(manifest_dir, header.config)?;
+    let (major, minor, micro) = LIBMODBUS_VERSION;
+    for text in [&mut config.header, &mut config.after_includes, &mut config.trailer]
+        .into_iter()
+        .flatten()
+    {
+        *text = text
+            .replace("@LIBMODBUS_VERSION_MAJOR@", &major.to_string())
+            .replace("@LIBMODBUS_VERSION_MINOR@", &minor.to_string())
+            .replace("@LIBMODBUS_VERSION_MICRO@", &micro.to_string());
+    }
+
+    let src = match header.part {
+        Part::Version => None,
+        part => {
+            // Leave out every symbol that belongs to another header.
+            config.export.exclude.extend(
+                symbols
+                    .iter()
+                    .filter(|name| part_of(name) != part)
+                    .cloned(),
+            );
+            Some(ffi_root)
+        }
+    };
+    let bindings = run_cbindgen(config, src)?;
+    let mut out = Vec::new();
+    bindings.write(&mut out);
+    let mut text = String::from_utf8(out).map_err(|e| e.to_string())?;
+    for (function, generated, wanted) in CONST_VALUE_PARAMS {
+        text = add_const(&text, function, generated, wanted);
+    }
+    Ok(text)
+}
+
+/// Rewrites `generated` into `wanted` inside the prototype of `function`, if present.
+fn add_const(text: &str, function: &str, generated: &str, wanted: &str) -> String {
+    let Some(start) = text.find(&format!(" {function}(")) else {
+        return text.to_owned();
+    };
+    let end = start + text[start..].find(");").unwrap_or(text.len() - start);
+    let proto = &text[start..end];
+    if proto.contains(wanted) {
+        return text.to_owned();
+    }
+    format!(
+        "{}{}{}",
+        &text[..start],
+        proto.replacen(generated, wanted, 1),
+        &text[end..]
+    )
+}

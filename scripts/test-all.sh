@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# Runs every test of the project from a clean clone on Debian 12 (as root):
+# installs what it needs, lints, unit tests, builds, checks the headers and the
+# exported symbols, then runs the C suites against Debian's libmodbus and ours.
+# Ends with one line "N passed, M failed" summing all suites.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+logdir=target/test-logs
+mkdir -p "$logdir"
+passed=0
+failed=0
+failures=()
+
+# run NAME CMD...: runs one stage; adds its "N passed, M failed" line when it prints
+# one (cargo's "test result:" lines too), else counts the stage itself.
+run() {
+    local name=$1
+    shift
+    echo "=== $name: $*"
+    local log="$logdir/$name.log"
+    "$@" 2>&1 | tee "$log"
+    local rc=${PIPESTATUS[0]}
+    local p f
+    p=$(grep -E '^([A-Za-z-]+: )?[0-9]+ passed, [0-9]+ failed' "$log" | tail -n 1 | sed -E 's/^([A-Za-z-]+: )?([0-9]+) passed, ([0-9]+) failed.*/\2/')
+    f=$(grep -E '^([A-Za-z-]+: )?[0-9]+ passed, [0-9]+ failed' "$log" | tail -n 1 | sed -E 's/^([A-Za-z-]+: )?([0-9]+) passed, ([0-9]+) failed.*/\3/')
+    if [ -z "$p" ]; then
+        p=$(grep -E '^test result: ' "$log" | sed -E 's/.* ([0-9]+) passed; ([0-9]+) failed.*/\1/' | paste -sd+ | bc 2>/dev/null || true)
+        f=$(grep -E '^test result: ' "$log" | sed -E 's/.* ([0-9]+) passed; ([0-9]+) failed.*/\2/' | paste -sd+ | bc 2>/dev/null || true)
+    fi
+    if [ -z "$p" ]; then
+        if [ "$rc" -eq 0 ]; then p=1; f=0; else p=0; f=1; fi
+    fi
+    if [ "$rc" -ne 0 ] && [ "$f" -eq 0 ]; then f=1; fi
+    passed=$((passed + p))
+    failed=$((failed + f))
+    if [ "$rc" -ne 0 ]; then failures+=("$name"); fi
+    echo "=== $name: exit $rc ($p passed, $f failed)"
+}
+
+scripts/install-deps.sh || { echo "installing dependencies failed"; exit 1; }
+command -v bc >/dev/null || { apt-get install -y -qq bc >/dev/null 2>&1 || true; }
+
+run fmt cargo fmt --check
+run clippy cargo clippy --all-targets -- -D warnings
+run unit-tests cargo test --lib
+run build cargo build --release
+ln -sf libmodbus.so target/release/libmodbus.so.5
+[ -x scripts/check-headers.sh ] && run headers scripts/check-headers.sh
+[ -x scripts/check-symbols.sh ] && run symbols scripts/check-symbols.sh
+[ -x scripts/run-c-tests.sh ] && run c-client scripts/run-c-tests.sh
+[ -x scripts/run-server-tests.sh ] && run c-server scripts/run-server-tests.sh
+run demo scripts/demo.sh
+
+echo
+if [ ${#failures[@]} -gt 0 ]; then echo "failed stages: ${failures[*]}"; fi
+echo "$passed passed, $failed failed"
+[ "$failed" -eq 0 ]

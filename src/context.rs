@@ -1,0 +1,294 @@
+//! The state behind a `modbus_t *`: configuration, the link it talks over, and the
+//! file descriptor. Creation and configuration rules follow libmodbus 3.1.12.
+
+use std::ffi::{CStr, CString};
+use std::time::Duration;
+
+use crate::core::frame::Framing;
+use crate::core::limits::TCP_SLAVE;
+use crate::error::{Error, Result};
+use crate::stdio::{self, DebugSink};
+
+/// `MODBUS_QUIRK_MAX_SLAVE`: accept slave ids 248..255.
+pub const QUIRK_MAX_SLAVE: u32 = 1 << 1;
+/// `MODBUS_QUIRK_REPLY_TO_BROADCAST`: an RTU server answers slave 0 too.
+pub const QUIRK_REPLY_TO_BROADCAST: u32 = 1 << 2;
+
+/// `MODBUS_ERROR_RECOVERY_LINK` and `_PROTOCOL`.
+pub const RECOVERY_LINK: i32 = 1 << 1;
+pub const RECOVERY_PROTOCOL: i32 = 1 << 2;
+
+pub const RTU_RS232: i32 = 0;
+pub const RTU_RS485: i32 = 1;
+pub const RTU_RTS_NONE: i32 = 0;
+pub const RTU_RTS_UP: i32 = 1;
+pub const RTU_RTS_DOWN: i32 = 2;
+
+/// A timeout as the C API sets it: seconds and microseconds (0..=999999).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Timeout {
+    pub sec: u32,
+    pub usec: u32,
+}
+
+impl Timeout {
+    pub const fn new(sec: u32, usec: u32) -> Self {
+        Timeout { sec, usec }
+    }
+    pub const fn is_zero(self) -> bool {
+        self.sec == 0 && self.usec == 0
+    }
+    pub fn duration(self) -> Duration {
+        Duration::new(self.sec as u64, self.usec * 1000)
+    }
+}
+
+/// The application's RTS callback (`modbus_rtu_set_custom_rts`).
+pub type RtsCallback = unsafe extern "C" fn(ctx: *mut crate::ffi::Modbus, on: libc::c_int);
+
+/// Serial line settings and state.
+pub struct RtuLink {
+    pub device: CString,
+    pub baud: i32,
+    pub parity: u8,
+    pub data_bit: i32,
+    pub stop_bit: i32,
+    /// Terminal settings found at connect, restored at close.
+    pub saved_termios: Option<libc::termios>,
+    pub serial_mode: i32,
+    pub rts: i32,
+    pub rts_delay: i32,
+    /// Microseconds to send one character at this speed and format.
+    pub onebyte_time: i32,
+    /// `None` means the built-in ioctl that drives the RTS line.
+    pub custom_rts: Option<RtsCallback>,
+    /// Set when a request for another slave was seen on a shared bus: its answer
+    /// comes next and must be skipped.
+    pub confirmation_to_ignore: bool,
+}
+
+pub struct TcpLink {
+    /// The address as given (IPv4 dotted quad), or "0" for any address.
+    pub ip: CString,
+    pub port: i32,
+}
+
+pub struct TcpPiLink {
+    pub node: CString,
+    pub service: CString,
+}
+
+pub enum Link {
+    Rtu(RtuLink),
+    Tcp(TcpLink),
+    TcpPi(TcpPiLink),
+}
+
+/// One Modbus context.
+pub struct Context {
+    pub framing: Framing,
+    pub link: Link,
+    /// Slave (unit) id used for requests; -1 until set on RTU.
+    pub slave: i32,
+    /// The file descriptor (socket or serial line), -1 when closed.
+    pub s: i32,
+    pub debug: bool,
+    pub error_recovery: i32,
+    pub quirks: u32,
+    pub response_timeout: Timeout,
+    pub byte_timeout: Timeout,
+    pub indication_timeout: Timeout,
+    /// Last transaction id used (TCP).
+    pub t_id: u16,
+    /// Address of the owning `modbus_t`, handed to a custom RTS callback.
+    pub handle_addr: usize,
+}
+
+impl Context {
+    fn common(framing: Framing, link: Link, slave: i32) -> Context {
+        Context {
+            framing,
+            link,
+            slave,
+            s: -1,
+            debug: false,
+            error_recovery: 0,
+            quirks: 0,
+            response_timeout: Timeout::new(0, 500_000),
+            byte_timeout: Timeout::new(0, 500_000),
+            indication_timeout: Timeout::new(0, 0),
+            t_id: 0,
+            handle_addr: 0,
+        }
+    }
+
+    /// `modbus_new_rtu`. The two messages are printed whatever the debug flag, as
+    /// libmodbus does.
+    pub fn new_rtu(device: Option<&CStr>, baud: i32, parity: u8, data_bit: i32, stop_bit: i32) -> Result<Context> {
+        let device = match device {
+            Some(d) if !d.is_empty() => d,
+            _ => {
+                stdio::err(format_args!("The device string is empty\n"));
+                return Err(Error::INVALID);
+            }
+        };
+        if baud == 0 {
+            stdio::err(format_args!("The baud rate value must not be zero\n"));
+            return Err(Error::INVALID);
+        }
+        if !matches!(parity, b'N' | b'E' | b'O') {
+            return Err(Error::INVALID);
+        }
+        let bits = 1 + data_bit + (parity != b'N') as i32 + stop_bit;
+        let onebyte_time = (1_000_000i64 * bits as i64 / baud as i64) as i32;
+        let link = RtuLink {
+            device: device.to_owned(),
+            baud,
+            parity,
+            data_bit,
+            stop_bit,
+            saved_termios: None,
+            serial_mode: RTU_RS232,
+            rts: RTU_RTS_NONE,
+            rts_delay: onebyte_time,
+            onebyte_time,
+            custom_rts: None,
+            confirmation_to_ignore: false,
+        };
+        Ok(Context::common(Framing::Rtu, Link::Rtu(link), -1))
+    }
+
+    /// `modbus_new_tcp`: NULL means any address ("0"); the address must fit the 15
+    /// characters of a dotted quad.
+    pub fn new_tcp(ip: Option<&CStr>, port: i32) -> Result<Context> {
+        let ip = match ip {
+            None => c"0".to_owned(),
+            Some(ip) if ip.is_empty() => {
+                stdio::err(format_args!("The IP string is empty\n"));
+                return Err(Error::INVALID);
+            }
+            Some(ip) if ip.to_bytes().len() >= 16 => {
+                stdio::err(format_args!("The IP string has been truncated\n"));
+                return Err(Error::INVALID);
+            }
+            Some(ip) => ip.to_owned(),
+        };
+        Ok(Context::common(Framing::Tcp, Link::Tcp(TcpLink { ip, port }), TCP_SLAVE))
+    }
+
+    /// `modbus_new_tcp_pi` (3.1.8+ rules): NULL node is any address, NULL or empty
+    /// service is "502".
+    pub fn new_tcp_pi(node: Option<&CStr>, service: Option<&CStr>) -> Result<Context> {
+        let node = node.map(CStr::to_owned).unwrap_or_default();
+        let service = match service {
+            Some(s) if !s.is_empty() => s.to_owned(),
+            _ => c"502".to_owned(),
+        };
+        Ok(Context::common(Framing::Tcp, Link::TcpPi(TcpPiLink { node, service }), TCP_SLAVE))
+    }
+
+    pub fn rtu(&self) -> Option<&RtuLink> {
+        match &self.link {
+            Link::Rtu(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    pub fn rtu_mut(&mut self) -> Option<&mut RtuLink> {
+        match &mut self.link {
+            Link::Rtu(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    pub fn is_tcp(&self) -> bool {
+        self.framing == Framing::Tcp
+    }
+
+    /// The debug sink (prints through C stdio when debug is on).
+    pub fn diag(&self) -> DebugSink {
+        DebugSink { enabled: self.debug }
+    }
+
+    /// `modbus_set_slave`.
+    pub fn set_slave(&mut self, slave: i32) -> Result<()> {
+        let max = if self.quirks & QUIRK_MAX_SLAVE != 0 { 255 } else { 247 };
+        let ok = (0..=max).contains(&slave) || (self.is_tcp() && slave == TCP_SLAVE);
+        if !ok {
+            return Err(Error::INVALID);
+        }
+        self.slave = slave;
+        Ok(())
+    }
+
+    /// `modbus_set_response_timeout`: (0, 0) is refused; usec must be below 1 s.
+    pub fn set_response_timeout(&mut self, sec: u32, usec: u32) -> Result<()> {
+        if (sec == 0 && usec == 0) || usec > 999_999 {
+            return Err(Error::INVALID);
+        }
+        self.response_timeout = Timeout::new(sec, usec);
+        Ok(())
+    }
+
+    /// Byte and indication timeouts: (0, 0) disables them.
+    pub fn checked_timeout(sec: u32, usec: u32) -> Result<Timeout> {
+        if usec > 999_999 {
+            return Err(Error::INVALID);
+        }
+        Ok(Timeout::new(sec, usec))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults() {
+        let c = Context::new_tcp(Some(c"127.0.0.1"), 502).unwrap();
+        assert_eq!((c.slave, c.s, c.t_id), (0xFF, -1, 0));
+        assert_eq!(c.response_timeout, Timeout::new(0, 500_000));
+        assert_eq!(c.byte_timeout, Timeout::new(0, 500_000));
+        assert!(c.indication_timeout.is_zero());
+        let r = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
+        assert_eq!(r.slave, -1);
+        // 10 bits at 9600 baud.
+        assert_eq!(r.rtu().unwrap().onebyte_time, 1041);
+        assert_eq!(r.rtu().unwrap().rts_delay, 1041);
+    }
+
+    #[test]
+    fn creation_errors() {
+        assert_eq!(Context::new_rtu(None, 9600, b'N', 8, 1).err(), Some(Error::INVALID));
+        assert_eq!(Context::new_rtu(Some(c"/dev/x"), 0, b'N', 8, 1).err(), Some(Error::INVALID));
+        assert_eq!(Context::new_rtu(Some(c"/dev/x"), 9600, b'X', 8, 1).err(), Some(Error::INVALID));
+        assert_eq!(Context::new_tcp(Some(c""), 502).err(), Some(Error::INVALID));
+        assert_eq!(Context::new_tcp(Some(c"255.255.255.2555"), 502).err(), Some(Error::INVALID));
+        assert!(Context::new_tcp(Some(c"255.255.255.255"), 502).is_ok());
+        assert!(Context::new_tcp_pi(None, None).is_ok());
+    }
+
+    #[test]
+    fn slave_ranges() {
+        let mut r = Context::new_rtu(Some(c"/dev/x"), 9600, b'N', 8, 1).unwrap();
+        assert!(r.set_slave(247).is_ok());
+        assert_eq!(r.set_slave(248), Err(Error::INVALID));
+        assert_eq!(r.set_slave(0xFF), Err(Error::INVALID));
+        r.quirks |= QUIRK_MAX_SLAVE;
+        assert!(r.set_slave(255).is_ok());
+        assert_eq!(r.set_slave(256), Err(Error::INVALID));
+        let mut t = Context::new_tcp(None, 502).unwrap();
+        assert!(t.set_slave(0xFF).is_ok());
+        assert_eq!(t.set_slave(-1), Err(Error::INVALID));
+    }
+
+    #[test]
+    fn timeouts() {
+        let mut c = Context::new_tcp(None, 502).unwrap();
+        assert_eq!(c.set_response_timeout(0, 0), Err(Error::INVALID));
+        assert_eq!(c.set_response_timeout(0, 1_000_000), Err(Error::INVALID));
+        assert!(c.set_response_timeout(0, 999_999).is_ok());
+        assert_eq!(Context::checked_timeout(0, 1_000_000), Err(Error::INVALID));
+        assert_eq!(Context::checked_timeout(0, 0), Ok(Timeout::new(0, 0)));
+    }
+}

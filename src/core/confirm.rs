@@ -1,0 +1,239 @@
+//! Client side: validating a response against the request that caused it
+//! (libmodbus's `check_confirmation`, 3.1.12 semantics).
+
+use crate::core::frame::Framing;
+use crate::core::{Diag, fc};
+use crate::error::{Error, exception};
+
+/// Why a response was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rejection {
+    /// The server answered with an exception (or a malformed one): errno is set and
+    /// libmodbus prints it with `_error_print`, but no error recovery follows.
+    Exception(Error),
+    /// The response does not belong to the request: with PROTOCOL error recovery the
+    /// caller sleeps the response timeout and flushes.
+    Mismatch(Error),
+}
+
+fn be16(b: &[u8], at: usize) -> i32 {
+    ((b[at] as i32) << 8) | b[at + 1] as i32
+}
+
+/// Expected response length computed from the request, or `None` when it cannot be
+/// known in advance (report slave id).
+pub fn expected_length(framing: Framing, req: &[u8]) -> Option<usize> {
+    let h = framing.header_length();
+    let payload = match req[h] {
+        fc::READ_COILS | fc::READ_DISCRETE_INPUTS => {
+            let nb = be16(req, h + 3) as usize;
+            2 + nb.div_ceil(8)
+        }
+        fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS | fc::WRITE_AND_READ_REGISTERS => {
+            2 + 2 * be16(req, h + 3) as usize
+        }
+        fc::READ_EXCEPTION_STATUS => 3,
+        fc::REPORT_SLAVE_ID => return None,
+        fc::MASK_WRITE_REGISTER => 7,
+        _ => 5,
+    };
+    Some(h + payload + framing.checksum_length())
+}
+
+/// Checks `rsp` (a complete ADU as received) against `req` (the ADU sent, sealed).
+/// On success returns libmodbus's "number of values" of the response: the count of
+/// bits' bytes, registers, written items, or the report-slave-id byte count.
+pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> Result<i32, Rejection> {
+    let h = framing.header_length();
+
+    // Framing-specific pre-check.
+    match framing {
+        Framing::Tcp => {
+            let (req_tid, rsp_tid) = (be16(req, 0), be16(rsp, 0));
+            if req_tid != rsp_tid {
+                diag.err(format_args!("Invalid transaction ID received 0x{rsp_tid:X} (not 0x{req_tid:X})\n"));
+                return Err(Rejection::Mismatch(Error::BAD_DATA));
+            }
+            let protocol = be16(rsp, 2);
+            if protocol != 0 {
+                diag.err(format_args!("Invalid protocol ID received 0x{protocol:X} (not 0x0)\n"));
+                return Err(Rejection::Mismatch(Error::BAD_DATA));
+            }
+        }
+        Framing::Rtu => {
+            if req[0] != rsp[0] && req[0] != 0 {
+                diag.err(format_args!("The responding slave {} isn't the requested slave {}\n", rsp[0], req[0]));
+                return Err(Rejection::Mismatch(Error::BAD_SLAVE));
+            }
+        }
+    }
+
+    let function = rsp[h];
+    let expected = expected_length(framing, req);
+
+    if function >= 0x80 {
+        let well_formed = rsp.len() == h + 2 + framing.checksum_length() && req[h] == function.wrapping_sub(0x80);
+        let error = match well_formed {
+            true if rsp[h + 1] < exception::MAX => Error::from_exception(rsp[h + 1]),
+            _ => Error::BAD_EXCEPTION,
+        };
+        return Err(Rejection::Exception(error));
+    }
+
+    if let Some(expected) = expected
+        && rsp.len() != expected
+    {
+        diag.err(format_args!(
+            "Message length not corresponding to the computed length ({} != {})\n",
+            rsp.len(),
+            expected
+        ));
+        return Err(Rejection::Mismatch(Error::BAD_DATA));
+    }
+
+    if function != req[h] {
+        diag.err(format_args!(
+            "Received function not corresponding to the request (0x{function:X} != 0x{:X})\n",
+            req[h]
+        ));
+        return Err(Rejection::Mismatch(Error::BAD_DATA));
+    }
+
+    let (req_nb, rsp_nb, echo_ok) = match function {
+        fc::READ_COILS | fc::READ_DISCRETE_INPUTS => {
+            let nb = be16(req, h + 3);
+            (nb / 8 + (nb % 8 != 0) as i32, rsp[h + 1] as i32, true)
+        }
+        fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS | fc::WRITE_AND_READ_REGISTERS => {
+            (be16(req, h + 3), rsp[h + 1] as i32 / 2, true)
+        }
+        fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS => {
+            (be16(req, h + 3), be16(rsp, h + 3), req[h + 1..h + 3] == rsp[h + 1..h + 3])
+        }
+        fc::WRITE_SINGLE_COIL | fc::WRITE_SINGLE_REGISTER => (1, 1, req[h + 1..h + 5] == rsp[h + 1..h + 5]),
+        fc::REPORT_SLAVE_ID => (rsp[h + 1] as i32, rsp[h + 1] as i32, true),
+        _ => (1, 1, true),
+    };
+    if req_nb != rsp_nb || !echo_ok {
+        diag.err(format_args!("Received data not corresponding to the request ({rsp_nb} != {req_nb})\n"));
+        return Err(Rejection::Mismatch(Error::BAD_DATA));
+    }
+    Ok(rsp_nb)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::core::Recorded;
+    use crate::core::frame::MAX_ADU_LENGTH;
+    use crate::core::request::Request;
+    use crate::error::*;
+
+    fn tcp_req(req: Request<'_>) -> Vec<u8> {
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let n = req.encode(Framing::Tcp, 0xFF, 0x0102, &mut buf);
+        let n = Framing::Tcp.seal(&mut buf, n);
+        buf[..n].to_vec()
+    }
+
+    fn tcp_rsp(tid: u16, pdu: &[u8]) -> Vec<u8> {
+        let mut v = tid.to_be_bytes().to_vec();
+        v.extend([0, 0]);
+        v.extend(((pdu.len() + 1) as u16).to_be_bytes());
+        v.push(0xFF);
+        v.extend(pdu);
+        v
+    }
+
+    fn rtu(frame: &[u8]) -> Vec<u8> {
+        let mut v = frame.to_vec();
+        v.extend(crate::core::crc::crc16(frame).to_le_bytes());
+        v
+    }
+
+    const READ3: Request<'static> = Request::ReadRegisters { function: 3, addr: 0x6B, nb: 3 };
+
+    #[test]
+    fn accepts_matching_read() {
+        let req = tcp_req(READ3);
+        let rsp = tcp_rsp(0x0102, &[3, 6, 0xAE, 0x41, 0x56, 0x52, 0x43, 0x40]);
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut Recorded::default()), Ok(3));
+    }
+
+    #[test]
+    fn rejects_wrong_tid_and_protocol() {
+        let req = tcp_req(READ3);
+        let mut d = Recorded::default();
+        let rsp = tcp_rsp(0x0103, &[3, 6, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Mismatch(Error::BAD_DATA)));
+        assert_eq!(d.err, "Invalid transaction ID received 0x103 (not 0x102)\n");
+        let mut rsp = tcp_rsp(0x0102, &[3, 6, 0, 0, 0, 0, 0, 0]);
+        rsp[3] = 1; // 3.1.6 would accept a single non-zero byte; 3.1.12 does not.
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Mismatch(Error::BAD_DATA)));
+    }
+
+    #[test]
+    fn rejects_other_slave_in_rtu() {
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let n = READ3.encode(Framing::Rtu, 0x11, 0, &mut buf);
+        let n = Framing::Rtu.seal(&mut buf, n);
+        let rsp = rtu(&[0x12, 3, 6, 0, 0, 0, 0, 0, 0]);
+        let mut d = Recorded::default();
+        assert_eq!(check(Framing::Rtu, &buf[..n], &rsp, &mut d), Err(Rejection::Mismatch(Error::BAD_SLAVE)));
+        assert_eq!(d.err, "The responding slave 18 isn't the requested slave 17\n");
+    }
+
+    #[test]
+    fn exception_codes() {
+        let req = tcp_req(READ3);
+        let mut d = Recorded::default();
+        for code in 0u8..=255 {
+            let rsp = tcp_rsp(0x0102, &[0x83, code]);
+            let want = if code < 12 { Error(MODBUS_ENOBASE + code as i32) } else { Error::BAD_EXCEPTION };
+            assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Exception(want)));
+        }
+        // An exception for another function, or with trailing bytes, is malformed.
+        let rsp = tcp_rsp(0x0102, &[0x84, 2]);
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Exception(Error::BAD_EXCEPTION)));
+        let rsp = tcp_rsp(0x0102, &[0x83, 2, 0]);
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Exception(Error::BAD_EXCEPTION)));
+        assert_eq!(d.err, "");
+    }
+
+    #[test]
+    fn length_function_and_count_mismatches() {
+        let req = tcp_req(READ3);
+        let mut d = Recorded::default();
+        let short = tcp_rsp(0x0102, &[3, 4, 0, 0, 0, 0]);
+        assert_eq!(check(Framing::Tcp, &req, &short, &mut d), Err(Rejection::Mismatch(Error::BAD_DATA)));
+        assert_eq!(d.err, "Message length not corresponding to the computed length (13 != 15)\n");
+        let mut d = Recorded::default();
+        let wrong_fc = tcp_rsp(0x0102, &[4, 6, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(check(Framing::Tcp, &req, &wrong_fc, &mut d), Err(Rejection::Mismatch(Error::BAD_DATA)));
+        assert_eq!(d.err, "Received function not corresponding to the request (0x4 != 0x3)\n");
+        let mut d = Recorded::default();
+        let wrong_count = tcp_rsp(0x0102, &[3, 4, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(check(Framing::Tcp, &req, &wrong_count, &mut d), Err(Rejection::Mismatch(Error::BAD_DATA)));
+        assert_eq!(d.err, "Received data not corresponding to the request (2 != 3)\n");
+    }
+
+    #[test]
+    fn write_echo_checks() {
+        let req = tcp_req(Request::WriteRegister { addr: 1, value: 3 });
+        let mut d = Recorded::default();
+        assert_eq!(check(Framing::Tcp, &req, &tcp_rsp(0x0102, &[6, 0, 1, 0, 3]), &mut d), Ok(1));
+        assert!(check(Framing::Tcp, &req, &tcp_rsp(0x0102, &[6, 0, 1, 0, 4]), &mut d).is_err());
+        let req = tcp_req(Request::WriteRegisters { addr: 1, values: &[1, 2] });
+        assert_eq!(check(Framing::Tcp, &req, &tcp_rsp(0x0102, &[0x10, 0, 1, 0, 2]), &mut d), Ok(2));
+        assert!(check(Framing::Tcp, &req, &tcp_rsp(0x0102, &[0x10, 0, 2, 0, 2]), &mut d).is_err());
+        let req = tcp_req(Request::ReadBits { function: 1, addr: 0, nb: 9 });
+        assert_eq!(check(Framing::Tcp, &req, &tcp_rsp(0x0102, &[1, 2, 0xFF, 1]), &mut d), Ok(2));
+    }
+
+    #[test]
+    fn report_slave_id_has_no_fixed_length() {
+        let req = tcp_req(Request::ReportSlaveId);
+        let rsp = tcp_rsp(0x0102, &[0x11, 5, 0xB4, 0xFF, b'L', b'M', b'B']);
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut Recorded::default()), Ok(5));
+    }
+}

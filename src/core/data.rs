@@ -1,0 +1,109 @@
+//! Data helpers: bits packed in bytes, and floats split over two registers
+//! (libmodbus 3.1.11+ semantics; see the tests for where Debian's 3.1.6 differs).
+
+/// `dest[idx + i] = bit i of value`, for i in 0..8.
+pub fn set_bits_from_byte(dest: &mut [u8], value: u8) {
+    for (i, d) in dest.iter_mut().take(8).enumerate() {
+        *d = (value >> i) & 1;
+    }
+}
+
+/// Unpacks `dest.len()` bits, LSB first, from `packed`.
+pub fn set_bits_from_bytes(dest: &mut [u8], packed: &[u8]) {
+    for (i, d) in dest.iter_mut().enumerate() {
+        *d = (packed[i / 8] >> (i % 8)) & 1;
+    }
+}
+
+/// ORs `src[i] << i` together (at most 8 values; they are assumed to be 0 or 1).
+pub fn byte_from_bits(src: &[u8]) -> u8 {
+    src.iter().take(8).enumerate().fold(0u8, |acc, (i, &b)| acc | (b << i))
+}
+
+/// Byte orders of a float in two registers, named after the order of its IEEE-754
+/// bytes A (most significant) to D in register 0 high, register 0 low, register 1
+/// high, register 1 low.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FloatOrder {
+    Abcd,
+    Dcba,
+    Badc,
+    Cdab,
+}
+
+impl FloatOrder {
+    /// Positions of A, B, C, D in the four wire bytes.
+    const fn layout(self) -> [usize; 4] {
+        match self {
+            FloatOrder::Abcd => [0, 1, 2, 3],
+            FloatOrder::Dcba => [3, 2, 1, 0],
+            FloatOrder::Badc => [1, 0, 3, 2],
+            FloatOrder::Cdab => [2, 3, 0, 1],
+        }
+    }
+}
+
+pub fn get_float(regs: [u16; 2], order: FloatOrder) -> f32 {
+    let wire = [(regs[0] >> 8) as u8, regs[0] as u8, (regs[1] >> 8) as u8, regs[1] as u8];
+    let mut be = [0u8; 4];
+    for (abcd, &pos) in order.layout().iter().enumerate() {
+        be[abcd] = wire[pos];
+    }
+    f32::from_be_bytes(be)
+}
+
+pub fn set_float(f: f32, order: FloatOrder) -> [u16; 2] {
+    let be = f.to_be_bytes();
+    let mut wire = [0u8; 4];
+    for (abcd, &pos) in order.layout().iter().enumerate() {
+        wire[pos] = be[abcd];
+    }
+    [u16::from_be_bytes([wire[0], wire[1]]), u16::from_be_bytes([wire[2], wire[3]])]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const F: f32 = 123456.0; // bits 0x47F12000
+
+    #[test]
+    fn float_setters_follow_3_1_12() {
+        // Upstream >= 3.1.11 values (reference 3.10); Debian 3.1.6 (= 3.1.8..3.1.10)
+        // swaps the bytes inside each register for the setters: abcd gives
+        // {0xF147, 0x0020} there. That difference is deliberate (3.1.12 is the API level).
+        assert_eq!(set_float(F, FloatOrder::Abcd), [0x47F1, 0x2000]);
+        assert_eq!(set_float(F, FloatOrder::Dcba), [0x0020, 0xF147]);
+        assert_eq!(set_float(F, FloatOrder::Badc), [0xF147, 0x0020]);
+        assert_eq!(set_float(F, FloatOrder::Cdab), [0x2000, 0x47F1]);
+    }
+
+    #[test]
+    fn float_getters_match_every_release_since_3_1_8() {
+        assert_eq!(get_float([0x47F1, 0x2000], FloatOrder::Abcd), F);
+        assert_eq!(get_float([0x0020, 0xF147], FloatOrder::Dcba), F);
+        assert_eq!(get_float([0xF147, 0x0020], FloatOrder::Badc), F);
+        assert_eq!(get_float([0x2000, 0x47F1], FloatOrder::Cdab), F);
+    }
+
+    #[test]
+    fn float_round_trips() {
+        for order in [FloatOrder::Abcd, FloatOrder::Dcba, FloatOrder::Badc, FloatOrder::Cdab] {
+            for f in [0.0f32, -1.5, 3.4e38, f32::MIN_POSITIVE] {
+                assert_eq!(get_float(set_float(f, order), order).to_bits(), f.to_bits());
+            }
+        }
+    }
+
+    #[test]
+    fn bits() {
+        let mut d = [9u8; 10];
+        set_bits_from_byte(&mut d[1..], 0b1010_0101);
+        assert_eq!(d, [9, 1, 0, 1, 0, 0, 1, 0, 1, 9]);
+        let mut d = [9u8; 12];
+        set_bits_from_bytes(&mut d[..10], &[0xCD, 0x01]);
+        assert_eq!(d, [1, 0, 1, 1, 0, 0, 1, 1, 1, 0, 9, 9]);
+        assert_eq!(byte_from_bits(&[1, 0, 1, 1, 0, 0, 1, 1]), 0xCD);
+        assert_eq!(byte_from_bits(&[1, 1, 1]), 0x07);
+    }
+}

@@ -1,0 +1,348 @@
+//! ADU framing: RTU (`[slave][pdu][crc lo][crc hi]`) and TCP (`[MBAP 7 bytes][pdu]`).
+//!
+//! Both framings carry the same PDU; they differ in the header in front of it and the
+//! checksum behind it. Lengths of incoming messages are computed from their content in
+//! three steps, exactly as libmodbus does (the MBAP length field is never trusted):
+//! see [`Assembler`].
+
+use crate::core::crc::{crc16, stored_crc};
+use crate::core::fc;
+use crate::error::{Error, Result};
+
+/// Largest ADU of any framing (TCP: 7 + 253).
+pub const MAX_ADU_LENGTH: usize = 260;
+pub const RTU_MAX_ADU_LENGTH: usize = 256;
+pub const TCP_MAX_ADU_LENGTH: usize = 260;
+
+/// How a PDU is wrapped on the wire.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Framing {
+    Rtu,
+    Tcp,
+}
+
+impl Framing {
+    /// Bytes in front of the function code (`modbus_get_header_length`).
+    pub const fn header_length(self) -> usize {
+        match self {
+            Framing::Rtu => 1,
+            Framing::Tcp => 7,
+        }
+    }
+
+    pub const fn checksum_length(self) -> usize {
+        match self {
+            Framing::Rtu => 2,
+            Framing::Tcp => 0,
+        }
+    }
+
+    pub const fn max_adu_length(self) -> usize {
+        match self {
+            Framing::Rtu => RTU_MAX_ADU_LENGTH,
+            Framing::Tcp => TCP_MAX_ADU_LENGTH,
+        }
+    }
+
+    /// Writes the header of a request: slave (RTU) or MBAP with transaction id and
+    /// unit (TCP; the length field is filled by [`Framing::seal`]). Returns its length.
+    pub fn write_header(self, out: &mut [u8], unit: u8, tid: u16) -> usize {
+        match self {
+            Framing::Rtu => {
+                out[0] = unit;
+                1
+            }
+            Framing::Tcp => {
+                out[..2].copy_from_slice(&tid.to_be_bytes());
+                out[2..6].fill(0);
+                out[6] = unit;
+                7
+            }
+        }
+    }
+
+    /// Completes an ADU of `len` bytes in `buf` before sending: the MBAP length field
+    /// for TCP, the CRC for RTU. Returns the final length.
+    pub fn seal(self, buf: &mut [u8], len: usize) -> usize {
+        match self {
+            Framing::Rtu => {
+                let crc = crc16(&buf[..len]);
+                buf[len..len + 2].copy_from_slice(&crc.to_le_bytes());
+                len + 2
+            }
+            Framing::Tcp => {
+                let mbap_len = (len - 6) as u16;
+                buf[4..6].copy_from_slice(&mbap_len.to_be_bytes());
+                len
+            }
+        }
+    }
+
+    /// The transaction id a reply must carry: copied from the request in TCP, 0 in RTU.
+    pub fn response_tid(self, req: &[u8]) -> u16 {
+        match (self, req) {
+            (Framing::Tcp, [hi, lo, ..]) => u16::from_be_bytes([*hi, *lo]),
+            _ => 0,
+        }
+    }
+}
+
+/// Which side of an exchange an incoming message is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MsgKind {
+    /// A request arriving at a server.
+    Indication,
+    /// A response arriving at a client.
+    Confirmation,
+}
+
+/// Bytes that follow the function code before the length of the data is known.
+pub fn meta_length(kind: MsgKind, function: u8) -> usize {
+    match kind {
+        MsgKind::Indication => match function {
+            0x00..=fc::WRITE_SINGLE_REGISTER => 4,
+            fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS => 5,
+            fc::MASK_WRITE_REGISTER => 6,
+            fc::WRITE_AND_READ_REGISTERS => 9,
+            _ => 0,
+        },
+        MsgKind::Confirmation => match function {
+            fc::WRITE_SINGLE_COIL
+            | fc::WRITE_SINGLE_REGISTER
+            | fc::WRITE_MULTIPLE_COILS
+            | fc::WRITE_MULTIPLE_REGISTERS => 4,
+            fc::MASK_WRITE_REGISTER => 6,
+            _ => 1,
+        },
+    }
+}
+
+/// Bytes of data that follow the meta part, read from the byte count it carries.
+/// `msg` holds the header, the function code and the meta bytes.
+pub fn data_length(kind: MsgKind, header_length: usize, msg: &[u8]) -> usize {
+    let h = header_length;
+    let function = msg[h];
+    match kind {
+        MsgKind::Indication => match function {
+            fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS => msg[h + 5] as usize,
+            fc::WRITE_AND_READ_REGISTERS => msg[h + 9] as usize,
+            _ => 0,
+        },
+        MsgKind::Confirmation => match function {
+            0x00..=fc::READ_INPUT_REGISTERS | fc::REPORT_SLAVE_ID | fc::WRITE_AND_READ_REGISTERS => msg[h + 1] as usize,
+            _ => 0,
+        },
+    }
+}
+
+/// The three steps of reading one message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Step {
+    Function,
+    Meta,
+    Data,
+}
+
+/// Sans-I/O assembler of one incoming message.
+///
+/// The transport asks [`Assembler::wanted`] how many bytes to read at most, appends
+/// what it got to the buffer, and reports it with [`Assembler::received`]. It never
+/// asks for more than the message needs, so bytes of the next message stay in the
+/// kernel (this is how libmodbus frames RTU without silence detection).
+#[derive(Clone, Debug)]
+pub struct Assembler {
+    framing: Framing,
+    kind: MsgKind,
+    step: Step,
+    length: usize,
+    wanted: usize,
+}
+
+/// What the assembler knows after some bytes arrived.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    /// Read up to this many more bytes.
+    NeedMore(usize),
+    /// The message is complete with this total length.
+    Complete(usize),
+}
+
+impl Assembler {
+    pub fn new(framing: Framing, kind: MsgKind) -> Self {
+        Assembler { framing, kind, step: Step::Function, length: 0, wanted: framing.header_length() + 1 }
+    }
+
+    /// Bytes received so far.
+    pub fn len(&self) -> usize {
+        self.length
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.length == 0
+    }
+
+    /// Most bytes to read next (never past the end of the message).
+    pub fn wanted(&self) -> usize {
+        self.wanted
+    }
+
+    /// Accounts for `n` new bytes appended to `buf` (which holds the whole message so
+    /// far). Fails with `EMBBADDATA` when the announced length exceeds the framing's
+    /// maximum ADU: the caller's buffer is never written past that maximum.
+    pub fn received(&mut self, buf: &[u8], n: usize) -> Result<Progress> {
+        debug_assert!(n <= self.wanted);
+        self.length += n;
+        self.wanted -= n;
+        if self.wanted > 0 {
+            return Ok(Progress::NeedMore(self.wanted));
+        }
+        let h = self.framing.header_length();
+        if self.step == Step::Function {
+            let meta = meta_length(self.kind, buf[h]);
+            if meta != 0 {
+                self.step = Step::Meta;
+                self.wanted = meta;
+                return Ok(Progress::NeedMore(meta));
+            }
+            self.step = Step::Meta;
+        }
+        if self.step == Step::Meta {
+            let data = data_length(self.kind, h, &buf[..self.length]) + self.framing.checksum_length();
+            if self.length + data > self.framing.max_adu_length() {
+                return Err(Error::BAD_DATA);
+            }
+            self.step = Step::Data;
+            self.wanted = data;
+            if data > 0 {
+                return Ok(Progress::NeedMore(data));
+            }
+        }
+        Ok(Progress::Complete(self.length))
+    }
+}
+
+/// Result of checking an RTU frame's integrity (CRC first, then the slave filter, as
+/// libmodbus 3.1.11+ does).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RtuIntegrity {
+    Ok,
+    /// CRC mismatch: (received, computed).
+    BadCrc(u16, u16),
+    /// Addressed to another slave: (frame's slave, ours).
+    OtherSlave(u8, i32),
+}
+
+/// Checks a complete RTU frame. `our_slave` is the context's slave (-1 when unset);
+/// slave 0 (broadcast) is always accepted.
+pub fn rtu_integrity(frame: &[u8], our_slave: i32) -> RtuIntegrity {
+    let Some(received) = stored_crc(frame) else {
+        return RtuIntegrity::BadCrc(0, 0);
+    };
+    let computed = crc16(&frame[..frame.len() - 2]);
+    if received != computed {
+        return RtuIntegrity::BadCrc(received, computed);
+    }
+    if frame[0] as i32 != our_slave && frame[0] != 0 {
+        return RtuIntegrity::OtherSlave(frame[0], our_slave);
+    }
+    RtuIntegrity::Ok
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Feeds `msg` to an assembler in pieces of at most `chunk` bytes.
+    fn assemble(framing: Framing, kind: MsgKind, msg: &[u8], chunk: usize) -> Result<usize> {
+        let mut a = Assembler::new(framing, kind);
+        let mut pos = 0;
+        loop {
+            let n = a.wanted().min(chunk).min(msg.len() - pos);
+            assert!(n > 0, "assembler wants bytes the message does not have");
+            pos += n;
+            match a.received(&msg[..pos], n)? {
+                Progress::NeedMore(_) => continue,
+                Progress::Complete(len) => return Ok(len),
+            }
+        }
+    }
+
+    #[test]
+    fn rtu_read_holding_request_and_response_lengths() {
+        let req = [0x11, 0x03, 0x00, 0x6B, 0x00, 0x03, 0x76, 0x87];
+        for chunk in [1, 2, 3, 256] {
+            assert_eq!(assemble(Framing::Rtu, MsgKind::Indication, &req, chunk), Ok(8));
+        }
+        let mut rsp = vec![0x11, 0x03, 0x06, 0xAE, 0x41, 0x56, 0x52, 0x43, 0x40];
+        let crc = crc16(&rsp);
+        rsp.extend(crc.to_le_bytes());
+        assert_eq!(assemble(Framing::Rtu, MsgKind::Confirmation, &rsp, 1), Ok(11));
+    }
+
+    #[test]
+    fn tcp_lengths_ignore_mbap_length_field() {
+        // MBAP length says 99; the PDU says write single coil (4 bytes after FC).
+        let req = [0, 1, 0, 0, 0, 99, 0xFF, 0x05, 0x01, 0x30, 0xFF, 0x00];
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(12));
+        // Unknown function code: only header + FC is read.
+        let req = [0, 1, 0, 0, 0, 2, 0xFF, 0x08, 0xAA, 0xBB];
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(8));
+        // Exception confirmation: header + FC + code.
+        let rsp = [0, 1, 0, 0, 0, 3, 0xFF, 0x83, 0x02];
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Confirmation, &rsp, 1), Ok(9));
+    }
+
+    #[test]
+    fn write_multiple_indication_uses_byte_count() {
+        let req = [0, 1, 0, 0, 0, 11, 1, 0x10, 0, 0, 0, 2, 4, 0, 1, 0, 2];
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(17));
+        let req = [0, 1, 0, 0, 0, 0, 1, 0x17, 0, 0, 0, 1, 0, 0, 0, 1, 2, 0, 7];
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 3), Ok(19));
+    }
+
+    #[test]
+    fn too_many_data_is_refused_before_reading_it() {
+        // RTU response claiming 255 data bytes: 3 + 255 + 2 > 256.
+        let rsp = [0x01, 0x03, 0xFF];
+        let mut a = Assembler::new(Framing::Rtu, MsgKind::Confirmation);
+        assert_eq!(a.received(&rsp[..2], 2), Ok(Progress::NeedMore(1)));
+        assert_eq!(a.received(&rsp, 1), Err(Error::BAD_DATA));
+        // TCP indication: write registers with byte count 255 fits 260 only up to 248.
+        let mut req = vec![0, 1, 0, 0, 0, 0, 1, 0x10, 0, 0, 0, 2, 249];
+        let mut a = Assembler::new(Framing::Tcp, MsgKind::Indication);
+        assert_eq!(a.received(&req[..8], 8), Ok(Progress::NeedMore(5)));
+        assert_eq!(a.received(&req, 5), Err(Error::BAD_DATA));
+        req[12] = 247;
+        let mut a = Assembler::new(Framing::Tcp, MsgKind::Indication);
+        a.received(&req[..8], 8).unwrap();
+        assert_eq!(a.received(&req, 5), Ok(Progress::NeedMore(247)));
+    }
+
+    #[test]
+    fn seal_writes_mbap_length_and_crc() {
+        let mut buf = [0u8; 16];
+        let n = Framing::Tcp.write_header(&mut buf, 0xFF, 0x0102);
+        buf[n..n + 5].copy_from_slice(&[0x05, 0x01, 0x30, 0xFF, 0x00]);
+        assert_eq!(Framing::Tcp.seal(&mut buf, n + 5), 12);
+        assert_eq!(buf[..12], [1, 2, 0, 0, 0, 6, 0xFF, 0x05, 0x01, 0x30, 0xFF, 0x00]);
+        let n = Framing::Rtu.write_header(&mut buf, 0x11, 7);
+        buf[n..n + 5].copy_from_slice(&[0x05, 0x01, 0x30, 0xFF, 0x00]);
+        assert_eq!(Framing::Rtu.seal(&mut buf, n + 5), 8);
+        assert_eq!(buf[..8], [0x11, 0x05, 0x01, 0x30, 0xFF, 0x00, 0x8F, 0x59]);
+    }
+
+    #[test]
+    fn rtu_integrity_checks_crc_before_slave() {
+        let good = [0x11, 0x05, 0x01, 0x30, 0xFF, 0x00, 0x8F, 0x59];
+        assert_eq!(rtu_integrity(&good, 0x11), RtuIntegrity::Ok);
+        assert_eq!(rtu_integrity(&good, 0x12), RtuIntegrity::OtherSlave(0x11, 0x12));
+        let mut bad = good;
+        bad[7] ^= 1;
+        // 3.1.11+: a corrupted frame for another slave is a CRC error, not ignored.
+        assert!(matches!(rtu_integrity(&bad, 0x12), RtuIntegrity::BadCrc(..)));
+        let mut broadcast = [0x00, 0x05, 0x01, 0x30, 0xFF, 0x00, 0, 0];
+        let crc = crc16(&broadcast[..6]);
+        broadcast[6..].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(rtu_integrity(&broadcast, 0x11), RtuIntegrity::Ok);
+    }
+}

@@ -1,0 +1,76 @@
+//! The sans-I/O protocol engine: pure functions over byte slices.
+//!
+//! Nothing in here opens a socket, reads a clock or uses `unsafe`; time and I/O are
+//! the caller's business (`crate::transport`, `crate::engine`). Debug text that
+//! libmodbus would print is handed to a [`Diag`] sink so that tests can read it.
+
+pub mod confirm;
+pub mod crc;
+pub mod data;
+pub mod frame;
+pub mod reply;
+pub mod request;
+
+use core::fmt;
+
+/// Function codes (the `MODBUS_FC_*` macros of modbus.h).
+pub mod fc {
+    pub const READ_COILS: u8 = 0x01;
+    pub const READ_DISCRETE_INPUTS: u8 = 0x02;
+    pub const READ_HOLDING_REGISTERS: u8 = 0x03;
+    pub const READ_INPUT_REGISTERS: u8 = 0x04;
+    pub const WRITE_SINGLE_COIL: u8 = 0x05;
+    pub const WRITE_SINGLE_REGISTER: u8 = 0x06;
+    pub const READ_EXCEPTION_STATUS: u8 = 0x07;
+    pub const WRITE_MULTIPLE_COILS: u8 = 0x0F;
+    pub const WRITE_MULTIPLE_REGISTERS: u8 = 0x10;
+    pub const REPORT_SLAVE_ID: u8 = 0x11;
+    pub const MASK_WRITE_REGISTER: u8 = 0x16;
+    pub const WRITE_AND_READ_REGISTERS: u8 = 0x17;
+}
+
+/// Protocol limits (the `MODBUS_MAX_*` macros of modbus.h).
+pub mod limits {
+    pub const MAX_READ_BITS: i32 = 2000;
+    pub const MAX_WRITE_BITS: i32 = 1968;
+    pub const MAX_READ_REGISTERS: i32 = 125;
+    pub const MAX_WRITE_REGISTERS: i32 = 123;
+    pub const MAX_WR_WRITE_REGISTERS: i32 = 121;
+    pub const MAX_WR_READ_REGISTERS: i32 = 125;
+    pub const MAX_PDU_LENGTH: usize = 253;
+    pub const BROADCAST_ADDRESS: i32 = 0;
+    pub const TCP_SLAVE: i32 = 0xFF;
+}
+
+/// Where libmodbus's debug text would go. libmodbus writes some lines to stdout and
+/// some to stderr; the sink keeps that split.
+pub trait Diag {
+    fn out(&mut self, args: fmt::Arguments<'_>);
+    fn err(&mut self, args: fmt::Arguments<'_>);
+}
+
+/// A sink that drops everything (debug off).
+pub struct Silent;
+
+impl Diag for Silent {
+    fn out(&mut self, _: fmt::Arguments<'_>) {}
+    fn err(&mut self, _: fmt::Arguments<'_>) {}
+}
+
+/// A sink that records lines, for tests.
+#[cfg(test)]
+#[derive(Default, Debug)]
+pub struct Recorded {
+    pub out: String,
+    pub err: String,
+}
+
+#[cfg(test)]
+impl Diag for Recorded {
+    fn out(&mut self, args: fmt::Arguments<'_>) {
+        fmt::Write::write_fmt(&mut self.out, args).unwrap();
+    }
+    fn err(&mut self, args: fmt::Arguments<'_>) {
+        fmt::Write::write_fmt(&mut self.err, args).unwrap();
+    }
+}

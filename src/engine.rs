@@ -1,0 +1,397 @@
+//! The libmodbus flows that drive the sans-I/O core over a transport: sending with
+//! the debug trace and LINK recovery, the receive loop with its three timeouts, and
+//! the client's request/confirmation exchange.
+
+use std::time::Instant;
+
+use parking_lot::MutexGuard;
+
+use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP};
+use crate::core::Diag;
+use crate::core::confirm::{self, Rejection};
+use crate::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
+use crate::core::request::{Request, next_tid};
+use crate::error::{Error, Result, strerror_modbus};
+use crate::transport::{self, rtu, tcp};
+
+/// A locked context. Functions that may call back into the application (the custom
+/// RTS callback) take the guard so they can release the lock around the call.
+pub type Guard<'a> = MutexGuard<'a, Context>;
+
+/// One ADU buffer, large enough for any framing.
+pub type AduBuf = [u8; MAX_ADU_LENGTH];
+
+/// libmodbus's `_error_print`: "ERROR <strerror>[: <context>]" on stderr, debug only.
+pub fn error_print(ctx: &Context, error: Error, context: Option<&str>) {
+    if !ctx.debug {
+        return;
+    }
+    let text = describe(error.0);
+    let mut diag = ctx.diag();
+    match context {
+        Some(c) => diag.err(format_args!("ERROR {text}: {c}\n")),
+        None => diag.err(format_args!("ERROR {text}\n")),
+    }
+}
+
+/// `modbus_strerror` as an owned string.
+pub fn describe(errnum: i32) -> String {
+    match strerror_modbus(errnum) {
+        Some(s) => s.to_owned(),
+        None => {
+            // SAFETY: strerror returns a valid NUL-terminated string; we copy it at once.
+            unsafe { std::ffi::CStr::from_ptr(libc::strerror(errnum)) }.to_string_lossy().into_owned()
+        }
+    }
+}
+
+/// `modbus_connect`.
+pub fn connect(ctx: &mut Context) -> Result<()> {
+    match ctx.link {
+        Link::Rtu(_) => rtu::connect(ctx),
+        Link::Tcp(_) => tcp::connect_ipv4(ctx),
+        Link::TcpPi(_) => tcp::connect_pi(ctx),
+    }
+}
+
+/// `modbus_close`.
+pub fn close(ctx: &mut Context) {
+    match ctx.link {
+        Link::Rtu(_) => rtu::close_line(ctx),
+        Link::Tcp(_) | Link::TcpPi(_) => tcp::close_socket(ctx),
+    }
+}
+
+/// `modbus_flush`: discard what is pending on the line. Returns the bytes dropped
+/// (TCP) or 0 (RTU).
+pub fn flush(ctx: &mut Context) -> Result<usize> {
+    let rc = match ctx.framing {
+        Framing::Rtu => rtu::flush(ctx.s),
+        Framing::Tcp => flush_socket(ctx),
+    };
+    if let Ok(n) = rc {
+        ctx.diag().out(format_args!("Bytes flushed ({n})\n"));
+    }
+    rc
+}
+
+/// Drains a socket without waiting. The count is kept in 16 bits as libmodbus 3.1.11+
+/// does; an overflow switches to PROTOCOL recovery and fails with EOVERFLOW.
+fn flush_socket(ctx: &mut Context) -> Result<usize> {
+    let mut sink = [0u8; MAX_ADU_LENGTH];
+    let mut total: u16 = 0;
+    loop {
+        let n = transport::recv(ctx.s, &mut sink, libc::MSG_DONTWAIT).unwrap_or(0);
+        total = match total.checked_add(n as u16) {
+            Some(t) => t,
+            None => {
+                ctx.error_recovery = RECOVERY_PROTOCOL;
+                return Err(Error(libc::EOVERFLOW));
+            }
+        };
+        if n != MAX_ADU_LENGTH {
+            return Ok(total as usize);
+        }
+    }
+}
+
+pub fn sleep_response_timeout(ctx: &Context) {
+    transport::sleep(ctx.response_timeout.duration());
+}
+
+/// Drives the RTS line through the application's callback (with the context
+/// unlocked, so the callback may call `modbus_get_socket` and friends) or the
+/// built-in ioctl.
+pub fn set_rts(g: &mut Guard<'_>, on: bool) {
+    let Some(link) = g.rtu() else { return };
+    match link.custom_rts {
+        Some(callback) => {
+            let handle = g.handle_addr as *mut crate::ffi::Modbus;
+            // SAFETY: the callback was registered by the application for this context
+            // and receives the context pointer it registered it on, as in libmodbus.
+            MutexGuard::unlocked(g, || unsafe { callback(handle, on as libc::c_int) });
+        }
+        None => rtu::set_rts_line(g.s, on),
+    }
+}
+
+fn sleep_us(us: i64) {
+    if us > 0 {
+        transport::sleep(std::time::Duration::from_micros(us as u64));
+    }
+}
+
+/// Writes one sealed ADU to the line (RTU with the RTS sequence when enabled).
+fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
+    match g.framing {
+        Framing::Tcp => transport::send(g.s, adu),
+        Framing::Rtu => {
+            let (rts, rts_delay, onebyte) = match g.rtu() {
+                Some(l) => (l.rts, l.rts_delay as i64, l.onebyte_time as i64),
+                None => (RTU_RTS_NONE, 0, 0),
+            };
+            if rts == RTU_RTS_NONE {
+                return transport::write(g.s, adu);
+            }
+            g.diag().err(format_args!("Sending request using RTS signal\n"));
+            set_rts(g, rts == RTU_RTS_UP);
+            sleep_us(rts_delay);
+            let rc = transport::write(g.s, adu);
+            sleep_us(onebyte * adu.len() as i64 + rts_delay);
+            set_rts(g, rts != RTU_RTS_UP);
+            rc
+        }
+    }
+}
+
+/// libmodbus's `send_msg`: seal the ADU of `len` bytes in `buf`, print it, send it,
+/// and under LINK recovery retry until it goes out. Returns the bytes sent.
+pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> {
+    let len = g.framing.seal(buf, len);
+    let adu = &buf[..len];
+    if g.debug {
+        let mut line = String::with_capacity(len * 4 + 1);
+        for b in adu {
+            line.push_str(&format!("[{b:02X}]"));
+        }
+        line.push('\n');
+        crate::stdio::out(format_args!("{line}"));
+    }
+    loop {
+        match write_adu(g, adu) {
+            Ok(n) if n == len => return Ok(n),
+            Ok(_) => return Err(Error::BAD_DATA),
+            Err(e) => {
+                error_print(g, e, None);
+                if g.error_recovery & RECOVERY_LINK == 0 {
+                    return Err(e);
+                }
+                if matches!(e.0, libc::EBADF | libc::ECONNRESET | libc::EPIPE) {
+                    close(g);
+                    sleep_response_timeout(g);
+                    let _ = connect(g);
+                } else {
+                    sleep_response_timeout(g);
+                    let _ = flush(g);
+                }
+            }
+        }
+    }
+}
+
+/// What the receive loop got.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Received {
+    /// A complete, valid message of this length.
+    Frame(usize),
+    /// RTU: a valid frame addressed to another slave (libmodbus returns 0).
+    Ignored(usize),
+}
+
+/// LINK recovery after a failed wait.
+fn recover_after_wait(ctx: &mut Context, e: Error) {
+    if ctx.error_recovery & RECOVERY_LINK == 0 {
+        return;
+    }
+    if e == Error::TIMED_OUT {
+        sleep_response_timeout(ctx);
+        let _ = flush(ctx);
+    } else if e.0 == libc::EBADF {
+        close(ctx);
+        let _ = connect(ctx);
+    }
+}
+
+/// LINK recovery after a failed read.
+fn recover_after_read(ctx: &mut Context, e: Error) {
+    if ctx.error_recovery & RECOVERY_LINK != 0 && matches!(e.0, libc::ECONNRESET | libc::ECONNREFUSED | libc::EBADF) {
+        close(ctx);
+        let _ = connect(ctx);
+    }
+}
+
+/// libmodbus's `_modbus_receive_msg`: read one message, step by step, never more
+/// bytes than it needs. The first wait uses the response timeout (confirmation) or
+/// the indication timeout (0 = forever); later waits use a fresh byte timeout, or,
+/// when that is 0, what is left of the first one.
+pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result<Received> {
+    let ctx: &mut Context = g;
+    let mut diag = ctx.diag();
+    match kind {
+        MsgKind::Indication => diag.out(format_args!("Waiting for an indication...\n")),
+        MsgKind::Confirmation => diag.out(format_args!("Waiting for a confirmation...\n")),
+    }
+    if ctx.s < 0 {
+        diag.err(format_args!("ERROR The connection is not established.\n"));
+        return Err(Error::UNCHANGED);
+    }
+    let first = match kind {
+        MsgKind::Confirmation => Some(ctx.response_timeout),
+        MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then_some(ctx.indication_timeout),
+    };
+    let mut deadline = first.map(|t| Instant::now() + t.duration());
+    let mut asm = Assembler::new(ctx.framing, kind);
+    let mut trace = String::new();
+    loop {
+        // Wait for data.
+        loop {
+            let timeout = deadline.map(|d| d.saturating_duration_since(Instant::now()));
+            match transport::wait(ctx.s, libc::POLLIN, timeout) {
+                Ok(true) => break,
+                Ok(false) => {
+                    flush_trace(ctx, &mut trace);
+                    error_print(ctx, Error::TIMED_OUT, Some("select"));
+                    recover_after_wait(ctx, Error::TIMED_OUT);
+                    return Err(Error::TIMED_OUT);
+                }
+                Err(e) if e.0 == libc::EINTR => {
+                    diag.err(format_args!("A non blocked signal was caught\n"));
+                }
+                Err(e) => {
+                    flush_trace(ctx, &mut trace);
+                    error_print(ctx, e, Some("select"));
+                    recover_after_wait(ctx, e);
+                    return Err(e);
+                }
+            }
+        }
+        let start = asm.len();
+        let want = asm.wanted();
+        let got = match ctx.framing {
+            Framing::Tcp => transport::recv(ctx.s, &mut buf[start..start + want], 0),
+            Framing::Rtu => transport::read(ctx.s, &mut buf[start..start + want]),
+        };
+        let n = match got {
+            Ok(0) => Err(Error::CONN_RESET),
+            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
+            other => other,
+        };
+        let n = match n {
+            Ok(n) => n,
+            Err(e) => {
+                flush_trace(ctx, &mut trace);
+                error_print(ctx, e, Some("read"));
+                recover_after_read(ctx, e);
+                return Err(e);
+            }
+        };
+        if ctx.debug {
+            for b in &buf[start..start + n] {
+                trace.push_str(&format!("<{b:02X}>"));
+            }
+        }
+        match asm.received(&buf[..start + n], n) {
+            Ok(Progress::NeedMore(_)) => {
+                if !ctx.byte_timeout.is_zero() {
+                    deadline = Some(Instant::now() + ctx.byte_timeout.duration());
+                }
+            }
+            Ok(Progress::Complete(len)) => {
+                trace.push('\n');
+                flush_trace(ctx, &mut trace);
+                return check_integrity(ctx, &buf[..len]);
+            }
+            Err(e) => {
+                flush_trace(ctx, &mut trace);
+                error_print(ctx, e, Some("too many data"));
+                return Err(e);
+            }
+        }
+    }
+}
+
+/// Prints the `<XX>` bytes collected so far (libmodbus prints them as they arrive;
+/// collecting them per message keeps the same text with fewer writes).
+fn flush_trace(ctx: &Context, trace: &mut String) {
+    if ctx.debug && !trace.is_empty() {
+        crate::stdio::out(format_args!("{trace}"));
+        trace.clear();
+    }
+}
+
+/// End of the receive loop: RTU frames must have a good CRC and be ours.
+fn check_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
+    if ctx.framing == Framing::Tcp {
+        return Ok(Received::Frame(frame.len()));
+    }
+    let mut diag = ctx.diag();
+    match rtu_integrity(frame, ctx.slave) {
+        RtuIntegrity::Ok => Ok(Received::Frame(frame.len())),
+        RtuIntegrity::BadCrc(received, computed) => {
+            diag.err(format_args!("ERROR CRC received 0x{received:0X} != CRC calculated 0x{computed:0X}\n"));
+            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 {
+                let _ = rtu::flush(ctx.s);
+            }
+            Err(Error::BAD_CRC)
+        }
+        RtuIntegrity::OtherSlave(theirs, ours) => {
+            diag.out(format_args!("Request for slave {theirs} ignored (not {ours})\n"));
+            Ok(Received::Ignored(frame.len()))
+        }
+    }
+}
+
+/// The unit id a request goes to.
+fn unit(ctx: &Context) -> u8 {
+    ctx.slave as u8
+}
+
+/// Encodes `req` with the next transaction id into `buf`; returns its unsealed length.
+pub fn build_request(ctx: &mut Context, req: &Request<'_>, buf: &mut AduBuf) -> usize {
+    if ctx.framing == Framing::Tcp {
+        ctx.t_id = next_tid(ctx.t_id);
+    }
+    req.encode(ctx.framing, unit(ctx), ctx.t_id, buf)
+}
+
+/// A complete client exchange: send `req`, wait for the confirmation, check it.
+/// On success `rsp[..len]` holds the response and `count` is libmodbus's value count.
+pub struct Confirmed {
+    pub len: usize,
+    pub count: i32,
+}
+
+pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Result<Confirmed> {
+    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
+    let n = build_request(g, req, &mut out);
+    let sent = send_msg(g, &mut out, n)?;
+    let received = receive_msg(g, rsp, MsgKind::Confirmation)?;
+    let req_adu = &out[..sent];
+    let (len, rsp_adu) = match received {
+        Received::Frame(len) => (len, &rsp[..len]),
+        Received::Ignored(len) => (0, &rsp[..len]),
+    };
+    let ctx: &mut Context = g;
+    let mut diag = ctx.diag();
+    let checked = if len == 0 && !rsp_adu.is_empty() {
+        // libmodbus checks a frame its RTU filter dropped with length 0: the slave
+        // pre-check refuses it.
+        diag.err(format_args!("The responding slave {} isn't the requested slave {}\n", rsp_adu[0], req_adu[0]));
+        Err(Rejection::Mismatch(Error::BAD_SLAVE))
+    } else {
+        confirm::check(ctx.framing, req_adu, rsp_adu, &mut diag)
+    };
+    match checked {
+        Ok(count) => Ok(Confirmed { len, count }),
+        Err(Rejection::Exception(e)) => {
+            error_print(ctx, e, None);
+            Err(e)
+        }
+        Err(Rejection::Mismatch(e)) => {
+            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 {
+                sleep_response_timeout(ctx);
+                let _ = flush(ctx);
+            }
+            Err(e)
+        }
+    }
+}
+
+/// `modbus_send_raw_request[_tid]`: `raw[0]` is the unit, the rest is the PDU.
+pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
+    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
+    let h = g.framing.write_header(&mut out, raw[0], tid);
+    let pdu = &raw[1..];
+    out[h..h + pdu.len()].copy_from_slice(pdu);
+    send_msg(g, &mut out, h + pdu.len())
+}

@@ -1,0 +1,134 @@
+//! Error codes shared by the core and the C layer.
+//!
+//! libmodbus reports every failure as `-1` (or NULL) plus an `errno` value: either a
+//! system code (`EINVAL`, `ETIMEDOUT`, ...) or one of its own codes above
+//! `MODBUS_ENOBASE`. [`Error`] is exactly that number, so the core can speak the C
+//! convention without knowing about the C layer, and the FFI maps it in one place
+//! (`crate::ffi::errno`).
+
+use core::fmt;
+
+/// libmodbus's base for its own error numbers ("random number to avoid errno conflicts").
+pub const MODBUS_ENOBASE: i32 = 112_345_678;
+
+/// Modbus exception codes (the `MODBUS_EXCEPTION_*` enum of modbus.h).
+pub mod exception {
+    pub const ILLEGAL_FUNCTION: u8 = 0x01;
+    pub const ILLEGAL_DATA_ADDRESS: u8 = 0x02;
+    pub const ILLEGAL_DATA_VALUE: u8 = 0x03;
+    pub const SLAVE_OR_SERVER_FAILURE: u8 = 0x04;
+    pub const ACKNOWLEDGE: u8 = 0x05;
+    pub const SLAVE_OR_SERVER_BUSY: u8 = 0x06;
+    pub const NEGATIVE_ACKNOWLEDGE: u8 = 0x07;
+    pub const MEMORY_PARITY: u8 = 0x08;
+    pub const NOT_DEFINED: u8 = 0x09;
+    pub const GATEWAY_PATH: u8 = 0x0A;
+    pub const GATEWAY_TARGET: u8 = 0x0B;
+    /// One past the last defined code.
+    pub const MAX: u8 = 0x0C;
+}
+
+pub const EMBXILFUN: i32 = MODBUS_ENOBASE + exception::ILLEGAL_FUNCTION as i32;
+pub const EMBXILADD: i32 = MODBUS_ENOBASE + exception::ILLEGAL_DATA_ADDRESS as i32;
+pub const EMBXILVAL: i32 = MODBUS_ENOBASE + exception::ILLEGAL_DATA_VALUE as i32;
+pub const EMBXSFAIL: i32 = MODBUS_ENOBASE + exception::SLAVE_OR_SERVER_FAILURE as i32;
+pub const EMBXACK: i32 = MODBUS_ENOBASE + exception::ACKNOWLEDGE as i32;
+pub const EMBXSBUSY: i32 = MODBUS_ENOBASE + exception::SLAVE_OR_SERVER_BUSY as i32;
+pub const EMBXNACK: i32 = MODBUS_ENOBASE + exception::NEGATIVE_ACKNOWLEDGE as i32;
+pub const EMBXMEMPAR: i32 = MODBUS_ENOBASE + exception::MEMORY_PARITY as i32;
+pub const EMBXGPATH: i32 = MODBUS_ENOBASE + exception::GATEWAY_PATH as i32;
+pub const EMBXGTAR: i32 = MODBUS_ENOBASE + exception::GATEWAY_TARGET as i32;
+pub const EMBBADCRC: i32 = EMBXGTAR + 1;
+pub const EMBBADDATA: i32 = EMBXGTAR + 2;
+pub const EMBBADEXC: i32 = EMBXGTAR + 3;
+pub const EMBUNKEXC: i32 = EMBXGTAR + 4;
+pub const EMBMDATA: i32 = EMBXGTAR + 5;
+pub const EMBBADSLAVE: i32 = EMBXGTAR + 6;
+
+/// An errno value, as libmodbus would set it.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct Error(pub i32);
+
+impl Error {
+    /// Fail with -1 but leave errno as it is (libmodbus does this in a few places,
+    /// e.g. receiving on a context that is not connected).
+    pub const UNCHANGED: Error = Error(0);
+    pub const INVALID: Error = Error(libc::EINVAL);
+    pub const TIMED_OUT: Error = Error(libc::ETIMEDOUT);
+    pub const CONN_RESET: Error = Error(libc::ECONNRESET);
+    pub const CONN_REFUSED: Error = Error(libc::ECONNREFUSED);
+    pub const NO_MEMORY: Error = Error(libc::ENOMEM);
+    pub const NOT_SUPPORTED: Error = Error(libc::ENOTSUP);
+    pub const BAD_CRC: Error = Error(EMBBADCRC);
+    pub const BAD_DATA: Error = Error(EMBBADDATA);
+    pub const BAD_EXCEPTION: Error = Error(EMBBADEXC);
+    pub const TOO_MANY_DATA: Error = Error(EMBMDATA);
+    pub const BAD_SLAVE: Error = Error(EMBBADSLAVE);
+
+    /// The errno a client sees when the server answered with exception `code`.
+    pub const fn from_exception(code: u8) -> Error {
+        Error(MODBUS_ENOBASE + code as i32)
+    }
+
+    pub const fn errno(self) -> i32 {
+        self.0
+    }
+}
+
+impl fmt::Debug for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "Error({} = {:?})", self.0, strerror_modbus(self.0))
+    }
+}
+
+/// The libmodbus-specific message for `errnum`, or `None` when libmodbus defers to
+/// the C library's `strerror`.
+pub fn strerror_modbus(errnum: i32) -> Option<&'static str> {
+    strerror_modbus_c(errnum).map(|s| s.to_str().unwrap_or_default())
+}
+
+/// [`strerror_modbus`] as C strings, for `modbus_strerror`.
+pub const fn strerror_modbus_c(errnum: i32) -> Option<&'static core::ffi::CStr> {
+    Some(match errnum {
+        EMBXILFUN => c"Illegal function",
+        EMBXILADD => c"Illegal data address",
+        EMBXILVAL => c"Illegal data value",
+        EMBXSFAIL => c"Slave device or server failure",
+        EMBXACK => c"Acknowledge",
+        EMBXSBUSY => c"Slave device or server is busy",
+        EMBXNACK => c"Negative acknowledge",
+        EMBXMEMPAR => c"Memory parity error",
+        EMBXGPATH => c"Gateway path unavailable",
+        EMBXGTAR => c"Target device failed to respond",
+        EMBBADCRC => c"Invalid CRC",
+        EMBBADDATA => c"Invalid data",
+        EMBBADEXC => c"Invalid exception code",
+        EMBMDATA => c"Too many data",
+        EMBBADSLAVE => c"Response not from requested slave",
+        _ => return None,
+    })
+}
+
+pub type Result<T> = core::result::Result<T, Error>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_match_libmodbus() {
+        assert_eq!(EMBXILFUN, 112_345_679);
+        assert_eq!(EMBXGTAR, 112_345_689);
+        assert_eq!(EMBBADCRC, 112_345_690);
+        assert_eq!(EMBBADSLAVE, 112_345_695);
+        assert_eq!(Error::from_exception(9).errno(), 112_345_687);
+    }
+
+    #[test]
+    fn codes_without_own_text_fall_through() {
+        assert_eq!(strerror_modbus(EMBUNKEXC), None);
+        assert_eq!(strerror_modbus(MODBUS_ENOBASE), None);
+        assert_eq!(strerror_modbus(MODBUS_ENOBASE + 9), None);
+        assert_eq!(strerror_modbus(EMBMDATA), Some("Too many data"));
+    }
+}

@@ -1,0 +1,270 @@
+//! modbus.h: context life cycle and configuration.
+
+use std::ffi::{c_char, c_int, c_uint};
+
+use crate::context::{Context, Timeout};
+use crate::engine;
+use crate::error::strerror_modbus_c;
+use crate::ffi::{Modbus, with_ctx};
+
+/// Frees a context. NULL is a no-op. The connection is not closed (call
+/// `modbus_close` first), as in libmodbus.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; it must not be used afterwards.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_free(ctx: *mut Modbus) {
+    if !ctx.is_null() {
+        // SAFETY: the caller hands back ownership of a context made by `into_handle`.
+        drop(unsafe { Box::from_raw(ctx) });
+    }
+}
+
+/// Opens the serial line or TCP connection.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_connect(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| engine::connect(g).map(|()| 0)) }
+}
+
+/// Closes the connection. NULL is a no-op.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_close(ctx: *mut Modbus) {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            engine::close(g);
+            Ok(0)
+        })
+    };
+}
+
+/// Discards pending input. Returns the bytes discarded (TCP) or 0 (RTU).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_flush(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| engine::flush(g).map(|n| n as c_int)) }
+}
+
+/// Sets the slave (unit) id used for requests: 0..247 (0..255 with
+/// `MODBUS_QUIRK_MAX_SLAVE`), or 0xFF on TCP.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_slave(ctx: *mut Modbus, slave: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| g.set_slave(slave).map(|()| 0)) }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_slave(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| Ok(g.slave)) }
+}
+
+/// Stores the recovery mode bits (not validated, as in libmodbus).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_error_recovery(ctx: *mut Modbus, error_recovery: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            g.error_recovery = error_recovery as u8 as i32;
+            Ok(0)
+        })
+    }
+}
+
+/// Uses `s` as the context's socket or serial descriptor (not validated).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_socket(ctx: *mut Modbus, s: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            g.s = s;
+            Ok(0)
+        })
+    }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_socket(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| Ok(g.s)) }
+}
+
+/// Writes a timeout to the caller's pointers (NULL pointers are skipped; libmodbus
+/// would crash on them).
+///
+/// # Safety
+/// Each pointer must be NULL or valid for a `u32` write.
+unsafe fn put_timeout(t: Timeout, to_sec: *mut u32, to_usec: *mut u32) {
+    // SAFETY: guaranteed by the caller.
+    unsafe {
+        if let Some(s) = to_sec.as_mut() {
+            *s = t.sec;
+        }
+        if let Some(u) = to_usec.as_mut() {
+            *u = t.usec;
+        }
+    }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context; the pointers NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_response_timeout(ctx: *mut Modbus, to_sec: *mut u32, to_usec: *mut u32) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            put_timeout(g.response_timeout, to_sec, to_usec);
+            Ok(0)
+        })
+    }
+}
+
+/// Sets the response timeout; (0, 0) and `to_usec > 999999` give EINVAL.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_response_timeout(ctx: *mut Modbus, to_sec: u32, to_usec: u32) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| g.set_response_timeout(to_sec, to_usec).map(|()| 0)) }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context; the pointers NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_byte_timeout(ctx: *mut Modbus, to_sec: *mut u32, to_usec: *mut u32) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            put_timeout(g.byte_timeout, to_sec, to_usec);
+            Ok(0)
+        })
+    }
+}
+
+/// Sets the byte timeout; (0, 0) disables it.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_byte_timeout(ctx: *mut Modbus, to_sec: u32, to_usec: u32) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            g.byte_timeout = Context::checked_timeout(to_sec, to_usec)?;
+            Ok(0)
+        })
+    }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context; the pointers NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_indication_timeout(ctx: *mut Modbus, to_sec: *mut u32, to_usec: *mut u32) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            put_timeout(g.indication_timeout, to_sec, to_usec);
+            Ok(0)
+        })
+    }
+}
+
+/// Sets the indication timeout of a server; (0, 0) waits forever.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_indication_timeout(ctx: *mut Modbus, to_sec: u32, to_usec: u32) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            g.indication_timeout = Context::checked_timeout(to_sec, to_usec)?;
+            Ok(0)
+        })
+    }
+}
+
+/// 1 for RTU, 7 for TCP.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_header_length(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| Ok(g.framing.header_length() as c_int)) }
+}
+
+/// Any non-zero flag turns the debug trace on (stdout and stderr).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_debug(ctx: *mut Modbus, flag: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            g.debug = flag != 0;
+            Ok(0)
+        })
+    }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_enable_quirks(ctx: *mut Modbus, quirks_mask: c_uint) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            g.quirks |= quirks_mask;
+            Ok(0)
+        })
+    }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_disable_quirks(ctx: *mut Modbus, quirks_mask: c_uint) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            g.quirks &= !quirks_mask;
+            Ok(0)
+        })
+    }
+}
+
+/// The text of a libmodbus error code, or the C library's `strerror` for others.
+#[unsafe(no_mangle)]
+pub extern "C" fn modbus_strerror(errnum: c_int) -> *const c_char {
+    match strerror_modbus_c(errnum) {
+        Some(s) => s.as_ptr(),
+        // SAFETY: strerror accepts any number and returns a C string.
+        None => unsafe { libc::strerror(errnum) },
+    }
+}

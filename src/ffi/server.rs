@@ -1,0 +1,1 @@
+//! Server exports: owned by the server work (issue 3).

@@ -1,0 +1,30 @@
+//! modbus-tcp.h: TCP client contexts (listen/accept are with the server exports).
+
+use std::ffi::{c_char, c_int};
+
+use crate::context::Context;
+use crate::ffi::{Modbus, into_handle, opt_cstr};
+
+/// Creates a TCP/IPv4 context for `ip_address` (dotted quad; NULL means any address,
+/// for a server) and `port`.
+///
+/// # Safety
+/// `ip_address` must be NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_new_tcp(ip_address: *const c_char, port: c_int) -> *mut Modbus {
+    // SAFETY: forwarded caller contract.
+    let ip = unsafe { opt_cstr(ip_address) };
+    into_handle(Context::new_tcp(ip, port))
+}
+
+/// Creates a protocol-independent TCP context (IPv4 or IPv6, names resolved with
+/// getaddrinfo). NULL `node` means any address; NULL or empty `service` is "502".
+///
+/// # Safety
+/// `node` and `service` must each be NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_new_tcp_pi(node: *const c_char, service: *const c_char) -> *mut Modbus {
+    // SAFETY: forwarded caller contract.
+    let (node, service) = unsafe { (opt_cstr(node), opt_cstr(service)) };
+    into_handle(Context::new_tcp_pi(node, service))
+}

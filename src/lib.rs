@@ -1,0 +1,27 @@
+//! rsmodbus: a memory-safe, binary drop-in replacement for libmodbus (`libmodbus.so.5`).
+//!
+//! Layers, from the wire up:
+//! - [`core`]: the sans-I/O protocol engine (framing, CRC, requests, response checks,
+//!   server replies). Pure functions over byte slices; no `unsafe`, no clock, no I/O.
+//! - [`transport`]: file-descriptor I/O for serial lines and TCP (`poll`, never `select`).
+//! - [`context`] and [`engine`]: a `modbus_t` context and the libmodbus flows that drive
+//!   the core over a transport (send, receive, confirm, error recovery, debug trace).
+//! - [`ffi`]: the exported C ABI, thin shims that check arguments and map errors to
+//!   `-1`/`NULL` plus `errno` in one place.
+//!
+//! # Panic policy
+//! The library is built with `panic = "abort"` (enforced below at compile time): a
+//! panic is a bug in this library, and the process stops with the panic message on
+//! stderr instead of unwinding into C frames or returning a wrong answer.
+
+#[cfg(all(not(panic = "abort"), not(test)))]
+compile_error!("rsmodbus must be built with panic = \"abort\" (see the panic policy in src/lib.rs)");
+
+pub mod context;
+pub mod core;
+pub mod engine;
+pub mod error;
+pub mod ffi;
+pub mod stdio;
+pub mod server;
+pub mod transport;

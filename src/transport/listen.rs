@@ -1,0 +1,1 @@
+//! TCP listen/accept: owned by the server work (issue 3).

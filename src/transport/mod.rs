@@ -1,0 +1,89 @@
+//! File-descriptor I/O: the only place that talks to the kernel for data transfer.
+//!
+//! Waiting uses `ppoll` (microsecond timeouts like libmodbus's `select`, but without
+//! the 1024-descriptor limit of `fd_set`).
+
+pub mod listen;
+pub mod rtu;
+pub mod tcp;
+
+use std::time::Duration;
+
+use crate::error::{Error, Result};
+
+/// The calling thread's errno.
+pub fn errno() -> i32 {
+    std::io::Error::last_os_error().raw_os_error().unwrap_or(0)
+}
+
+/// Sets the calling thread's errno.
+pub fn set_errno(value: i32) {
+    // SAFETY: `__errno_location` returns the valid, thread-local errno slot.
+    unsafe { *libc::__errno_location() = value };
+}
+
+/// `Err(errno)` of the last failed call.
+pub fn last_error() -> Error {
+    Error(errno())
+}
+
+fn to_timespec(d: Duration) -> libc::timespec {
+    libc::timespec { tv_sec: d.as_secs() as libc::time_t, tv_nsec: d.subsec_nanos() as libc::c_long }
+}
+
+/// Waits until `fd` has `events`, or `timeout` passes (`None`: forever).
+/// Returns `Ok(false)` on timeout; `Err` carries the errno (EINTR included, so the
+/// caller decides whether to retry).
+pub fn wait(fd: i32, events: libc::c_short, timeout: Option<Duration>) -> Result<bool> {
+    let mut pfd = libc::pollfd { fd, events, revents: 0 };
+    let ts = timeout.map(to_timespec);
+    let ts_ptr = ts.as_ref().map_or(std::ptr::null(), |t| t as *const libc::timespec);
+    // SAFETY: `pfd` is one valid pollfd; `ts_ptr` is NULL or points at `ts`, alive for
+    // the call; no signal mask is passed.
+    let rc = unsafe { libc::ppoll(&mut pfd, 1, ts_ptr, std::ptr::null()) };
+    match rc {
+        -1 => Err(last_error()),
+        0 => Ok(false),
+        _ if pfd.revents & libc::POLLNVAL != 0 => Err(Error(libc::EBADF)),
+        _ => Ok(true),
+    }
+}
+
+/// One `read(2)` into `buf`.
+pub fn read(fd: i32, buf: &mut [u8]) -> Result<usize> {
+    // SAFETY: the kernel writes at most `buf.len()` bytes into the live slice.
+    let n = unsafe { libc::read(fd, buf.as_mut_ptr().cast(), buf.len()) };
+    if n < 0 { Err(last_error()) } else { Ok(n as usize) }
+}
+
+/// One `recv(2)` into `buf`.
+pub fn recv(fd: i32, buf: &mut [u8], flags: i32) -> Result<usize> {
+    // SAFETY: the kernel writes at most `buf.len()` bytes into the live slice.
+    let n = unsafe { libc::recv(fd, buf.as_mut_ptr().cast(), buf.len(), flags) };
+    if n < 0 { Err(last_error()) } else { Ok(n as usize) }
+}
+
+/// One `send(2)` without SIGPIPE.
+pub fn send(fd: i32, buf: &[u8]) -> Result<usize> {
+    // SAFETY: the kernel reads at most `buf.len()` bytes from the live slice.
+    let n = unsafe { libc::send(fd, buf.as_ptr().cast(), buf.len(), libc::MSG_NOSIGNAL) };
+    if n < 0 { Err(last_error()) } else { Ok(n as usize) }
+}
+
+/// One `write(2)`.
+pub fn write(fd: i32, buf: &[u8]) -> Result<usize> {
+    // SAFETY: the kernel reads at most `buf.len()` bytes from the live slice.
+    let n = unsafe { libc::write(fd, buf.as_ptr().cast(), buf.len()) };
+    if n < 0 { Err(last_error()) } else { Ok(n as usize) }
+}
+
+/// `close(2)`, ignoring the result as libmodbus does.
+pub fn close(fd: i32) {
+    // SAFETY: closing a descriptor number has no memory-safety preconditions.
+    unsafe { libc::close(fd) };
+}
+
+/// Sleeps the whole duration, resuming after signals.
+pub fn sleep(d: Duration) {
+    std::thread::sleep(d);
+}

@@ -1,0 +1,207 @@
+//! TCP client connections (`modbus_new_tcp` over IPv4, `modbus_new_tcp_pi` over
+//! whatever getaddrinfo returns), with libmodbus's socket options and a connect
+//! bounded by the response timeout.
+
+use std::ffi::CStr;
+use std::mem::{size_of, zeroed};
+use std::time::Duration;
+
+use crate::context::{Context, Link};
+use crate::core::Diag;
+use crate::error::{Error, Result};
+use crate::transport::{close, errno, last_error, wait};
+
+unsafe extern "C" {
+    /// POSIX `inet_pton` (not bound by the libc crate).
+    pub fn inet_pton(af: libc::c_int, src: *const libc::c_char, dst: *mut libc::c_void) -> libc::c_int;
+}
+
+/// `IPTOS_LOWDELAY`.
+const IPTOS_LOWDELAY: libc::c_int = 0x10;
+
+fn setsockopt_int(fd: i32, level: i32, name: i32, value: libc::c_int) -> Result<()> {
+    // SAFETY: `value` is a live c_int and its size is passed alongside it.
+    let rc = unsafe {
+        libc::setsockopt(fd, level, name, (&value as *const libc::c_int).cast(), size_of::<libc::c_int>() as u32)
+    };
+    if rc == -1 { Err(last_error()) } else { Ok(()) }
+}
+
+/// TCP_NODELAY and low-delay TOS, as libmodbus sets them on IPv4 client sockets.
+fn set_ipv4_options(fd: i32) -> Result<()> {
+    setsockopt_int(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1)?;
+    setsockopt_int(fd, libc::IPPROTO_IP, libc::IP_TOS, IPTOS_LOWDELAY)
+}
+
+/// A non-blocking stream socket of `family`, close-on-exec.
+fn new_socket(family: i32, protocol: i32) -> Result<i32> {
+    // SAFETY: plain system call with integer arguments.
+    let fd = unsafe { libc::socket(family, libc::SOCK_STREAM | libc::SOCK_CLOEXEC | libc::SOCK_NONBLOCK, protocol) };
+    if fd == -1 { Err(last_error()) } else { Ok(fd) }
+}
+
+/// Connects a non-blocking socket, waiting at most `timeout` for the handshake.
+/// A timeout gives ETIMEDOUT (3.1.11+); any pending socket error gives ECONNREFUSED.
+fn connect_within(fd: i32, addr: *const libc::sockaddr, len: libc::socklen_t, timeout: Duration) -> Result<()> {
+    // SAFETY: `addr` points at a socket address of `len` bytes owned by the caller.
+    let rc = unsafe { libc::connect(fd, addr, len) };
+    if rc == 0 {
+        return Ok(());
+    }
+    if errno() != libc::EINPROGRESS {
+        return Err(last_error());
+    }
+    if !wait(fd, libc::POLLOUT, Some(timeout))? {
+        return Err(Error::TIMED_OUT);
+    }
+    let mut so_error: libc::c_int = 0;
+    let mut optlen = size_of::<libc::c_int>() as libc::socklen_t;
+    // SAFETY: `so_error` and `optlen` are live locals of the sizes getsockopt expects.
+    let rc = unsafe {
+        libc::getsockopt(fd, libc::SOL_SOCKET, libc::SO_ERROR, (&mut so_error as *mut libc::c_int).cast(), &mut optlen)
+    };
+    if rc == 0 && so_error != 0 {
+        return Err(Error::CONN_REFUSED);
+    }
+    if rc == -1 { Err(last_error()) } else { Ok(()) }
+}
+
+/// Parses a dotted-quad IPv4 address.
+fn parse_ipv4(ip: &CStr) -> Option<libc::in_addr> {
+    // SAFETY: all-zero is a valid in_addr.
+    let mut addr: libc::in_addr = unsafe { zeroed() };
+    // SAFETY: `ip` is NUL-terminated and `addr` is a live in_addr for the result.
+    let rc = unsafe { inet_pton(libc::AF_INET, ip.as_ptr(), (&mut addr as *mut libc::in_addr).cast()) };
+    (rc == 1).then_some(addr)
+}
+
+/// `modbus_connect` for a TCP (IPv4) context.
+pub fn connect_ipv4(ctx: &mut Context) -> Result<()> {
+    let Link::Tcp(link) = &ctx.link else { return Err(Error::INVALID) };
+    let (ip, port) = (link.ip.clone(), link.port);
+    let fd = new_socket(libc::AF_INET, 0)?;
+    if let Err(e) = set_ipv4_options(fd) {
+        close(fd);
+        return Err(e);
+    }
+    let mut diag = ctx.diag();
+    diag.out(format_args!("Connecting to {}:{}\n", ip.to_string_lossy(), port));
+    let Some(in_addr) = parse_ipv4(&ip) else {
+        diag.err(format_args!("Invalid IP address: {}\n", ip.to_string_lossy()));
+        close(fd);
+        return Err(Error::UNCHANGED);
+    };
+    // SAFETY: all-zero is a valid sockaddr_in.
+    let mut sa: libc::sockaddr_in = unsafe { zeroed() };
+    sa.sin_family = libc::AF_INET as libc::sa_family_t;
+    sa.sin_port = (port as u16).to_be();
+    sa.sin_addr = in_addr;
+    let len = size_of::<libc::sockaddr_in>() as libc::socklen_t;
+    match connect_within(fd, (&sa as *const libc::sockaddr_in).cast(), len, ctx.response_timeout.duration()) {
+        Ok(()) => {
+            ctx.s = fd;
+            Ok(())
+        }
+        Err(e) => {
+            close(fd);
+            ctx.s = -1;
+            Err(e)
+        }
+    }
+}
+
+/// Owns a getaddrinfo result list.
+pub struct AddrInfo(*mut libc::addrinfo);
+
+impl AddrInfo {
+    /// Resolves `node`/`service` for stream sockets with the given flags.
+    pub fn lookup(node: Option<&CStr>, service: &CStr, flags: i32) -> core::result::Result<AddrInfo, i32> {
+        // SAFETY: all-zero is a valid addrinfo hints value.
+        let mut hints: libc::addrinfo = unsafe { zeroed() };
+        hints.ai_flags = flags;
+        hints.ai_family = libc::AF_UNSPEC;
+        hints.ai_socktype = libc::SOCK_STREAM;
+        let mut list = std::ptr::null_mut();
+        let node_ptr = node.map_or(std::ptr::null(), CStr::as_ptr);
+        // SAFETY: the strings are NUL-terminated or NULL; `list` receives the result.
+        let rc = unsafe { libc::getaddrinfo(node_ptr, service.as_ptr(), &hints, &mut list) };
+        if rc != 0 { Err(rc) } else { Ok(AddrInfo(list)) }
+    }
+
+    /// The entries in order.
+    pub fn iter(&self) -> impl Iterator<Item = &libc::addrinfo> {
+        // SAFETY: each `ai_next` is NULL or points at the next entry of the list we own.
+        std::iter::successors(unsafe { self.0.as_ref() }, |ai| unsafe { ai.ai_next.as_ref() })
+    }
+}
+
+impl Drop for AddrInfo {
+    fn drop(&mut self) {
+        if !self.0.is_null() {
+            // SAFETY: the list came from getaddrinfo and is freed exactly once.
+            unsafe { libc::freeaddrinfo(self.0) };
+        }
+    }
+}
+
+/// The text of a getaddrinfo error code.
+pub fn gai_error(code: i32) -> String {
+    // SAFETY: gai_strerror returns a pointer to a static NUL-terminated string.
+    unsafe { CStr::from_ptr(libc::gai_strerror(code)) }.to_string_lossy().into_owned()
+}
+
+/// `modbus_connect` for a protocol-independent TCP context: the first address that
+/// connects wins.
+pub fn connect_pi(ctx: &mut Context) -> Result<()> {
+    let Link::TcpPi(link) = &ctx.link else { return Err(Error::INVALID) };
+    let (node, service) = (link.node.clone(), link.service.clone());
+    let mut diag = ctx.diag();
+    let node_arg = (!node.is_empty()).then_some(node.as_c_str());
+    let list = match AddrInfo::lookup(node_arg, &service, libc::AI_ADDRCONFIG) {
+        Ok(list) => list,
+        Err(code) => {
+            diag.err(format_args!("Error returned by getaddrinfo: {}\n", gai_error(code)));
+            return Err(Error::CONN_REFUSED);
+        }
+    };
+    let mut last = Error::CONN_REFUSED;
+    for ai in list.iter() {
+        let fd = match new_socket(ai.ai_family, ai.ai_protocol) {
+            Ok(fd) => fd,
+            Err(e) => {
+                last = e;
+                continue;
+            }
+        };
+        if ai.ai_family == libc::AF_INET
+            && let Err(e) = set_ipv4_options(fd)
+        {
+            close(fd);
+            last = e;
+            continue;
+        }
+        diag.out(format_args!("Connecting to [{}]:{}\n", node.to_string_lossy(), service.to_string_lossy()));
+        match connect_within(fd, ai.ai_addr, ai.ai_addrlen, ctx.response_timeout.duration()) {
+            Ok(()) => {
+                ctx.s = fd;
+                return Ok(());
+            }
+            Err(e) => {
+                close(fd);
+                last = e;
+            }
+        }
+    }
+    ctx.s = -1;
+    Err(last)
+}
+
+/// `modbus_close` for TCP: shut down both directions, then close.
+pub fn close_socket(ctx: &mut Context) {
+    if ctx.s >= 0 {
+        // SAFETY: shutdown on a descriptor number has no memory preconditions.
+        unsafe { libc::shutdown(ctx.s, libc::SHUT_RDWR) };
+        close(ctx.s);
+        ctx.s = -1;
+    }
+}
