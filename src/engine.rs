@@ -395,3 +395,160 @@ pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
     out[h..h + pdu.len()].copy_from_slice(pdu);
     send_msg(g, &mut out, h + pdu.len())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::context::Timeout;
+    use parking_lot::Mutex;
+    use std::time::Duration;
+
+    /// A connected pair of stream sockets: (ours, peer).
+    fn socket_pair() -> (i32, i32) {
+        let mut fds = [0i32; 2];
+        // SAFETY: `fds` has room for the two descriptors socketpair returns.
+        let rc = unsafe { libc::socketpair(libc::AF_UNIX, libc::SOCK_STREAM, 0, fds.as_mut_ptr()) };
+        assert_eq!(rc, 0);
+        (fds[0], fds[1])
+    }
+
+    fn tcp_context(fd: i32) -> Mutex<Context> {
+        let mut ctx = Context::new_tcp(Some(c"127.0.0.1"), 502).unwrap();
+        ctx.s = fd;
+        Mutex::new(ctx)
+    }
+
+    fn read_registers_rsp(tid: u16) -> Vec<u8> {
+        let mut v = tid.to_be_bytes().to_vec();
+        v.extend([0, 0, 0, 7, 0xFF, 3, 4, 0x12, 0x34, 0xAB, 0xCD]);
+        v
+    }
+
+    #[test]
+    fn confirmation_split_into_single_bytes_is_assembled() {
+        let (ours, peer) = socket_pair();
+        let m = tcp_context(ours);
+        let writer = std::thread::spawn(move || {
+            let mut req = [0u8; 12];
+            let mut got = 0;
+            while got < 12 {
+                got += transport::read(peer, &mut req[got..]).unwrap();
+            }
+            for b in read_registers_rsp(u16::from_be_bytes([req[0], req[1]])) {
+                transport::write(peer, &[b]).unwrap();
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            peer
+        });
+        let mut g = m.lock();
+        let mut rsp = [0u8; MAX_ADU_LENGTH];
+        let req = Request::ReadRegisters { function: 3, addr: 0, nb: 2 };
+        let done = exchange(&mut g, &req, &mut rsp).unwrap();
+        assert_eq!((done.len, done.count), (13, 2));
+        assert_eq!(rsp[9..13], [0x12, 0x34, 0xAB, 0xCD]);
+        transport::close(writer.join().unwrap());
+        transport::close(ours);
+    }
+
+    #[test]
+    fn silence_is_a_timeout_and_close_is_a_reset() {
+        let (ours, peer) = socket_pair();
+        let m = tcp_context(ours);
+        let mut g = m.lock();
+        g.response_timeout = Timeout::new(0, 50_000);
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let started = Instant::now();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+        assert!(started.elapsed() >= Duration::from_millis(45));
+        // Half a frame, then the peer goes away.
+        transport::write(peer, &[0, 1, 0, 0, 0, 7]).unwrap();
+        transport::close(peer);
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::CONN_RESET));
+        transport::close(ours);
+    }
+
+    #[test]
+    fn byte_timeout_applies_between_bytes() {
+        let (ours, peer) = socket_pair();
+        let m = tcp_context(ours);
+        let mut g = m.lock();
+        g.response_timeout = Timeout::new(2, 0);
+        g.byte_timeout = Timeout::new(0, 20_000);
+        transport::write(peer, &[0, 1, 0, 0]).unwrap();
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let started = Instant::now();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+        // Ends on the byte timeout, long before the 2 s response timeout.
+        assert!(started.elapsed() < Duration::from_millis(1500));
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    #[test]
+    fn oversized_announcement_is_refused() {
+        let (ours, peer) = socket_pair();
+        let m = tcp_context(ours);
+        let mut g = m.lock();
+        // Read response announcing 255 data bytes: 9 + 255 > 260.
+        transport::write(peer, &[0, 1, 0, 0, 1, 2, 0xFF, 3, 0xFF]).unwrap();
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_DATA));
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    #[test]
+    fn wrong_transaction_id_is_bad_data() {
+        let (ours, peer) = socket_pair();
+        let m = tcp_context(ours);
+        let writer = std::thread::spawn(move || {
+            let mut req = [0u8; 12];
+            let mut got = 0;
+            while got < 12 {
+                got += transport::read(peer, &mut req[got..]).unwrap();
+            }
+            transport::write(peer, &read_registers_rsp(0x4242)).unwrap();
+            peer
+        });
+        let mut g = m.lock();
+        let mut rsp = [0u8; MAX_ADU_LENGTH];
+        let req = Request::ReadRegisters { function: 3, addr: 0, nb: 2 };
+        assert_eq!(exchange(&mut g, &req, &mut rsp).err(), Some(Error::BAD_DATA));
+        transport::close(writer.join().unwrap());
+        transport::close(ours);
+    }
+
+    #[test]
+    fn not_connected_leaves_errno_alone() {
+        let m = tcp_context(-1);
+        let mut g = m.lock();
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::UNCHANGED));
+    }
+
+    #[test]
+    fn rtu_frame_for_another_slave_is_ignored_and_bad_crc_refused() {
+        let (ours, peer) = socket_pair();
+        let mut ctx = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
+        ctx.s = ours;
+        ctx.slave = 0x11;
+        let m = Mutex::new(ctx);
+        let mut g = m.lock();
+        let frame = |slave: u8| {
+            let mut f = vec![slave, 0x06, 0x00, 0x01, 0x00, 0x03];
+            f.extend(crate::core::crc::crc16(&f).to_le_bytes());
+            f
+        };
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        transport::write(peer, &frame(0x12)).unwrap();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Ignored(8)));
+        transport::write(peer, &frame(0x11)).unwrap();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(8)));
+        let mut bad = frame(0x12);
+        bad[7] ^= 0xFF;
+        transport::write(peer, &bad).unwrap();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::BAD_CRC));
+        transport::close(peer);
+        transport::close(ours);
+    }
+}

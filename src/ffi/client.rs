@@ -255,12 +255,15 @@ pub unsafe extern "C" fn modbus_report_slave_id(ctx: *mut Modbus, max_dest: c_in
     }
 }
 
-fn raw_request(ctx: *mut Modbus, raw_req: *const u8, raw_req_length: c_int, tid: u16) -> c_int {
+/// # Safety
+/// `ctx` must be NULL or a live context; `raw_req` NULL or valid for
+/// `raw_req_length` bytes.
+unsafe fn raw_request(ctx: *mut Modbus, raw_req: *const u8, raw_req_length: c_int, tid: u16) -> c_int {
     if ctx.is_null() || raw_req.is_null() || !(2..=MAX_PDU_LENGTH as c_int + 1).contains(&raw_req_length) {
         return crate::ffi::fail(Error::INVALID);
     }
-    // SAFETY: `raw_req` is non-NULL and holds `raw_req_length` bytes per the contract
-    // of the two exports below; `ctx` is NULL or live.
+    // SAFETY: `raw_req` is non-NULL and holds `raw_req_length` bytes, and `ctx` is live
+    // (caller contract).
     unsafe {
         let raw = slice::from_raw_parts(raw_req, raw_req_length as usize);
         with_ctx(ctx, |g| engine::send_raw(g, raw, tid).map(|n| n as c_int))
@@ -274,7 +277,8 @@ fn raw_request(ctx: *mut Modbus, raw_req: *const u8, raw_req_length: c_int, tid:
 /// `ctx` must be NULL or a live context; `raw_req` valid for `raw_req_length` bytes.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_send_raw_request(ctx: *mut Modbus, raw_req: *const u8, raw_req_length: c_int) -> c_int {
-    raw_request(ctx, raw_req, raw_req_length, 0)
+    // SAFETY: forwarded caller contract.
+    unsafe { raw_request(ctx, raw_req, raw_req_length, 0) }
 }
 
 /// Like `modbus_send_raw_request` with the given transaction id (TCP).
@@ -288,7 +292,8 @@ pub unsafe extern "C" fn modbus_send_raw_request_tid(
     raw_req_length: c_int,
     tid: c_int,
 ) -> c_int {
-    raw_request(ctx, raw_req, raw_req_length, tid as u16)
+    // SAFETY: forwarded caller contract.
+    unsafe { raw_request(ctx, raw_req, raw_req_length, tid as u16) }
 }
 
 /// Receives one response into `rsp` without checking it against a request.
