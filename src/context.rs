@@ -4,7 +4,7 @@
 use std::ffi::{CStr, CString};
 use std::time::Duration;
 
-use crate::core::frame::Framing;
+use crate::core::frame::{Framing, MAX_ADU_LENGTH};
 use crate::core::limits::TCP_SLAVE;
 use crate::error::{Error, Result};
 use crate::stdio::{self, DebugSink};
@@ -78,6 +78,41 @@ pub struct TcpPiLink {
     pub service: CString,
 }
 
+/// Bytes a client read past the end of the response it was assembling. They are
+/// handed out before the line is read again, so reading ahead never changes what a
+/// later receive sees; `modbus_flush`, close, connect and `modbus_set_socket` drop
+/// them along with the kernel's queue.
+pub struct ReadAhead {
+    pub buf: [u8; MAX_ADU_LENGTH],
+    pub start: usize,
+    pub end: usize,
+}
+
+impl ReadAhead {
+    pub const fn new() -> Self {
+        ReadAhead { buf: [0; MAX_ADU_LENGTH], start: 0, end: 0 }
+    }
+    pub fn available(&self) -> &[u8] {
+        &self.buf[self.start..self.end]
+    }
+    pub fn consume(&mut self, n: usize) {
+        self.start += n;
+        if self.start == self.end {
+            self.clear();
+        }
+    }
+    pub fn clear(&mut self) {
+        self.start = 0;
+        self.end = 0;
+    }
+}
+
+impl Default for ReadAhead {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 pub enum Link {
     Rtu(RtuLink),
     Tcp(TcpLink),
@@ -102,6 +137,8 @@ pub struct Context {
     pub t_id: u16,
     /// Address of the owning `modbus_t`, handed to a custom RTS callback.
     pub handle_addr: usize,
+    /// Read-ahead of the client side (see [`ReadAhead`]).
+    pub rx: ReadAhead,
 }
 
 impl Context {
@@ -119,6 +156,7 @@ impl Context {
             indication_timeout: Timeout::new(0, 0),
             t_id: 0,
             handle_addr: 0,
+            rx: ReadAhead::new(),
         }
     }
 

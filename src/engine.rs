@@ -47,6 +47,7 @@ pub fn describe(errnum: i32) -> String {
 
 /// `modbus_connect`.
 pub fn connect(ctx: &mut Context) -> Result<()> {
+    ctx.rx.clear();
     match ctx.link {
         Link::Rtu(_) => rtu::connect(ctx),
         Link::Tcp(_) => tcp::connect_ipv4(ctx),
@@ -56,6 +57,7 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
 
 /// `modbus_close`.
 pub fn close(ctx: &mut Context) {
+    ctx.rx.clear();
     match ctx.link {
         Link::Rtu(_) => rtu::close_line(ctx),
         Link::Tcp(_) | Link::TcpPi(_) => tcp::close_socket(ctx),
@@ -65,9 +67,11 @@ pub fn close(ctx: &mut Context) {
 /// `modbus_flush`: discard what is pending on the line. Returns the bytes dropped
 /// (TCP) or 0 (RTU).
 pub fn flush(ctx: &mut Context) -> Result<usize> {
+    let buffered = ctx.rx.available().len();
+    ctx.rx.clear();
     let rc = match ctx.framing {
         Framing::Rtu => rtu::flush(ctx.s),
-        Framing::Tcp => flush_socket(ctx),
+        Framing::Tcp => flush_socket(ctx).map(|n| n + buffered),
     };
     if let Ok(n) = rc {
         ctx.diag().out(format_args!("Bytes flushed ({n})\n"));
@@ -150,9 +154,10 @@ pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> 
     let len = g.framing.seal(buf, len);
     let adu = &buf[..len];
     if g.debug {
+        use std::fmt::Write as _;
         let mut line = String::with_capacity(len * 4 + 1);
         for b in adu {
-            line.push_str(&format!("[{b:02X}]"));
+            let _ = write!(line, "[{b:02X}]");
         }
         line.push('\n');
         crate::stdio::out(format_args!("{line}"));
@@ -210,10 +215,18 @@ fn recover_after_read(ctx: &mut Context, e: Error) {
     }
 }
 
-/// libmodbus's `_modbus_receive_msg`: read one message, step by step, never more
-/// bytes than it needs. The first wait uses the response timeout (confirmation) or
-/// the indication timeout (0 = forever); later waits use a fresh byte timeout, or,
-/// when that is 0, what is left of the first one.
+/// libmodbus's `_modbus_receive_msg`: read one message, step by step. The first wait
+/// uses the response timeout (confirmation) or the indication timeout (0 = forever);
+/// later waits use a fresh byte timeout, or, when that is 0, what is left of the
+/// first one.
+///
+/// Fewer system calls than libmodbus, same observable behaviour:
+/// - a client reads ahead as much as the line has, keeping what lies past its
+///   response in the context's [`ReadAhead`](crate::context::ReadAhead) for the
+///   next receive (a client owns its line);
+/// - a TCP server peeks at what has arrived and, when it holds the whole request,
+///   takes exactly that request in one read; it never takes bytes past the request,
+///   so the application's own poll loop still sees pipelined requests.
 pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result<Received> {
     let ctx: &mut Context = g;
     let mut diag = ctx.diag();
@@ -225,6 +238,19 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
         diag.err(format_args!("ERROR The connection is not established.\n"));
         return Err(Error::UNCHANGED);
     }
+    let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
+    if ctx.framing == Framing::Tcp && kind == MsgKind::Indication && ctx.rx.available().is_empty() {
+        let blocking = ctx.indication_timeout.is_zero();
+        if let Some(len) = take_whole_indication(ctx.s, buf, blocking) {
+            if ctx.debug {
+                let mut trace = String::with_capacity(len * 4 + 1);
+                push_trace(&mut trace, &buf[..len]);
+                trace.push('\n');
+                flush_trace(ctx, &mut trace);
+            }
+            return check_integrity(ctx, &buf[..len]);
+        }
+    }
     let first = match kind {
         MsgKind::Confirmation => Some(ctx.response_timeout),
         MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then_some(ctx.indication_timeout),
@@ -233,52 +259,46 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
     let mut asm = Assembler::new(ctx.framing, kind);
     let mut trace = String::new();
     loop {
-        // Wait for data.
-        loop {
-            let timeout = deadline.map(|d| d.saturating_duration_since(Instant::now()));
-            match transport::wait(ctx.s, libc::POLLIN, timeout) {
-                Ok(true) => break,
-                Ok(false) => {
-                    flush_trace(ctx, &mut trace);
-                    error_print(ctx, Error::TIMED_OUT, Some("select"));
-                    recover_after_wait(ctx, Error::TIMED_OUT);
-                    return Err(Error::TIMED_OUT);
+        let start = asm.len();
+        let want = asm.wanted();
+        let n = if !ctx.rx.available().is_empty() {
+            let n = want.min(ctx.rx.available().len());
+            buf[start..start + n].copy_from_slice(&ctx.rx.available()[..n]);
+            ctx.rx.consume(n);
+            n
+        } else {
+            if let Err(e) = wait_readable(ctx, deadline) {
+                flush_trace(ctx, &mut trace);
+                error_print(ctx, e, Some("select"));
+                recover_after_wait(ctx, e);
+                return Err(e);
+            }
+            let got = if read_ahead {
+                read_line(ctx.framing, ctx.s, &mut ctx.rx.buf)
+            } else {
+                read_line(ctx.framing, ctx.s, &mut buf[start..start + want])
+            };
+            let got = match got {
+                Ok(0) => Err(Error::CONN_RESET),
+                Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
+                other => other,
+            };
+            match got {
+                Ok(n) if read_ahead => {
+                    ctx.rx.end = n;
+                    continue;
                 }
-                Err(e) if e.0 == libc::EINTR => {
-                    diag.err(format_args!("A non blocked signal was caught\n"));
-                }
+                Ok(n) => n,
                 Err(e) => {
                     flush_trace(ctx, &mut trace);
-                    error_print(ctx, e, Some("select"));
-                    recover_after_wait(ctx, e);
+                    error_print(ctx, e, Some("read"));
+                    recover_after_read(ctx, e);
                     return Err(e);
                 }
             }
-        }
-        let start = asm.len();
-        let want = asm.wanted();
-        let got = match ctx.framing {
-            Framing::Tcp => transport::recv(ctx.s, &mut buf[start..start + want], 0),
-            Framing::Rtu => transport::read(ctx.s, &mut buf[start..start + want]),
-        };
-        let n = match got {
-            Ok(0) => Err(Error::CONN_RESET),
-            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
-            other => other,
-        };
-        let n = match n {
-            Ok(n) => n,
-            Err(e) => {
-                flush_trace(ctx, &mut trace);
-                error_print(ctx, e, Some("read"));
-                recover_after_read(ctx, e);
-                return Err(e);
-            }
         };
         if ctx.debug {
-            for b in &buf[start..start + n] {
-                trace.push_str(&format!("<{b:02X}>"));
-            }
+            push_trace(&mut trace, &buf[start..start + n]);
         }
         match asm.received(&buf[..start + n], n) {
             Ok(Progress::NeedMore(_)) => {
@@ -297,6 +317,66 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
                 return Err(e);
             }
         }
+    }
+}
+
+/// Waits until the line is readable or `deadline` passes (`None`: forever),
+/// resuming after signals as libmodbus does.
+fn wait_readable(ctx: &Context, deadline: Option<Instant>) -> Result<()> {
+    loop {
+        let timeout = deadline.map(|d| d.saturating_duration_since(Instant::now()));
+        match transport::wait(ctx.s, libc::POLLIN, timeout) {
+            Ok(true) => return Ok(()),
+            Ok(false) => return Err(Error::TIMED_OUT),
+            Err(e) if e.0 == libc::EINTR => ctx.diag().err(format_args!("A non blocked signal was caught\n")),
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// One read from the line: `recv` on a socket, `read` on a serial line.
+fn read_line(framing: Framing, fd: i32, buf: &mut [u8]) -> Result<usize> {
+    match framing {
+        Framing::Tcp => transport::recv(fd, buf, 0),
+        Framing::Rtu => transport::read(fd, buf),
+    }
+}
+
+/// TCP server fast path: peek at the queued bytes (blocking when the indication
+/// timeout is infinite) and, when they hold a whole request, take exactly that
+/// request. `None` when the slow path must run (nothing queued yet, a partial
+/// request, an oversized one, or an error it will report).
+fn take_whole_indication(fd: i32, buf: &mut AduBuf, blocking: bool) -> Option<usize> {
+    let flags = libc::MSG_PEEK | if blocking { 0 } else { libc::MSG_DONTWAIT };
+    // Peek into scratch space: the caller's buffer only ever receives the request.
+    let mut peeked: AduBuf = [0; MAX_ADU_LENGTH];
+    let queued = match transport::recv(fd, &mut peeked, flags) {
+        Ok(n) if n > 0 => n,
+        _ => return None,
+    };
+    let mut asm = Assembler::new(Framing::Tcp, MsgKind::Indication);
+    let len = loop {
+        let next = asm.len() + asm.wanted();
+        if next > queued {
+            return None;
+        }
+        match asm.received(&peeked[..next], asm.wanted()) {
+            Ok(Progress::NeedMore(_)) => continue,
+            Ok(Progress::Complete(len)) => break len,
+            Err(_) => return None,
+        }
+    };
+    // The request is queued whole, so this read returns all of it and nothing more.
+    match transport::recv(fd, &mut buf[..len], 0) {
+        Ok(n) if n == len => Some(len),
+        _ => None,
+    }
+}
+
+fn push_trace(trace: &mut String, bytes: &[u8]) {
+    use std::fmt::Write as _;
+    for b in bytes {
+        let _ = write!(trace, "<{b:02X}>");
     }
 }
 

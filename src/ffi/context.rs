@@ -99,6 +99,7 @@ pub unsafe extern "C" fn modbus_set_socket(ctx: *mut Modbus, s: c_int) -> c_int 
     unsafe {
         with_ctx(ctx, |g| {
             g.s = s;
+            g.rx.clear();
             Ok(0)
         })
     }
