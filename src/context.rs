@@ -225,6 +225,23 @@ impl Context {
         Ok(Context::common(Framing::Tcp, Link::TcpPi(TcpPiLink { node, service }), TCP_SLAVE))
     }
 
+    /// `modbus_new_rtu_tcp`: RTU frames (slave, PDU, CRC) over a TCP/IPv4 stream,
+    /// as serial-to-Ethernet gateways speak them. Slave rules are RTU's.
+    pub fn new_rtu_tcp(ip: Option<&CStr>, port: i32) -> Result<Context> {
+        let mut ctx = Context::new_tcp(ip, port)?;
+        ctx.framing = Framing::Rtu;
+        ctx.slave = -1;
+        Ok(ctx)
+    }
+
+    /// `modbus_new_rtu_tcp_pi`: RTU frames over TCP, any address family.
+    pub fn new_rtu_tcp_pi(node: Option<&CStr>, service: Option<&CStr>) -> Result<Context> {
+        let mut ctx = Context::new_tcp_pi(node, service)?;
+        ctx.framing = Framing::Rtu;
+        ctx.slave = -1;
+        Ok(ctx)
+    }
+
     pub fn rtu(&self) -> Option<&RtuLink> {
         match &self.link {
             Link::Rtu(r) => Some(r),
@@ -239,8 +256,14 @@ impl Context {
         }
     }
 
+    /// TCP (MBAP) framing.
     pub fn is_tcp(&self) -> bool {
         self.framing == Framing::Tcp
+    }
+
+    /// The line is a socket (TCP framing, or RTU framing carried over TCP).
+    pub fn is_socket(&self) -> bool {
+        matches!(self.link, Link::Tcp(_) | Link::TcpPi(_))
     }
 
     /// The debug sink (prints through C stdio when debug is on).

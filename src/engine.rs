@@ -69,10 +69,7 @@ pub fn close(ctx: &mut Context) {
 pub fn flush(ctx: &mut Context) -> Result<usize> {
     let buffered = ctx.rx.available().len();
     ctx.rx.clear();
-    let rc = match ctx.framing {
-        Framing::Rtu => rtu::flush(ctx.s),
-        Framing::Tcp => flush_socket(ctx).map(|n| n + buffered),
-    };
+    let rc = if ctx.is_socket() { flush_socket(ctx).map(|n| n + buffered) } else { rtu::flush(ctx.s) };
     if let Ok(n) = rc {
         ctx.diag().out(format_args!("Bytes flushed ({n})\n"));
     }
@@ -127,9 +124,9 @@ fn sleep_us(us: i64) {
 
 /// Writes one sealed ADU to the line (RTU with the RTS sequence when enabled).
 fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    match g.framing {
-        Framing::Tcp => transport::send(g.s, adu),
-        Framing::Rtu => {
+    match g.is_socket() {
+        true => transport::send(g.s, adu),
+        false => {
             let (rts, rts_delay, onebyte) = match g.rtu() {
                 Some(l) => (l.rts, l.rts_delay as i64, l.onebyte_time as i64),
                 None => (RTU_RTS_NONE, 0, 0),
@@ -239,9 +236,9 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
         return Err(Error::UNCHANGED);
     }
     let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
-    if ctx.framing == Framing::Tcp && kind == MsgKind::Indication && ctx.rx.available().is_empty() {
+    if ctx.is_socket() && kind == MsgKind::Indication && ctx.rx.available().is_empty() {
         let blocking = ctx.indication_timeout.is_zero();
-        if let Some(len) = take_whole_indication(ctx.s, buf, blocking) {
+        if let Some(len) = take_whole_indication(ctx.framing, ctx.s, buf, blocking) {
             if ctx.debug {
                 let mut trace = String::with_capacity(len * 4 + 1);
                 push_trace(&mut trace, &buf[..len]);
@@ -274,9 +271,9 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
                 return Err(e);
             }
             let got = if read_ahead {
-                read_line(ctx.framing, ctx.s, &mut ctx.rx.buf)
+                read_line(ctx.is_socket(), ctx.s, &mut ctx.rx.buf)
             } else {
-                read_line(ctx.framing, ctx.s, &mut buf[start..start + want])
+                read_line(ctx.is_socket(), ctx.s, &mut buf[start..start + want])
             };
             let got = match got {
                 Ok(0) => Err(Error::CONN_RESET),
@@ -335,18 +332,15 @@ fn wait_readable(ctx: &Context, deadline: Option<Instant>) -> Result<()> {
 }
 
 /// One read from the line: `recv` on a socket, `read` on a serial line.
-fn read_line(framing: Framing, fd: i32, buf: &mut [u8]) -> Result<usize> {
-    match framing {
-        Framing::Tcp => transport::recv(fd, buf, 0),
-        Framing::Rtu => transport::read(fd, buf),
-    }
+fn read_line(socket: bool, fd: i32, buf: &mut [u8]) -> Result<usize> {
+    if socket { transport::recv(fd, buf, 0) } else { transport::read(fd, buf) }
 }
 
-/// TCP server fast path: peek at the queued bytes (blocking when the indication
+/// Socket server fast path: peek at the queued bytes (blocking when the indication
 /// timeout is infinite) and, when they hold a whole request, take exactly that
 /// request. `None` when the slow path must run (nothing queued yet, a partial
 /// request, an oversized one, or an error it will report).
-fn take_whole_indication(fd: i32, buf: &mut AduBuf, blocking: bool) -> Option<usize> {
+fn take_whole_indication(framing: Framing, fd: i32, buf: &mut AduBuf, blocking: bool) -> Option<usize> {
     let flags = libc::MSG_PEEK | if blocking { 0 } else { libc::MSG_DONTWAIT };
     // Peek into scratch space: the caller's buffer only ever receives the request.
     let mut peeked: AduBuf = [0; MAX_ADU_LENGTH];
@@ -354,7 +348,7 @@ fn take_whole_indication(fd: i32, buf: &mut AduBuf, blocking: bool) -> Option<us
         Ok(n) if n > 0 => n,
         _ => return None,
     };
-    let mut asm = Assembler::new(Framing::Tcp, MsgKind::Indication);
+    let mut asm = Assembler::new(framing, MsgKind::Indication);
     let len = loop {
         let next = asm.len() + asm.wanted();
         if next > queued {
@@ -432,6 +426,11 @@ pub struct Confirmed {
 }
 
 pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Result<Confirmed> {
+    if g.slave < 0 {
+        // libmodbus asserts (and aborts) here: an RTU request needs a slave id.
+        g.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
+        return Err(Error::INVALID);
+    }
     let mut out: AduBuf = [0; MAX_ADU_LENGTH];
     let n = build_request(g, req, &mut out);
     let sent = send_msg(g, &mut out, n)?;

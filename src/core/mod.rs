@@ -4,6 +4,7 @@
 //! the caller's business (`crate::transport`, `crate::engine`). Debug text that
 //! libmodbus would print is handed to a [`Diag`] sink so that tests can read it.
 
+pub mod ascii;
 pub mod confirm;
 pub mod crc;
 pub mod data;

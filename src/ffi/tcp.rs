@@ -28,3 +28,30 @@ pub unsafe extern "C" fn modbus_new_tcp_pi(node: *const c_char, service: *const 
     let (node, service) = unsafe { (opt_cstr(node), opt_cstr(service)) };
     into_handle(Context::new_tcp_pi(node, service))
 }
+
+/// rsmodbus extension: a context that speaks RTU frames (slave id, PDU, CRC) over a
+/// TCP/IPv4 connection, as most serial-to-Ethernet gateways do. Set the slave with
+/// `modbus_set_slave`; the rest works as on an RTU context (CRC checks, slave
+/// filter, broadcast), with `modbus_connect`/`modbus_tcp_listen`/`modbus_tcp_accept`
+/// doing the TCP side.
+///
+/// # Safety
+/// `ip_address` must be NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_new_rtu_tcp(ip_address: *const c_char, port: c_int) -> *mut Modbus {
+    // SAFETY: forwarded caller contract.
+    let ip = unsafe { opt_cstr(ip_address) };
+    into_handle(Context::new_rtu_tcp(ip, port))
+}
+
+/// rsmodbus extension: RTU frames over TCP, any address family (IPv4 or IPv6, names
+/// resolved with getaddrinfo), like `modbus_new_tcp_pi`.
+///
+/// # Safety
+/// `node` and `service` must each be NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_new_rtu_tcp_pi(node: *const c_char, service: *const c_char) -> *mut Modbus {
+    // SAFETY: forwarded caller contract.
+    let (node, service) = unsafe { (opt_cstr(node), opt_cstr(service)) };
+    into_handle(Context::new_rtu_tcp_pi(node, service))
+}
