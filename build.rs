@@ -39,16 +39,8 @@ const FFI_ROOT: &str = "src/ffi/mod.rs";
 /// headers show it, so the generated prototypes get it back: (function, parameter
 /// as generated, parameter as libmodbus declares it).
 const CONST_VALUE_PARAMS: &[(&str, &str, &str)] = &[
-    (
-        "modbus_write_register",
-        "uint16_t value",
-        "const uint16_t value",
-    ),
-    (
-        "modbus_set_bits_from_byte",
-        "uint8_t value",
-        "const uint8_t value",
-    ),
+    ("modbus_write_register", "uint16_t value", "const uint16_t value"),
+    ("modbus_set_bits_from_byte", "uint8_t value", "const uint8_t value"),
 ];
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -57,7 +49,13 @@ enum Part {
     Rtu,
     Tcp,
     Version,
+    /// rsmodbus' own additions, spliced into modbus.h at [`EXTENSIONS_MARKER`].
+    Extensions,
 }
+
+/// Where the rsmodbus extensions go in modbus.h (a line of cbindgen/modbus.toml).
+const EXTENSIONS_MARKER: &str = "@RSMODBUS_EXTENSIONS@";
+const EXTENSIONS_CONFIG: &str = "cbindgen/modbus-extensions.toml";
 
 struct Header {
     file: &'static str,
@@ -66,31 +64,18 @@ struct Header {
 }
 
 const HEADERS: &[Header] = &[
-    Header {
-        file: "modbus.h",
-        config: "cbindgen/modbus.toml",
-        part: Part::Main,
-    },
-    Header {
-        file: "modbus-rtu.h",
-        config: "cbindgen/modbus-rtu.toml",
-        part: Part::Rtu,
-    },
-    Header {
-        file: "modbus-tcp.h",
-        config: "cbindgen/modbus-tcp.toml",
-        part: Part::Tcp,
-    },
-    Header {
-        file: "modbus-version.h",
-        config: "cbindgen/modbus-version.toml",
-        part: Part::Version,
-    },
+    Header { file: "modbus.h", config: "cbindgen/modbus.toml", part: Part::Main },
+    Header { file: "modbus-rtu.h", config: "cbindgen/modbus-rtu.toml", part: Part::Rtu },
+    Header { file: "modbus-tcp.h", config: "cbindgen/modbus-tcp.toml", part: Part::Tcp },
+    Header { file: "modbus-version.h", config: "cbindgen/modbus-version.toml", part: Part::Version },
 ];
 
-/// Which header declares the exported symbol `name`.
-fn part_of(name: &str) -> Part {
-    if name == "modbus_new_rtu" || name.starts_with("modbus_rtu_") {
+/// Which header declares the exported symbol `name`. `extensions` are the symbols
+/// listed as rsmodbus extensions in [`INTENDED_DIFFERENCES`].
+fn part_of(name: &str, extensions: &[String]) -> Part {
+    if name.starts_with("rsmodbus_") || extensions.iter().any(|e| e == name) {
+        Part::Extensions
+    } else if name == "modbus_new_rtu" || name.starts_with("modbus_rtu_") {
         Part::Rtu
     } else if name.starts_with("modbus_new_tcp") || name.starts_with("modbus_tcp_") {
         Part::Tcp
@@ -99,17 +84,36 @@ fn part_of(name: &str) -> Part {
     }
 }
 
+/// The list of symbols that differ from Debian's libmodbus on purpose; its
+/// `extension | name | reason` lines name rsmodbus' additions.
+const INTENDED_DIFFERENCES: &str = "abi/symbols-intended-differences.txt";
+
+fn extension_names(manifest_dir: &Path) -> Vec<String> {
+    let Ok(text) = fs::read_to_string(manifest_dir.join(INTENDED_DIFFERENCES)) else {
+        println!("cargo:warning=cannot read {INTENDED_DIFFERENCES}; extensions not recognised");
+        return Vec::new();
+    };
+    text.lines()
+        .filter_map(|line| {
+            let mut fields = line.split('|').map(str::trim);
+            match (fields.next(), fields.next()) {
+                (Some("extension"), Some(name)) if !name.is_empty() => Some(name.to_owned()),
+                _ => None,
+            }
+        })
+        .collect()
+}
+
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-changed=src/ffi");
     println!("cargo:rerun-if-changed=cbindgen");
     println!("cargo:rerun-if-changed=libmodbus.pc.in");
-    for var in [
-        "RSMODBUS_PREFIX",
-        "RSMODBUS_LIBDIR",
-        "RSMODBUS_INCLUDEDIR",
-        "RSMODBUS_UPDATE_HEADERS",
-    ] {
+    println!("cargo:rerun-if-changed={INTENDED_DIFFERENCES}");
+    // So that the stale-header warning follows edits of the committed headers, and
+    // RSMODBUS_UPDATE_HEADERS=1 repairs a hand-edited header even if it was set before.
+    println!("cargo:rerun-if-changed=include");
+    for var in ["RSMODBUS_PREFIX", "RSMODBUS_LIBDIR", "RSMODBUS_INCLUDEDIR", "RSMODBUS_UPDATE_HEADERS"] {
         println!("cargo:rerun-if-env-changed={var}");
     }
 
@@ -117,10 +121,7 @@ fn main() {
     let out_dir = PathBuf::from(env::var_os("OUT_DIR").expect("OUT_DIR"));
     let target_os = env::var("CARGO_CFG_TARGET_OS").unwrap_or_default();
     let target_env = env::var("CARGO_CFG_TARGET_ENV").unwrap_or_default();
-    let elf = !matches!(
-        target_os.as_str(),
-        "macos" | "ios" | "tvos" | "watchos" | "windows"
-    );
+    let elf = !matches!(target_os.as_str(), "macos" | "ios" | "tvos" | "watchos" | "windows");
 
     if elf {
         println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,{SONAME}");
@@ -136,11 +137,7 @@ fn main() {
                 }
             }
         }
-        let libs_private = if target_os == "linux" && target_env == "gnu" {
-            LIBS_PRIVATE_LINUX_GNU
-        } else {
-            ""
-        };
+        let libs_private = if target_os == "linux" && target_env == "gnu" { LIBS_PRIVATE_LINUX_GNU } else { "" };
         if let Err(e) = write_pkg_config(&manifest_dir, profile_dir, libs_private) {
             println!("cargo:warning=cannot write libmodbus.pc: {e}");
         }
@@ -173,10 +170,7 @@ fn make_symlink(_target: &str, _link: &Path) -> io::Result<()> {
 }
 
 fn env_or(var: &str, default: &str) -> String {
-    env::var(var)
-        .ok()
-        .filter(|v| !v.is_empty())
-        .unwrap_or_else(|| default.to_owned())
+    env::var(var).ok().filter(|v| !v.is_empty()).unwrap_or_else(|| default.to_owned())
 }
 
 fn version_string() -> String {
@@ -240,19 +234,17 @@ fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
     let symbols: Vec<String> = match load_config(manifest_dir, "cbindgen/modbus.toml")
         .and_then(|config| run_cbindgen(config, Some(&ffi_root)))
     {
-        Ok(bindings) => bindings
-            .dynamic_symbols_names()
-            .map(str::to_owned)
-            .collect(),
+        Ok(bindings) => bindings.dynamic_symbols_names().map(str::to_owned).collect(),
         Err(e) => {
             println!("cargo:warning=cbindgen failed, headers not generated: {e}");
             return;
         }
     };
 
+    let extensions = extension_names(manifest_dir);
     let mut stale = Vec::new();
     for header in HEADERS {
-        let text = match render_header(manifest_dir, &ffi_root, header, &symbols) {
+        let text = match render_header(manifest_dir, &ffi_root, header, &symbols, &extensions) {
             Ok(text) => text,
             Err(e) => {
                 println!("cargo:warning=cannot generate {}: {e}", header.file);
@@ -297,40 +289,54 @@ fn render_header(
     ffi_root: &Path,
     header: &Header,
     symbols: &[String],
+    extensions: &[String],
 ) -> Result<String, String> {
-    let mut config = load_config(manifest_dir, header.config)?;
+    let mut text = render(manifest_dir, ffi_root, header.config, header.part, symbols, extensions)?;
+    if header.part == Part::Main {
+        let extensions = render(manifest_dir, ffi_root, EXTENSIONS_CONFIG, Part::Extensions, symbols, extensions)?;
+        let line = format!("{EXTENSIONS_MARKER}\n");
+        if !text.contains(&line) {
+            return Err(format!("{EXTENSIONS_MARKER} line missing from {}", header.config));
+        }
+        text = text.replacen(&line, extensions.trim_start_matches('\n'), 1);
+    }
+    for (function, generated, wanted) in CONST_VALUE_PARAMS {
+        text = add_const(&text, function, generated, wanted);
+    }
+    Ok(text)
+}
+
+/// Runs cbindgen with the configuration `config_rel`, keeping only the symbols of
+/// `part` (none for the version header, which is all configuration text).
+fn render(
+    manifest_dir: &Path,
+    ffi_root: &Path,
+    config_rel: &str,
+    part: Part,
+    symbols: &[String],
+    extensions: &[String],
+) -> Result<String, String> {
+    let mut config = load_config(manifest_dir, config_rel)?;
     let (major, minor, micro) = LIBMODBUS_VERSION;
-    for text in [&mut config.header, &mut config.after_includes, &mut config.trailer]
-        .into_iter()
-        .flatten()
-    {
+    for text in [&mut config.header, &mut config.after_includes, &mut config.trailer].into_iter().flatten() {
         *text = text
             .replace("@LIBMODBUS_VERSION_MAJOR@", &major.to_string())
             .replace("@LIBMODBUS_VERSION_MINOR@", &minor.to_string())
             .replace("@LIBMODBUS_VERSION_MICRO@", &micro.to_string());
     }
 
-    let src = match header.part {
+    let src = match part {
         Part::Version => None,
         part => {
             // Leave out every symbol that belongs to another header.
-            config.export.exclude.extend(
-                symbols
-                    .iter()
-                    .filter(|name| part_of(name) != part)
-                    .cloned(),
-            );
+            config.export.exclude.extend(symbols.iter().filter(|name| part_of(name, extensions) != part).cloned());
             Some(ffi_root)
         }
     };
     let bindings = run_cbindgen(config, src)?;
     let mut out = Vec::new();
     bindings.write(&mut out);
-    let mut text = String::from_utf8(out).map_err(|e| e.to_string())?;
-    for (function, generated, wanted) in CONST_VALUE_PARAMS {
-        text = add_const(&text, function, generated, wanted);
-    }
-    Ok(text)
+    String::from_utf8(out).map_err(|e| e.to_string())
 }
 
 /// Rewrites `generated` into `wanted` inside the prototype of `function`, if present.
@@ -343,10 +349,5 @@ fn add_const(text: &str, function: &str, generated: &str, wanted: &str) -> Strin
     if proto.contains(wanted) {
         return text.to_owned();
     }
-    format!(
-        "{}{}{}",
-        &text[..start],
-        proto.replacen(generated, wanted, 1),
-        &text[end..]
-    )
+    format!("{}{}{}", &text[..start], proto.replacen(generated, wanted, 1), &text[end..])
 }

@@ -327,7 +327,7 @@ static void print_macros(void)
 {
     static volatile const int16_t neg_src[4] = {0, 0, 1, -1};
     const uint16_t u16[4] = {0x1234, 0x5678, 0x9abc, 0xdef0};
-    const uint16_t u16_high[4] = {0xfedc, 0xba98, 0x7654, 0x3210};
+    const uint16_t u16_high[4] = {0x7edc, 0xba98, 0x7654, 0x3210};
     const uint8_t u8[2] = {0x12, 0x34};
     const uint8_t u8_high[2] = {0xfe, 0xdc};
     int16_t s16[4];
@@ -354,7 +354,7 @@ static void print_macros(void)
 
     printf("MODBUS_GET_INT64_FROM_INT16(u16{1234,5678,9abc,def0}) = 0x%016llx\n",
            (unsigned long long) MODBUS_GET_INT64_FROM_INT16(u16, 0));
-    printf("MODBUS_GET_INT64_FROM_INT16(u16{fedc,ba98,7654,3210}) = 0x%016llx\n",
+    printf("MODBUS_GET_INT64_FROM_INT16(u16{7edc,ba98,7654,3210}) = 0x%016llx\n",
            (unsigned long long) MODBUS_GET_INT64_FROM_INT16(u16_high, 0));
     printf("MODBUS_GET_INT64_FROM_INT16(s16{0,0,1,-1}) = %lld\n",
            (long long) MODBUS_GET_INT64_FROM_INT16(s16, 0));

@@ -74,12 +74,20 @@ pub unsafe extern "C" fn modbus_get_slave(ctx: *mut Modbus) -> c_int {
     unsafe { with_ctx(ctx, |g| Ok(g.slave)) }
 }
 
+/// The C enum `modbus_error_recovery_mode` (a bit set: NONE 0, LINK 2, PROTOCOL 4), as
+/// passed by value. Declared by hand in modbus.h, so cbindgen only uses its name.
+#[allow(non_camel_case_types)]
+pub type modbus_error_recovery_mode = c_uint;
+
 /// Stores the recovery mode bits (not validated, as in libmodbus).
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
-pub unsafe extern "C" fn modbus_set_error_recovery(ctx: *mut Modbus, error_recovery: c_int) -> c_int {
+pub unsafe extern "C" fn modbus_set_error_recovery(
+    ctx: *mut Modbus,
+    error_recovery: modbus_error_recovery_mode,
+) -> c_int {
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {

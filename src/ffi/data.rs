@@ -1,6 +1,6 @@
 //! modbus.h: data helpers (bits in bytes, floats in two registers).
 
-use std::ffi::c_int;
+use std::ffi::{c_int, c_uint};
 use std::slice;
 
 use crate::core::data::{self, FloatOrder};
@@ -25,7 +25,7 @@ pub unsafe extern "C" fn modbus_set_bits_from_byte(dest: *mut u8, idx: c_int, va
 /// `dest + idx` must be valid for `nb_bits` bytes and `tab_byte` for
 /// `ceil(nb_bits / 8)` bytes.
 #[unsafe(no_mangle)]
-pub unsafe extern "C" fn modbus_set_bits_from_bytes(dest: *mut u8, idx: c_int, nb_bits: u32, tab_byte: *const u8) {
+pub unsafe extern "C" fn modbus_set_bits_from_bytes(dest: *mut u8, idx: c_int, nb_bits: c_uint, tab_byte: *const u8) {
     if dest.is_null() || tab_byte.is_null() || nb_bits == 0 {
         return;
     }
@@ -45,7 +45,7 @@ pub unsafe extern "C" fn modbus_set_bits_from_bytes(dest: *mut u8, idx: c_int, n
 /// # Safety
 /// `src + idx` must be valid for `min(nb_bits, 8)` bytes.
 #[unsafe(no_mangle)]
-pub unsafe extern "C" fn modbus_get_byte_from_bits(src: *const u8, idx: c_int, nb_bits: u32) -> u8 {
+pub unsafe extern "C" fn modbus_get_byte_from_bits(src: *const u8, idx: c_int, nb_bits: c_uint) -> u8 {
     if src.is_null() {
         return 0;
     }

@@ -2,7 +2,7 @@
 
 use std::ffi::{c_char, c_int};
 
-use crate::context::{Context, RTU_RTS_DOWN, RTU_RTS_NONE, RTU_RTS_UP, RtsCallback};
+use crate::context::{Context, RTU_RTS_DOWN, RTU_RTS_NONE, RTU_RTS_UP};
 use crate::engine::{self, Guard};
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, into_handle, opt_cstr, with_ctx};
@@ -99,7 +99,10 @@ pub unsafe extern "C" fn modbus_rtu_get_rts(ctx: *mut Modbus) -> c_int {
 /// `ctx` must be NULL or a live context; `set_rts` NULL or a function safe to call
 /// with this context.
 #[unsafe(no_mangle)]
-pub unsafe extern "C" fn modbus_rtu_set_custom_rts(ctx: *mut Modbus, set_rts: Option<RtsCallback>) -> c_int {
+pub unsafe extern "C" fn modbus_rtu_set_custom_rts(
+    ctx: *mut Modbus,
+    set_rts: Option<unsafe extern "C" fn(ctx: *mut Modbus, on: c_int)>,
+) -> c_int {
     // SAFETY: forwarded caller contract.
     unsafe {
         with_rtu(ctx, |g| {

@@ -1,0 +1,326 @@
+#!/usr/bin/env bash
+# check-headers.sh: the committed C headers are cbindgen's output, declare exactly
+# libmodbus' API, and compile unchanged with C and C++ programs written for libmodbus.
+#
+# Checks:
+#   generated   include/*.h are byte-identical to the headers build.rs generated with
+#               cbindgen in OUT_DIR (fix: RSMODBUS_UPDATE_HEADERS=1 cargo build)
+#   prototypes  every MODBUS_API prototype equals Debian's (types and parameter
+#               names, whitespace normalised) or is listed in
+#               abi/header-prototypes-additions.txt
+#   c-alone     each header compiles on its own as C89, C99 and C11 with
+#               -Wall -Wextra -Werror -pedantic-errors
+#   cxx-alone   each header compiles on its own as C++98 and C++17, same flags
+#   cxx-linkage a C++ file using the API references the functions unmangled
+#               (extern "C" guards work) and links against the built library
+#   examples    Debian's libmodbus example programs (unit tests, random tests,
+#               bandwidth tests, version.c) compile unchanged against include/ with
+#               -Wall -Wextra -Werror and link against the built library
+#   pkg-config  target/<profile>/libmodbus.pc and libmodbus-uninstalled.pc: version
+#               equals LIBMODBUS_VERSION_STRING, flags build and run version.c
+#   abi-probe   scripts/check-abi.sh (constants, layout, macros, signatures vs Debian)
+#
+# Usage: scripts/check-headers.sh   (after `cargo build --release`; it runs cargo
+#        build again only to learn OUT_DIR, which is a no-op on a fresh tree)
+# Env:   PROFILE (release), DEBIAN_MODBUS_INCLUDE (/usr/include/modbus),
+#        LIBMODBUS_EXAMPLES (/usr/share/doc/libmodbus-dev/examples), CC, C            static=ok
+            out=$("$TMP/version-static" 2>&1 || true)
+            [[ $out == *"$header_version"* ]] || err "statically linked version.c printed: $out"
+set -euo pipefail
+
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$ROOT"
+
+NAME=check-headers
+PROFILE=${PROFILE:-release}
+DEB_INC=${DEBIAN_MODBUS_INCLUDE:-/usr/include/modbus}
+EXAMPLES=${LIBMODBUS_EXAMPLES:-/usr/share/doc/libmodbus-dev/examples}
+CC=${CC:-gcc}
+CXX=${CXX:-g++}
+HEADERS=(modbus.h modbus-rtu.h modbus-tcp.h modbus-version.h)
+ADDITIONS=abi/header-prototypes-additions.txt
+TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
+LIBDIR=$TARGET_DIR/$PROFILE
+WFLAGS=(-Wall -Wextra -Werror)
+
+TMP=$(mktemp -d)
+trap 'rm -rf "$TMP"' EXIT
+
+passed=0
+failed=0
+failures=()
+current=
+current_errors=()
+begin() {
+    current=$1
+    current_errors=()
+}
+err() { current_errors+=("$*"); }
+end() { # end [summary]
+    if [[ ${#current_errors[@]} -eq 0 ]]; then
+        passed=$((passed + 1))
+        echo "  ok   $current${1:+: $1}"
+    else
+        failed=$((failed + 1))
+        failures+=("$current")
+        echo "  FAIL $current"
+        printf '       %s\n' "${current_errors[@]}" | head -n 80
+    fi
+}
+# the diagnostic lines of a compiler log, indented (for error messages)
+excerpt() {
+    { grep -E 'error|warning|undefined' "$1" || head -n 8 "$1"; } | head -n "${2:-6}" | sed 's/^/         | /'
+}
+
+# --- generated: committed headers == cbindgen output -------------------------------
+begin generated
+out_dir=
+if ! cargo build --profile "$PROFILE" --message-format=json-render-diagnostics \
+    >"$TMP/cargo.json" 2>"$TMP/cargo.log"; then
+    echo "  note: cargo build failed (headers are compared if build.rs ran):"
+    grep -E '^(error|warning: rsmodbus)' "$TMP/cargo.log" | head -5 | sed 's/^/       /' || true
+fi
+out_dir=$(grep '"reason":"build-script-executed"' "$TMP/cargo.json" |
+    grep '"package_id":"[^"]*rsmodbus' |
+    sed -E 's/.*"out_dir":"([^"]*)".*/\1/' | tail -n 1 || true)
+if [[ -z $out_dir || ! -d "$out_dir/include" ]]; then
+    err "build.rs produced no headers (no OUT_DIR/include); see cargo build output"
+else
+    for h in "${HEADERS[@]}"; do
+        if [[ ! -f "include/$h" ]]; then
+            err "include/$h is missing (RSMODBUS_UPDATE_HEADERS=1 cargo build --release)"
+        elif ! diff -u "include/$h" "$out_dir/include/$h" >"$TMP/$h.diff"; then
+            err "include/$h differs from cbindgen's output (RSMODBUS_UPDATE_HEADERS=1 cargo build --release):"
+            current_errors+=("$(head -n 30 "$TMP/$h.diff" | sed 's/^/         | /')")
+        fi
+        if grep -n '@[A-Z_]*@' "include/$h" >"$TMP/placeholders" 2>/dev/null; then
+            err "include/$h has unsubstituted placeholders: $(tr '\n' ' ' <"$TMP/placeholders")"
+        fi
+    done
+fi
+end "${#HEADERS[@]} headers identical to ${out_dir:+OUT_DIR/include}"
+
+# OUT_DIR is <target>/<profile>/build/rsmodbus-<hash>/out: the library is next to build/.
+[[ -n $out_dir ]] && LIBDIR=${out_dir%/build/*}
+have_lib=false
+[[ -f "$LIBDIR/libmodbus.so" ]] && have_lib=true
+
+# --- prototypes: same declarations as Debian's libmodbus ---------------------------
+# Normalised form: comments and directives dropped, MODBUS_API removed, one space
+# between tokens, none around parentheses and commas, "type *name" for pointers.
+protos() {
+    cat "$@" | "$CC" -fpreprocessed -dD -E -P -x c - 2>/dev/null |
+        grep -v '^[[:space:]]*#' | tr '\n\t' '  ' | grep -o 'MODBUS_API[^;]*;' |
+        sed -E 's/^MODBUS_API +//; s/ +/ /g; s/ *([(),]) */\1/g; s/,/, /g; s/ *\* */ */g; s/\( \*/(*/g; s/ ;$/;/' |
+        LC_ALL=C sort
+}
+fname() { sed -E 's/^[^(]*[ *]([A-Za-z_][A-Za-z0-9_]*)\(.*/\1/'; }
+begin prototypes
+if [[ ! -f "$DEB_INC/modbus.h" ]]; then
+    err "Debian's headers not found in $DEB_INC (apt-get install libmodbus-dev)"
+else
+    protos "$DEB_INC"/modbus.h "$DEB_INC"/modbus-rtu.h "$DEB_INC"/modbus-tcp.h >"$TMP/deb.protos"
+    protos include/modbus.h include/modbus-rtu.h include/modbus-tcp.h >"$TMP/ours.protos"
+    # The additions file holds plain prototypes: normalise them the same way.
+    grep -v '^[[:space:]]*\(#\|$\)' "$ADDITIONS" | sed -E 's/[[:space:]]*\|.*$//; s/^/MODBUS_API /' \
+        >"$TMP/additions.h"
+    protos "$TMP/additions.h" >"$TMP/additions.protos"
+    while IFS= read -r p; do
+        name=$(fname <<<"$p")
+        if grep -qxF -- "$p" "$TMP/ours.protos"; then
+            continue
+        fi
+        mine=$(grep -E "[ *]$name\(" "$TMP/ours.protos" || true)
+        if [[ -z $mine ]]; then
+            err "$name is not declared (Debian: $p)"
+        else
+            err "$name differs: Debian: $p  ours: $mine"
+        fi
+    done <"$TMP/deb.protos"
+    while IFS= read -r p; do
+        grep -qxF -- "$p" "$TMP/deb.protos" && continue
+        grep -qxF -- "$p" "$TMP/additions.protos" && continue
+        name=$(fname <<<"$p")
+        want=$(grep -E "[ *]$name\(" "$TMP/additions.protos" || true)
+        if [[ -n $want ]]; then
+            err "$name differs from $ADDITIONS: listed: $want  ours: $p"
+        elif ! grep -qE "[ *]$name\(" "$TMP/deb.protos"; then
+            err "unexpected declaration (not in Debian's headers nor $ADDITIONS): $p"
+        fi
+    done <"$TMP/ours.protos"
+    while IFS= read -r p; do
+        grep -qxF -- "$p" "$TMP/ours.protos" ||
+            err "listed in $ADDITIONS but not declared as such: $p"
+    done <"$TMP/additions.protos"
+fi
+end "$(wc -l <"$TMP/ours.protos" 2>/dev/null || echo 0) prototypes: $(wc -l <"$TMP/deb.protos" 2>/dev/null || echo 0) as in Debian's headers + $(wc -l <"$TMP/additions.protos" 2>/dev/null || echo 0) listed additions"
+
+# --- c-alone / cxx-alone: each header is self-contained -----------------------------
+begin c-alone
+for h in "${HEADERS[@]}"; do
+    printf '#include <%s>\ntypedef int translation_unit_not_empty;\n' "$h" >"$TMP/alone.c"
+    for std in c89 c99 c11; do
+        "$CC" -std=$std -pedantic-errors "${WFLAGS[@]}" -Iinclude -fsyntax-only "$TMP/alone.c" \
+            2>"$TMP/cc.log" || { err "$h alone, -std=$std:"; current_errors+=("$(excerpt "$TMP/cc.log")"); }
+    done
+done
+end "4 headers x C89/C99/C11"
+
+begin cxx-alone
+for h in "${HEADERS[@]}"; do
+    printf '#include <%s>\n' "$h" >"$TMP/alone.cpp"
+    for std in c++98 c++17; do
+        "$CXX" -std=$std -pedantic-errors "${WFLAGS[@]}" -Iinclude -fsyntax-only "$TMP/alone.cpp" \
+            2>"$TMP/cc.log" || { err "$h alone, -std=$std:"; current_errors+=("$(excerpt "$TMP/cc.log")"); }
+    done
+done
+end "4 headers x C++98/C++17"
+
+# --- cxx-linkage: extern "C" guards ------------------------------------------------
+begin cxx-linkage
+cat >"$TMP/linkage.cpp" <<'EOF'
+// Uses the API from C++ the way an application would.
+#include <modbus.h>
+#include <cstdio>
+
+static void custom_rts(modbus_t *ctx, int on) { (void) ctx; (void) on; }
+
+int main()
+{
+    uint16_t regs[4] = {0x1234, 0x5678, 0, 0};
+    uint8_t bytes[2];
+    modbus_t *tcp = modbus_new_tcp("127.0.0.1", MODBUS_TCP_DEFAULT_PORT);
+    modbus_t *rtu = modbus_new_rtu("/dev/null", 19200, 'N', 8, 1);
+    modbus_mapping_t *map = modbus_mapping_new(1, 1, 1, 1);
+
+    MODBUS_SET_INT16_TO_INT8(bytes, 0, 0x1234);
+    MODBUS_SET_INT32_TO_INT16(regs, 2, MODBUS_GET_INT32_FROM_INT16(regs, 0));
+    if (rtu != NULL) {
+        modbus_rtu_set_custom_rts(rtu, custom_rts);
+        modbus_free(rtu);
+    }
+    if (tcp != NULL) {
+        modbus_set_error_recovery(tcp, MODBUS_ERROR_RECOVERY_LINK);
+        modbus_free(tcp);
+    }
+    modbus_mapping_free(map);
+    std::printf("%s %u %x %s\n", LIBMODBUS_VERSION_STRING, libmodbus_version_micro,
+                (unsigned) MODBUS_GET_INT16_FROM_INT8(bytes, 0), modbus_strerror(EMBBADCRC));
+    return 0;
+}
+EOF
+if "$CXX" -std=c++11 "${WFLAGS[@]}" -Iinclude -c "$TMP/linkage.cpp" -o "$TMP/linkage.o" 2>"$TMP/cc.log"; then
+    nm -u "$TMP/linkage.o" >"$TMP/linkage.undef"
+    for fn in modbus_new_tcp modbus_new_rtu modbus_rtu_set_custom_rts modbus_set_error_recovery \
+        modbus_mapping_new modbus_free modbus_strerror libmodbus_version_micro; do
+        grep -qw "$fn" "$TMP/linkage.undef" || err "C++ does not reference $fn by its C name"
+    done
+    if grep -E '_Z[A-Za-z0-9_]*(modbus|libmodbus)' "$TMP/linkage.undef" >"$TMP/mangled"; then
+        err "C++ references mangled names: $(tr -s ' \n' ' ' <"$TMP/mangled")"
+    fi
+    if $have_lib; then
+        if "$CXX" "$TMP/linkage.o" -o "$TMP/linkage" -L"$LIBDIR" -lmodbus -Wl,-rpath,"$LIBDIR" \
+            2>"$TMP/cc.log"; then
+            "$TMP/linkage" >"$TMP/linkage.out" 2>&1 || err "the C++ program failed: $(cat "$TMP/linkage.out")"
+        else
+            err "the C++ program does not link against $LIBDIR:"
+            current_errors+=("$(excerpt "$TMP/cc.log")")
+        fi
+    fi
+else
+    err "the C++ program does not compile:"
+    current_errors+=("$(excerpt "$TMP/cc.log")")
+fi
+end "$($have_lib && echo "compiled, linked and ran" || echo "compiled (no library built, link skipped)")"
+
+# --- examples: Debian's libmodbus programs compile unchanged -------------------------
+begin examples
+nex=0
+if [[ ! -d $EXAMPLES ]]; then
+    err "Debian's examples not found in $EXAMPLES (apt-get install libmodbus-dev)"
+else
+    for src in "$EXAMPLES"/*.c; do
+        base=$(basename "$src" .c)
+        nex=$((nex + 1))
+        if ! "$CC" -std=gnu11 "${WFLAGS[@]}" -Iinclude -I"$EXAMPLES" -c "$src" -o "$TMP/$base.o" \
+            2>"$TMP/cc.log"; then
+            err "$base.c does not compile against include/:"
+            current_errors+=("$(excerpt "$TMP/cc.log")")
+            continue
+        fi
+        if $have_lib && ! "$CC" "$TMP/$base.o" -o "$TMP/$base" -L"$LIBDIR" -lmodbus \
+            -Wl,-rpath,"$LIBDIR" 2>"$TMP/cc.log"; then
+            err "$base does not link against $LIBDIR/libmodbus.so:"
+            current_errors+=("$(excerpt "$TMP/cc.log")")
+        fi
+    done
+fi
+end "$nex programs$($have_lib && echo " compiled and linked" || echo " compiled (link skipped)")"
+
+# --- pkg-config --------------------------------------------------------------------
+begin pkg-config
+header_version=$(sed -n 's/^#define LIBMODBUS_VERSION_STRING "\(.*\)"$/\1/p' include/modbus-version.h)
+if ! command -v pkg-config >/dev/null; then
+    err "pkg-config not installed"
+elif [[ ! -f "$LIBDIR/libmodbus.pc" || ! -f "$LIBDIR/libmodbus-uninstalled.pc" ]]; then
+    err "$LIBDIR/libmodbus.pc or libmodbus-uninstalled.pc missing (written by build.rs)"
+else
+    pc() { PKG_CONFIG_PATH="$LIBDIR" PKG_CONFIG_DISABLE_UNINSTALLED=1 pkg-config "$@" libmodbus | sed 's/ *$//'; }
+    v=$(pc --modversion)
+    [[ $v == "$header_version" ]] || err "libmodbus.pc version $v != LIBMODBUS_VERSION_STRING $header_version"
+    cflags=$(pc --cflags)
+    libs=$(pc --libs)
+    [[ $cflags == -I*/include/modbus ]] || err "libmodbus.pc Cflags '$cflags' do not end in include/modbus"
+    [[ $libs == "-L"*" -lmodbus" ]] || err "libmodbus.pc Libs '$libs' are not '-L\${libdir} -lmodbus'"
+    # The uninstalled variant must build and run a libmodbus program against this tree.
+    tree_flags=$(PKG_CONFIG_PATH="$LIBDIR" pkg-config --cflags --libs libmodbus)
+    if $have_lib && [[ -f "$EXAMPLES/version.c" ]]; then
+        # shellcheck disable=SC2086 # word splitting of pkg-config output is intended
+        if "$CC" "${WFLAGS[@]}" "$EXAMPLES/version.c" -o "$TMP/version" $tree_flags \
+            -Wl,-rpath,"$LIBDIR" 2>"$TMP/cc.log"; then
+            out=$("$TMP/version" 2>&1 || true)
+            [[ $out == *"$header_version"* ]] ||
+                err "version.c built with pkg-config flags printed: $out"
+        else
+            err "version.c does not build with \`pkg-config --cflags --libs libmodbus\` ($tree_flags):"
+            current_errors+=("$(excerpt "$TMP/cc.log")")
+        fi
+    fi
+    # Static linking: libmodbus.a plus the Libs.private of libmodbus.pc.
+    private=$(pc --static --libs-only-l | sed -E 's/(^| )-lmodbus( |$)/ /; s/^ +//')
+    static=skipped
+    if $have_lib && [[ -f "$LIBDIR/libmodbus.a" && -f "$EXAMPLES/version.c" ]]; then
+        # shellcheck disable=SC2086 # word splitting of pkg-config output is intended
+        if "$CC" "${WFLAGS[@]}" -Iinclude "$EXAMPLES/version.c" -o "$TMP/version-static" \
+            "$LIBDIR/libmodbus.a" $private 2>"$TMP/cc.log"; then
+            static=ok
+            out=$("$TMP/version-static" 2>&1 || true)
+            [[ $out == *"$header_version"* ]] || err "statically linked version.c printed: $out"
+            if objdump -p "$TMP/version-static" | grep -q 'NEEDED.*libmodbus'; then
+                err "statically linked version.c still needs a shared libmodbus"
+            fi
+        else
+            err "version.c does not link statically with libmodbus.a and Libs.private ($private):"
+            current_errors+=("$(excerpt "$TMP/cc.log")")
+        fi
+    fi
+fi
+end "Version $header_version; Cflags ${cflags:-?}; Libs ${libs:-?}; Libs.private ${private:-?} (static link: $static)"
+
+# --- abi-probe ---------------------------------------------------------------------
+begin abi-probe
+if scripts/check-abi.sh >"$TMP/abi.log" 2>&1; then
+    end "$(sed -n 's/^PASS: check-abi: //p' "$TMP/abi.log")"
+else
+    err "scripts/check-abi.sh failed:"
+    current_errors+=("$(sed 's/^/         | /' "$TMP/abi.log" | head -n 60)")
+    end
+fi
+
+# --- verdict -----------------------------------------------------------------------
+echo "$NAME: $passed passed, $failed failed"
+if [[ $failed -gt 0 ]]; then
+    echo "FAIL: $NAME: ${failures[*]}"
+    exit 1
+fi
+echo "PASS: $NAME: headers generated by cbindgen, libmodbus-compatible, compile unchanged"
