@@ -325,6 +325,141 @@ int modbus_reply_exception(modbus_t *ctx,
  * rsmodbus extensions. libmodbus has none of these; a program that must also run
  * with libmodbus can look them up at run time (dlsym) instead of calling them.
  */
+
+/* Function codes beyond libmodbus. */
+#define MODBUS_FC_DIAGNOSTICS               0x08
+#define MODBUS_FC_GET_COMM_EVENT_COUNTER    0x0B
+#define MODBUS_FC_GET_COMM_EVENT_LOG        0x0C
+#define MODBUS_FC_READ_FILE_RECORD          0x14
+#define MODBUS_FC_WRITE_FILE_RECORD         0x15
+#define MODBUS_FC_READ_FIFO_QUEUE           0x18
+#define MODBUS_FC_ENCAPSULATED_INTERFACE    0x2B
+
+/* Read codes of modbus_read_device_identification(). */
+#define MODBUS_DEVICE_ID_BASIC     1
+#define MODBUS_DEVICE_ID_REGULAR   2
+#define MODBUS_DEVICE_ID_EXTENDED  3
+#define MODBUS_DEVICE_ID_SPECIFIC  4
+
+/* One device identification object: `length` bytes of `value`, then a NUL. */
+typedef struct _modbus_device_id_object {
+    uint8_t id;
+    uint8_t length;
+    char value[256];
+} modbus_device_id_object_t;
+
+/**
+ * Reads the eight exception status outputs of a serial device (FC 07) into
+ * `*status`. Returns 1.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `status` NULL or writable.
+ */
+MODBUS_API int modbus_read_exception_status(modbus_t *ctx, uint8_t *status);
+
+/**
+ * Sends a diagnostics request (FC 08) with sub-function `sub_function` and `nb`
+ * data words from `data`, and copies at most `max_dest` data words of the answer
+ * into `dest`. Returns the number of data words in the answer. Sub-function 0
+ * (return query data) must come back identical. Sub-function 4 (force listen only
+ * mode) gets no answer by definition: it returns 0 once sent.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `data` valid for `nb` values (or NULL when
+ * `nb` is 0), `dest` valid for `max_dest` values (or NULL when `max_dest` is 0).
+ */
+MODBUS_API
+int modbus_diagnostics(modbus_t *ctx,
+                       int sub_function,
+                       const uint16_t *data,
+                       int nb,
+                       uint16_t *dest,
+                       int max_dest);
+
+/**
+ * Reads the status word and event counter of a serial device (FC 0B).
+ * Returns 1.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; the pointers NULL or writable.
+ */
+MODBUS_API
+int modbus_get_comm_event_counter(modbus_t *ctx,
+                                  uint16_t *status,
+                                  uint16_t *event_count);
+
+/**
+ * Reads the communication event log of a serial device (FC 0C): status word,
+ * event counter, message counter and up to 64 event bytes, newest first. Copies at
+ * most `max_events` events into `events` and returns the number of events the
+ * device sent.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; the counter pointers NULL or writable;
+ * `events` valid for `max_events` bytes (or NULL when `max_events` is 0).
+ */
+MODBUS_API
+int modbus_get_comm_event_log(modbus_t *ctx,
+                              uint16_t *status,
+                              uint16_t *event_count,
+                              uint16_t *message_count,
+                              uint8_t *events,
+                              int max_events);
+
+/**
+ * Reads `nb` registers (1..124) from record `record` (0..9999) of file `file`
+ * (1..65535) with one FC 14 sub-request. Returns `nb`.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` valid for `nb` values.
+ */
+MODBUS_API int modbus_read_file_record(modbus_t *ctx, int file, int record, int nb, uint16_t *dest);
+
+/**
+ * Writes `nb` registers (1..122) from `src` to record `record` (0..9999) of file
+ * `file` (1..65535) with one FC 15 sub-request. Returns `nb`.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `src` valid for `nb` values.
+ */
+MODBUS_API
+int modbus_write_file_record(modbus_t *ctx,
+                             int file,
+                             int record,
+                             int nb,
+                             const uint16_t *src);
+
+/**
+ * Reads the FIFO queue whose pointer register is `addr` (FC 18) into `dest`, which
+ * must hold 31 values. Returns the number of values.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` valid for 31 values.
+ */
+MODBUS_API int modbus_read_fifo_queue(modbus_t *ctx, int addr, uint16_t *dest);
+
+/**
+ * Reads device identification objects (FC 2B / MEI 0E).
+ *
+ * `read_code` 1 (basic), 2 (regular) or 3 (extended) is a stream access starting at
+ * `object_id`: the "more follows" continuation is followed inside this call until
+ * the device has sent every object, or `max_objects` are stored. `read_code` 4 reads
+ * the single object `object_id`. The objects go to `objects[0..n]` in the order
+ * received; `*conformity` (if not NULL) gets the device's conformity level.
+ * Returns `n`, the number of objects stored.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `objects` valid for `max_objects` entries;
+ * `conformity` NULL or writable.
+ */
+MODBUS_API
+int modbus_read_device_identification(modbus_t *ctx,
+                                      int read_code,
+                                      int object_id,
+                                      modbus_device_id_object_t *objects,
+                                      int max_objects,
+                                      int *conformity);
+
 /**
  * rsmodbus extension: a context that speaks RTU frames (slave id, PDU, CRC) over a
  * TCP/IPv4 connection, as most serial-to-Ethernet gateways do. Set the slave with

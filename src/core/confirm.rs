@@ -32,8 +32,17 @@ pub fn expected_length(framing: Framing, req: &[u8]) -> Option<usize> {
         fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS | fc::WRITE_AND_READ_REGISTERS => {
             2 + 2 * be16(req, h + 3) as usize
         }
-        fc::READ_EXCEPTION_STATUS => 3,
-        fc::REPORT_SLAVE_ID => return None,
+        // libmodbus says 3 here, but never checks an FC 07 response; its answer is
+        // the function code and one status byte.
+        fc::READ_EXCEPTION_STATUS => 2,
+        fc::GET_COMM_EVENT_COUNTER => 5,
+        fc::REPORT_SLAVE_ID
+        | fc::DIAGNOSTICS
+        | fc::GET_COMM_EVENT_LOG
+        | fc::READ_FILE_RECORD
+        | fc::WRITE_FILE_RECORD
+        | fc::READ_FIFO_QUEUE
+        | fc::ENCAPSULATED_INTERFACE => return None,
         fc::MASK_WRITE_REGISTER => 7,
         _ => 5,
     };
@@ -112,6 +121,20 @@ pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> R
         }
         fc::WRITE_SINGLE_COIL | fc::WRITE_SINGLE_REGISTER => (1, 1, req[h + 1..h + 5] == rsp[h + 1..h + 5]),
         fc::REPORT_SLAVE_ID => (rsp[h + 1] as i32, rsp[h + 1] as i32, true),
+        fc::DIAGNOSTICS
+        | fc::GET_COMM_EVENT_LOG
+        | fc::READ_FILE_RECORD
+        | fc::WRITE_FILE_RECORD
+        | fc::READ_FIFO_QUEUE
+        | fc::ENCAPSULATED_INTERFACE => {
+            let body = &rsp[..rsp.len() - framing.checksum_length()];
+            let req_body = &req[..req.len() - framing.checksum_length()];
+            let (want, got) = match check_extended(h, req_body, body) {
+                Ok(count) => return Ok(count),
+                Err(pair) => pair,
+            };
+            (want, got, false)
+        }
         _ => (1, 1, true),
     };
     if req_nb != rsp_nb || !echo_ok {
@@ -119,6 +142,71 @@ pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> R
         return Err(Rejection::Mismatch(Error::BAD_DATA));
     }
     Ok(rsp_nb)
+}
+
+/// Value checks of the function codes beyond libmodbus, on header + PDU of the
+/// request and the response. Returns the count the client call reports, or the
+/// (expected, received) pair for the mismatch message.
+fn check_extended(h: usize, req: &[u8], rsp: &[u8]) -> Result<i32, (i32, i32)> {
+    let pdu = &rsp[h..];
+    let req_pdu = &req[h..];
+    let len = pdu.len() as i32;
+    match pdu[0] {
+        // Sub-function echoed; return query data echoes the data too.
+        fc::DIAGNOSTICS => {
+            if len < 3 || (len - 3) % 2 != 0 || pdu[1..3] != req_pdu[1..3] {
+                return Err((req_pdu.len() as i32, len));
+            }
+            if req_pdu[1..3] == [0, 0] && pdu != req_pdu {
+                return Err((req_pdu.len() as i32, len));
+            }
+            Ok((len - 3) / 2)
+        }
+        // Status, event count, message count, then the events.
+        fc::GET_COMM_EVENT_LOG => {
+            let count = pdu[1] as i32;
+            if !(6..=6 + 64).contains(&count) {
+                return Err((6, count));
+            }
+            Ok(count - 6)
+        }
+        // One sub-response: length, reference type, data.
+        fc::READ_FILE_RECORD => {
+            let nb = ((req_pdu[7] as i32) << 8) | req_pdu[8] as i32;
+            let ok = len >= 4 && pdu[1] as i32 == len - 2 && pdu[2] as i32 == len - 3 && pdu[3] == 6;
+            if !ok || (len - 4) != 2 * nb {
+                return Err((nb, (len - 4).max(0) / 2));
+            }
+            Ok(nb)
+        }
+        // The whole request echoed.
+        fc::WRITE_FILE_RECORD => {
+            let nb = ((req_pdu[7] as i32) << 8) | req_pdu[8] as i32;
+            if pdu != req_pdu {
+                return Err((nb, (len - 9).max(0) / 2));
+            }
+            Ok(nb)
+        }
+        // Byte count, FIFO count, values; at most 31 values.
+        fc::READ_FIFO_QUEUE => {
+            let bytes = ((pdu[1] as i32) << 8) | pdu[2] as i32;
+            if len < 5 {
+                return Err((2, bytes));
+            }
+            let count = ((pdu[3] as i32) << 8) | pdu[4] as i32;
+            if bytes != 2 + 2 * count || count > 31 {
+                return Err((2 + 2 * count, bytes));
+            }
+            Ok(count)
+        }
+        // MEI type and read code echoed; the number of objects.
+        _ => {
+            if len < 7 || pdu[1] != req_pdu[1] || pdu[2] != req_pdu[2] {
+                return Err((req_pdu[2] as i32, if len > 2 { pdu[2] as i32 } else { -1 }));
+            }
+            Ok(pdu[6] as i32)
+        }
+    }
 }
 
 #[cfg(test)]
@@ -228,6 +316,47 @@ mod tests {
         assert!(check(Framing::Tcp, &req, &tcp_rsp(0x0102, &[0x10, 0, 2, 0, 2]), &mut d).is_err());
         let req = tcp_req(Request::ReadBits { function: 1, addr: 0, nb: 9 });
         assert_eq!(check(Framing::Tcp, &req, &tcp_rsp(0x0102, &[1, 2, 0xFF, 1]), &mut d), Ok(2));
+    }
+
+    #[test]
+    fn extended_function_codes() {
+        let mut d = Recorded::default();
+        let t = Framing::Tcp;
+        // Return query data: the echo must be exact.
+        let req = tcp_req(Request::Diagnostics { sub_function: 0, data: &[0xA537, 1] });
+        assert_eq!(check(t, &req, &tcp_rsp(0x0102, &[8, 0, 0, 0xA5, 0x37, 0, 1]), &mut d), Ok(2));
+        assert!(check(t, &req, &tcp_rsp(0x0102, &[8, 0, 0, 0xA5, 0x37, 0, 2]), &mut d).is_err());
+        // Counter sub-function: one word back.
+        let req = tcp_req(Request::Diagnostics { sub_function: 0x0B, data: &[0] });
+        assert_eq!(check(t, &req, &tcp_rsp(0x0102, &[8, 0, 0x0B, 0, 9]), &mut d), Ok(1));
+        assert!(check(t, &req, &tcp_rsp(0x0102, &[8, 0, 0x0C, 0, 9]), &mut d).is_err());
+        // Exception status and comm event counter have fixed lengths.
+        let req = tcp_req(Request::ReadExceptionStatus);
+        assert_eq!(check(t, &req, &tcp_rsp(0x0102, &[7, 0x6D]), &mut d), Ok(1));
+        assert!(check(t, &req, &tcp_rsp(0x0102, &[7, 0x6D, 0]), &mut d).is_err());
+        let req = tcp_req(Request::GetCommEventCounter);
+        assert_eq!(check(t, &req, &tcp_rsp(0x0102, &[0x0B, 0xFF, 0xFF, 1, 8]), &mut d), Ok(1));
+        // Comm event log: byte count 6 + events.
+        let req = tcp_req(Request::GetCommEventLog);
+        let rsp = tcp_rsp(0x0102, &[0x0C, 8, 0, 0, 1, 8, 1, 0x21, 0x20, 0]);
+        assert_eq!(check(t, &req, &rsp, &mut d), Ok(2));
+        // File records.
+        let req = tcp_req(Request::ReadFileRecord { file: 4, record: 1, nb: 2 });
+        assert_eq!(check(t, &req, &tcp_rsp(0x0102, &[0x14, 6, 5, 6, 0x0D, 0xFE, 0, 0x20]), &mut d), Ok(2));
+        assert!(check(t, &req, &tcp_rsp(0x0102, &[0x14, 4, 3, 6, 0x0D, 0xFE]), &mut d).is_err());
+        let req = tcp_req(Request::WriteFileRecord { file: 4, record: 7, values: &[0x06AF] });
+        let echo = req[7..].to_vec();
+        assert_eq!(check(t, &req, &tcp_rsp(0x0102, &echo), &mut d), Ok(1));
+        // FIFO: byte count must match the count; at most 31 values.
+        let req = tcp_req(Request::ReadFifoQueue { addr: 0x04DE });
+        assert_eq!(check(t, &req, &tcp_rsp(0x0102, &[0x18, 0, 6, 0, 2, 1, 0xB8, 0x12, 0x84]), &mut d), Ok(2));
+        assert!(check(t, &req, &tcp_rsp(0x0102, &[0x18, 0, 8, 0, 2, 1, 0xB8, 0x12, 0x84]), &mut d).is_err());
+        // Device identification: read code echoed, number of objects returned.
+        let req = tcp_req(Request::ReadDeviceId { read_code: 1, object_id: 0 });
+        let rsp = tcp_rsp(0x0102, &[0x2B, 0x0E, 1, 1, 0, 0, 1, 0, 1, b'A']);
+        assert_eq!(check(t, &req, &rsp, &mut d), Ok(1));
+        let rsp = tcp_rsp(0x0102, &[0x2B, 0x0E, 2, 1, 0, 0, 1, 0, 1, b'A']);
+        assert!(check(t, &req, &rsp, &mut d).is_err());
     }
 
     #[test]

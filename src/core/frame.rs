@@ -135,12 +135,79 @@ pub fn data_length(kind: MsgKind, header_length: usize, msg: &[u8]) -> usize {
     }
 }
 
+/// Function codes libmodbus does not frame (it reads only up to the function code
+/// for them, so their requests and responses were truncated: its issues #340, #343,
+/// #493). Their layouts come from the protocol; the helpers below give the length.
+pub const fn is_extended(kind: MsgKind, function: u8) -> bool {
+    match kind {
+        MsgKind::Indication => matches!(function, 0x08 | 0x14 | 0x15 | 0x18 | 0x2B),
+        MsgKind::Confirmation => matches!(function, 0x08 | 0x0B | 0x0C | 0x14 | 0x15 | 0x18 | 0x2B),
+    }
+}
+
+/// `MEI_READ_DEVICE_ID`: the MEI type of FC 0x2B that carries device identification.
+pub const MEI_READ_DEVICE_ID: u8 = 0x0E;
+
+/// For an extended function code: the length of header + PDU as far as the first
+/// `msg.len()` bytes tell it. When the result equals `msg.len()` the PDU is whole;
+/// otherwise read up to the result and ask again. `mbap_total` is 6 + the MBAP length
+/// field on TCP (used only where the PDU itself has no length: FC 08 and MEI types
+/// other than device identification).
+pub fn extended_length(kind: MsgKind, h: usize, msg: &[u8], mbap_total: Option<usize>) -> usize {
+    let fc_end = h + 1;
+    let at_least = |n: usize| n.max(msg.len());
+    // Bytes up to a one-byte count at `at`, then the counted bytes.
+    let counted8 = |at: usize| if msg.len() <= at { at + 1 } else { at + 1 + msg[at] as usize };
+    let by_mbap = |floor: usize| mbap_total.filter(|&t| t >= floor).unwrap_or(floor);
+    match (kind, msg[h]) {
+        (_, 0x08) => by_mbap(fc_end + 4),
+        (MsgKind::Confirmation, 0x0B) => fc_end + 4,
+        (MsgKind::Confirmation, 0x0C) | (_, 0x14) | (_, 0x15) => counted8(fc_end),
+        (MsgKind::Indication, 0x18) => fc_end + 2,
+        (MsgKind::Confirmation, 0x18) => {
+            if msg.len() < fc_end + 2 {
+                fc_end + 2
+            } else {
+                fc_end + 2 + (((msg[fc_end] as usize) << 8) | msg[fc_end + 1] as usize)
+            }
+        }
+        (MsgKind::Indication, 0x2B) => fc_end + 3,
+        (MsgKind::Confirmation, 0x2B) => {
+            if msg.len() <= fc_end {
+                return fc_end + 1;
+            }
+            if msg[fc_end] != MEI_READ_DEVICE_ID {
+                return by_mbap(fc_end + 1);
+            }
+            // MEI type, read code, conformity, more follows, next object, count.
+            let objects_at = fc_end + 6;
+            if msg.len() < objects_at {
+                return objects_at;
+            }
+            let mut pos = objects_at;
+            for _ in 0..msg[objects_at - 1] {
+                if msg.len() < pos + 2 {
+                    return pos + 2;
+                }
+                pos += 2 + msg[pos + 1] as usize;
+                if msg.len() < pos {
+                    return pos;
+                }
+            }
+            pos
+        }
+        _ => at_least(fc_end),
+    }
+}
+
 /// The three steps of reading one message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Step {
     Function,
     Meta,
     Data,
+    /// An extended function code, its length found piece by piece.
+    Extended,
 }
 
 /// Sans-I/O assembler of one incoming message.
@@ -197,6 +264,27 @@ impl Assembler {
             return Ok(Progress::NeedMore(self.wanted));
         }
         let h = self.framing.header_length();
+        if self.step == Step::Function && is_extended(self.kind, buf[h]) {
+            self.step = Step::Extended;
+        }
+        if self.step == Step::Extended {
+            let mbap_total = (self.framing == Framing::Tcp).then(|| 6 + (((buf[4] as usize) << 8) | buf[5] as usize));
+            let body = extended_length(self.kind, h, &buf[..self.length], mbap_total);
+            if body > self.length {
+                if body + self.framing.checksum_length() > self.framing.max_adu_length() {
+                    return Err(Error::BAD_DATA);
+                }
+                self.wanted = body - self.length;
+                return Ok(Progress::NeedMore(self.wanted));
+            }
+            // The PDU is whole: only the checksum is left.
+            self.step = Step::Data;
+            self.wanted = self.framing.checksum_length();
+            if self.wanted > 0 {
+                return Ok(Progress::NeedMore(self.wanted));
+            }
+            return Ok(Progress::Complete(self.length));
+        }
         if self.step == Step::Function {
             let meta = meta_length(self.kind, buf[h]);
             if meta != 0 {
@@ -284,12 +372,83 @@ mod tests {
         // MBAP length says 99; the PDU says write single coil (4 bytes after FC).
         let req = [0, 1, 0, 0, 0, 99, 0xFF, 0x05, 0x01, 0x30, 0xFF, 0x00];
         assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(12));
-        // Unknown function code: only header + FC is read.
-        let req = [0, 1, 0, 0, 0, 2, 0xFF, 0x08, 0xAA, 0xBB];
+        // Unknown function code: only header + FC is read, as libmodbus does.
+        let req = [0, 1, 0, 0, 0, 2, 0xFF, 0x42, 0xAA, 0xBB];
         assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(8));
         // Exception confirmation: header + FC + code.
         let rsp = [0, 1, 0, 0, 0, 3, 0xFF, 0x83, 0x02];
         assert_eq!(assemble(Framing::Tcp, MsgKind::Confirmation, &rsp, 1), Ok(9));
+    }
+
+    fn rtu(body: &[u8]) -> Vec<u8> {
+        let mut v = body.to_vec();
+        v.extend(crc16(body).to_le_bytes());
+        v
+    }
+
+    #[test]
+    fn extended_function_codes_are_read_whole() {
+        let i = MsgKind::Indication;
+        let c = MsgKind::Confirmation;
+        let cases: Vec<(MsgKind, Vec<u8>)> = vec![
+            // Diagnostics, return query data: sub-function + one word.
+            (i, rtu(&[0x11, 0x08, 0x00, 0x00, 0xA5, 0x37])),
+            (c, rtu(&[0x11, 0x08, 0x00, 0x00, 0xA5, 0x37])),
+            // Comm event counter and log.
+            (c, rtu(&[0x11, 0x0B, 0xFF, 0xFF, 0x01, 0x08])),
+            (c, rtu(&[0x11, 0x0C, 0x08, 0x00, 0x00, 0x01, 0x08, 0x01, 0x21, 0x20, 0x00])),
+            // Read file record: one sub-request; its response.
+            (i, rtu(&[0x11, 0x14, 0x07, 0x06, 0x00, 0x04, 0x00, 0x01, 0x00, 0x02])),
+            (c, rtu(&[0x11, 0x14, 0x06, 0x05, 0x06, 0x0D, 0xFE, 0x00, 0x20])),
+            // Write file record request (echoed as the response).
+            (i, rtu(&[0x11, 0x15, 0x09, 0x06, 0x00, 0x04, 0x00, 0x07, 0x00, 0x01, 0x06, 0xAF])),
+            // FIFO queue: pointer address; response with a two-byte byte count.
+            (i, rtu(&[0x11, 0x18, 0x04, 0xDE])),
+            (c, rtu(&[0x11, 0x18, 0x00, 0x06, 0x00, 0x02, 0x01, 0xB8, 0x12, 0x84])),
+            // Device identification request and a two-object response.
+            (i, rtu(&[0x11, 0x2B, 0x0E, 0x01, 0x00])),
+            (c, rtu(&[0x11, 0x2B, 0x0E, 0x01, 0x01, 0x00, 0x00, 0x02, 0x00, 0x03, b'A', b'B', b'C', 0x01, 0x01, b'Z'])),
+        ];
+        for (kind, frame) in cases {
+            for chunk in [1, 3, 256] {
+                assert_eq!(assemble(Framing::Rtu, kind, &frame, chunk), Ok(frame.len()), "{kind:?} {frame:02X?}");
+            }
+        }
+    }
+
+    #[test]
+    fn tcp_diagnostics_use_the_mbap_length() {
+        // Return query data with three words: the PDU has no count, MBAP says 10.
+        let req = [0, 1, 0, 0, 0, 10, 0x11, 0x08, 0, 0, 1, 2, 3, 4, 5, 6];
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(16));
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Confirmation, &req, 1), Ok(16));
+        // A length field that is too small falls back to one word.
+        let short = [0, 1, 0, 0, 0, 1, 0x11, 0x08, 0, 0, 1, 2];
+        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &short, 256), Ok(12));
+        // One too large for the ADU is refused.
+        let mut a = Assembler::new(Framing::Tcp, MsgKind::Indication);
+        let huge = [0, 1, 0, 0, 1, 0, 0x11, 0x08];
+        assert_eq!(a.received(&huge, 8), Err(Error::BAD_DATA));
+    }
+
+    #[test]
+    fn device_identification_with_too_many_objects_is_refused() {
+        let mut msg = vec![0x11, 0x2B, 0x0E, 0x01, 0x01, 0x00, 0x00, 0xFF];
+        let mut a = Assembler::new(Framing::Rtu, MsgKind::Confirmation);
+        let mut fed = 0;
+        let err = loop {
+            let want = a.wanted();
+            while msg.len() < fed + want {
+                msg.push(0xFF); // every object claims 255 bytes
+            }
+            fed += want;
+            match a.received(&msg[..fed], want) {
+                Ok(Progress::NeedMore(_)) => continue,
+                other => break other,
+            }
+        };
+        assert_eq!(err, Err(Error::BAD_DATA));
+        assert!(fed <= RTU_MAX_ADU_LENGTH);
     }
 
     #[test]

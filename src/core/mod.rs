@@ -28,6 +28,14 @@ pub mod fc {
     pub const REPORT_SLAVE_ID: u8 = 0x11;
     pub const MASK_WRITE_REGISTER: u8 = 0x16;
     pub const WRITE_AND_READ_REGISTERS: u8 = 0x17;
+    // Beyond libmodbus.
+    pub const DIAGNOSTICS: u8 = 0x08;
+    pub const GET_COMM_EVENT_COUNTER: u8 = 0x0B;
+    pub const GET_COMM_EVENT_LOG: u8 = 0x0C;
+    pub const READ_FILE_RECORD: u8 = 0x14;
+    pub const WRITE_FILE_RECORD: u8 = 0x15;
+    pub const READ_FIFO_QUEUE: u8 = 0x18;
+    pub const ENCAPSULATED_INTERFACE: u8 = 0x2B;
 }
 
 /// Protocol limits (the `MODBUS_MAX_*` macros of modbus.h).

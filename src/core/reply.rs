@@ -216,7 +216,11 @@ impl Server {
                 let nb = r.u16(h + 3) as i64;
                 let table = if is_input { mapping.input_bits() } else { mapping.bits() };
                 if !(1..=MAX_READ_BITS as i64).contains(&nb) {
-                    exception!(exception::ILLEGAL_DATA_VALUE, true, "Illegal nb of values {nb} in {name} (max {MAX_READ_BITS})\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_VALUE,
+                        true,
+                        "Illegal nb of values {nb} in {name} (max {MAX_READ_BITS})\n"
+                    )
                 } else if let Some(first) = table.range(address, nb) {
                     let mut n = response_basis(framing, tid, slave, function, out);
                     out[n] = ((nb + 7) / 8) as u8;
@@ -224,7 +228,8 @@ impl Server {
                     n += pack_bits(&table.data[first..first + nb as usize], &mut out[n..]);
                     (n, None, false)
                 } else {
-                    let shown = if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
+                    let shown =
+                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
                     exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{shown:X} in {name}\n")
                 }
             }
@@ -234,7 +239,11 @@ impl Server {
                 let nb = r.u16(h + 3) as i64;
                 let table = if is_input { mapping.input_registers() } else { mapping.registers() };
                 if !(1..=MAX_READ_REGISTERS as i64).contains(&nb) {
-                    exception!(exception::ILLEGAL_DATA_VALUE, true, "Illegal nb of values {nb} in {name} (max {MAX_READ_REGISTERS})\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_VALUE,
+                        true,
+                        "Illegal nb of values {nb} in {name} (max {MAX_READ_REGISTERS})\n"
+                    )
                 } else if let Some(first) = table.range(address, nb) {
                     let mut n = response_basis(framing, tid, slave, function, out);
                     out[n] = (nb * 2) as u8;
@@ -245,7 +254,8 @@ impl Server {
                     }
                     (n, None, false)
                 } else {
-                    let shown = if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
+                    let shown =
+                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
                     exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{shown:X} in {name}\n")
                 }
             }
@@ -254,7 +264,11 @@ impl Server {
                 let expected = fixed_request_length(framing, 5);
                 if let Some(i) = table.range(address, 1) {
                     if req_length as i64 != expected {
-                        exception!(exception::ILLEGAL_DATA_VALUE, false, "Invalid request length in modbus_reply to write bit ({req_length})\n")
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            false,
+                            "Invalid request length in modbus_reply to write bit ({req_length})\n"
+                        )
                     } else {
                         let data = r.u16(h + 3);
                         if data == 0xFF00 || data == 0 {
@@ -262,12 +276,19 @@ impl Server {
                             r.copy_to(out, h + 5);
                             (h + 5, None, false)
                         } else {
-                            exception!(exception::ILLEGAL_DATA_VALUE, false, 
-                                    "Illegal data value 0x{data:X} in write_bit request at address {address:X}\n")
+                            exception!(
+                                exception::ILLEGAL_DATA_VALUE,
+                                false,
+                                "Illegal data value 0x{data:X} in write_bit request at address {address:X}\n"
+                            )
                         }
                     }
                 } else {
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{address:X} in write bit\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_ADDRESS,
+                        false,
+                        "Illegal data address 0x{address:X} in write bit\n"
+                    )
                 }
             }
             fc::WRITE_SINGLE_REGISTER => {
@@ -275,14 +296,22 @@ impl Server {
                 let expected = fixed_request_length(framing, 5);
                 if let Some(i) = table.range(address, 1) {
                     if req_length as i64 != expected {
-                        exception!(exception::ILLEGAL_DATA_VALUE, false, "Invalid request length in modbus_reply to write register ({req_length})\n")
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            false,
+                            "Invalid request length in modbus_reply to write register ({req_length})\n"
+                        )
                     } else {
                         table.data[i] = r.u16(h + 3);
                         r.copy_to(out, h + 5);
                         (h + 5, None, false)
                     }
                 } else {
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{address:X} in write_register\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_ADDRESS,
+                        false,
+                        "Illegal data address 0x{address:X} in write_register\n"
+                    )
                 }
             }
             fc::WRITE_MULTIPLE_COILS => {
@@ -291,7 +320,11 @@ impl Server {
                 let table = mapping.bits();
                 if !(1..=MAX_WRITE_BITS as i64).contains(&nb) || byte_count * 8 < nb {
                     // CVE-2019-14462: the byte count must cover the quantity.
-                    exception!(exception::ILLEGAL_DATA_VALUE, true, "Illegal number of values {nb} in write_bits (max {MAX_WRITE_BITS})\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_VALUE,
+                        true,
+                        "Illegal number of values {nb} in write_bits (max {MAX_WRITE_BITS})\n"
+                    )
                 } else if let Some(first) = table.range(address, nb) {
                     for (k, bit) in table.data[first..first + nb as usize].iter_mut().enumerate() {
                         *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
@@ -302,8 +335,13 @@ impl Server {
                     }
                     (n + 4, None, false)
                 } else {
-                    let shown = if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{shown:X} in write_bits\n")
+                    let shown =
+                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
+                    exception!(
+                        exception::ILLEGAL_DATA_ADDRESS,
+                        false,
+                        "Illegal data address 0x{shown:X} in write_bits\n"
+                    )
                 }
             }
             fc::WRITE_MULTIPLE_REGISTERS => {
@@ -312,8 +350,11 @@ impl Server {
                 let table = mapping.registers();
                 if !(1..=MAX_WRITE_REGISTERS as i64).contains(&nb) || byte_count != nb * 2 {
                     // CVE-2019-14463: the byte count must be exactly two per register.
-                    exception!(exception::ILLEGAL_DATA_VALUE, true, 
-                            "Illegal number of values {nb} in write_registers (max {MAX_WRITE_REGISTERS})\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_VALUE,
+                        true,
+                        "Illegal number of values {nb} in write_registers (max {MAX_WRITE_REGISTERS})\n"
+                    )
                 } else if let Some(first) = table.range(address, nb) {
                     for (k, reg) in table.data[first..first + nb as usize].iter_mut().enumerate() {
                         *reg = r.u16(h + 6 + 2 * k);
@@ -324,8 +365,13 @@ impl Server {
                     }
                     (n + 4, None, false)
                 } else {
-                    let shown = if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{shown:X} in write_registers\n")
+                    let shown =
+                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
+                    exception!(
+                        exception::ILLEGAL_DATA_ADDRESS,
+                        false,
+                        "Illegal data address 0x{shown:X} in write_registers\n"
+                    )
                 }
             }
             fc::REPORT_SLAVE_ID => {
@@ -355,14 +401,21 @@ impl Server {
                     let or = r.u16(h + 5);
                     table.data[i] = (table.data[i] & and) | (or & !and);
                     if req_length as i64 != fixed_request_length(framing, 7) {
-                        exception!(exception::ILLEGAL_DATA_VALUE, false, 
-                                "Invalid request length in modbus_reply to mask write register ({req_length})\n")
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            false,
+                            "Invalid request length in modbus_reply to mask write register ({req_length})\n"
+                        )
                     } else {
                         r.copy_to(out, h + 7);
                         (h + 7, None, false)
                     }
                 } else {
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{address:X} in write_register\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_ADDRESS,
+                        false,
+                        "Illegal data address 0x{address:X} in write_register\n"
+                    )
                 }
             }
             fc::WRITE_AND_READ_REGISTERS => {
@@ -375,9 +428,12 @@ impl Server {
                     || !(1..=MAX_WR_READ_REGISTERS as i64).contains(&nb)
                     || write_bytes != nb_write * 2
                 {
-                    exception!(exception::ILLEGAL_DATA_VALUE, true, 
-                            "Illegal nb of values (W{nb_write}, R{nb}) in write_and_read_registers \
-                             (max W{MAX_WR_WRITE_REGISTERS}, R{MAX_WR_READ_REGISTERS})\n")
+                    exception!(
+                        exception::ILLEGAL_DATA_VALUE,
+                        true,
+                        "Illegal nb of values (W{nb_write}, R{nb}) in write_and_read_registers \
+                             (max W{MAX_WR_WRITE_REGISTERS}, R{MAX_WR_READ_REGISTERS})\n"
+                    )
                 } else if let (Some(first), Some(first_write)) =
                     (table.range(address, nb), table.range(address_write, nb_write))
                 {
@@ -396,19 +452,24 @@ impl Server {
                 } else {
                     let start = table.start as i64;
                     let shown = if (address as i64) < start { address as i64 } else { address as i64 + nb };
-                    let shown_write =
-                        if (address_write as i64) < start { address_write as i64 } else { address_write as i64 + nb_write };
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, 
-                            "Illegal data read address 0x{shown:X} or write address 0x{shown_write:X} \
-                             write_and_read_registers\n")
+                    let shown_write = if (address_write as i64) < start {
+                        address_write as i64
+                    } else {
+                        address_write as i64 + nb_write
+                    };
+                    exception!(
+                        exception::ILLEGAL_DATA_ADDRESS,
+                        false,
+                        "Illegal data read address 0x{shown:X} or write address 0x{shown_write:X} \
+                             write_and_read_registers\n"
+                    )
                 }
             }
             _ => exception!(exception::ILLEGAL_FUNCTION, true, "Unknown Modbus function code: 0x{function:X}\n"),
         };
 
-        let suppressed = framing == Framing::Rtu
-            && slave as i32 == BROADCAST_ADDRESS
-            && self.quirks & QUIRK_REPLY_TO_BROADCAST == 0;
+        let suppressed =
+            framing == Framing::Rtu && slave as i32 == BROADCAST_ADDRESS && self.quirks & QUIRK_REPLY_TO_BROADCAST == 0;
         Outcome::Respond { len, exception: exc, flush_first, suppressed }
     }
 }
@@ -681,7 +742,13 @@ mod tests {
     #[test]
     fn start_offsets_and_empty_tables() {
         // A mapping that starts at 0xFFFF with one register; all other tables empty.
-        let mut fx = Fixture { starts: [0, 0, 0xFFFF, -5], bits: vec![], input_bits: vec![], registers: vec![7], input_registers: vec![1; 10] };
+        let mut fx = Fixture {
+            starts: [0, 0, 0xFFFF, -5],
+            bits: vec![],
+            input_bits: vec![],
+            registers: vec![7],
+            input_registers: vec![1; 10],
+        };
         let s = exc(T, &read_pdu(3, 0xFFFF, 1), &mut fx);
         assert_eq!(s.pdu(T), [3, 2, 0, 7]);
         let s = exc(T, &read_pdu(3, 0xFFFF, 2), &mut fx);
@@ -721,14 +788,7 @@ mod tests {
             // Values other than FF00 / 0000.
             fx.bits[0] = 1;
             let s = exc(framing, &[5, 0x01, 0x30, 0x00, 0x01], &mut fx);
-            assert_exception(
-                &s,
-                framing,
-                5,
-                3,
-                false,
-                "Illegal data value 0x1 in write_bit request at address 130\n",
-            );
+            assert_exception(&s, framing, 5, 3, false, "Illegal data value 0x1 in write_bit request at address 130\n");
             let s = exc(framing, &[5, 0x01, 0x30, 0xFF, 0xFF], &mut fx);
             assert_eq!(s.diag.err, "Illegal data value 0xFFFF in write_bit request at address 130\n");
             assert_eq!(fx.bits[0], 1);
@@ -902,27 +962,13 @@ mod tests {
             assert_eq!(s.exception(), None);
             assert_eq!(fx.registers[122], 122);
             let s = exc(framing, &write_regs_pdu(0, 124, 248, &[0; 124]), &mut fx);
-            assert_exception(
-                &s,
-                framing,
-                0x10,
-                3,
-                true,
-                "Illegal number of values 124 in write_registers (max 123)\n",
-            );
+            assert_exception(&s, framing, 0x10, 3, true, "Illegal number of values 124 in write_registers (max 123)\n");
             let s = exc(framing, &write_regs_pdu(0, 0, 0, &[]), &mut fx);
             assert_eq!(s.exception(), Some(3));
             // Byte count that disagrees with the quantity, smaller or larger (the CVE).
             fx.registers.fill(0);
             let s = exc(framing, &write_regs_pdu(0, 123, 6, &[9, 9, 9]), &mut fx);
-            assert_exception(
-                &s,
-                framing,
-                0x10,
-                3,
-                true,
-                "Illegal number of values 123 in write_registers (max 123)\n",
-            );
+            assert_exception(&s, framing, 0x10, 3, true, "Illegal number of values 123 in write_registers (max 123)\n");
             let s = exc(framing, &write_regs_pdu(0, 1, 4, &[9, 9]), &mut fx);
             assert_eq!(s.exception(), Some(3));
             // 3.1.5's wrong rule (nb_bytes * 8 < nb) would have accepted this one.
@@ -940,7 +986,10 @@ mod tests {
         let s = exc(T, &[0x11], &mut fx);
         assert_eq!(
             s.sent,
-            [0x12, 0x34, 0, 0, 0, 0x0E, 0x11, 0x11, 0x0B, 0xB4, 0xFF, b'L', b'M', b'B', b'3', b'.', b'1', b'.', b'1', b'2']
+            [
+                0x12, 0x34, 0, 0, 0, 0x0E, 0x11, 0x11, 0x0B, 0xB4, 0xFF, b'L', b'M', b'B', b'3', b'.', b'1', b'.',
+                b'1', b'2'
+            ]
         );
         let s = exc(R, &[0x11], &mut fx);
         assert_eq!(s.pdu(R), [0x11, 0x0B, 0xB4, 0xFF, b'L', b'M', b'B', b'3', b'.', b'1', b'.', b'1', b'2']);
@@ -1078,7 +1127,9 @@ mod tests {
     #[test]
     fn unknown_functions() {
         for framing in [T, R] {
-            for (function, rsp_fc) in [(0x00, 0x80), (0x08, 0x88), (0x2B, 0xAB), (0x42, 0xC2), (0x83, 0x03), (0xFF, 0x7F)] {
+            for (function, rsp_fc) in
+                [(0x00, 0x80), (0x08, 0x88), (0x2B, 0xAB), (0x42, 0xC2), (0x83, 0x03), (0xFF, 0x7F)]
+            {
                 let mut fx = Fixture::unit_test();
                 let s = exc(framing, &[function, 1, 2, 3, 4], &mut fx);
                 assert_exception(

@@ -27,7 +27,36 @@ pub enum Request<'a> {
     WriteAndReadRegisters { write_addr: i32, write_nb: i32, values: &'a [u16], read_addr: i32, read_nb: i32 },
     /// FC 11.
     ReportSlaveId,
+    /// FC 07 (serial line only).
+    ReadExceptionStatus,
+    /// FC 08: sub-function and its data words.
+    Diagnostics { sub_function: u16, data: &'a [u16] },
+    /// FC 0B.
+    GetCommEventCounter,
+    /// FC 0C.
+    GetCommEventLog,
+    /// FC 14 with one sub-request (reference type 6).
+    ReadFileRecord { file: u16, record: u16, nb: u16 },
+    /// FC 15 with one sub-request.
+    WriteFileRecord { file: u16, record: u16, values: &'a [u16] },
+    /// FC 18.
+    ReadFifoQueue { addr: u16 },
+    /// FC 2B / MEI 0E.
+    ReadDeviceId { read_code: u8, object_id: u8 },
 }
+
+/// Reference type of every file record sub-request.
+pub const FILE_RECORD_REFERENCE: u8 = 6;
+/// Most registers one read file record sub-request can return (PDU limit).
+pub const MAX_FILE_READ_REGISTERS: i32 = 124;
+/// Most registers one write file record sub-request can carry (PDU limit).
+pub const MAX_FILE_WRITE_REGISTERS: i32 = 122;
+/// Largest record number of a file (0x270F).
+pub const MAX_FILE_RECORD: i32 = 9999;
+/// Most values a FIFO queue answer may hold.
+pub const MAX_FIFO_COUNT: usize = 31;
+/// Most data words of a diagnostics request (PDU limit).
+pub const MAX_DIAGNOSTICS_WORDS: i32 = 125;
 
 /// Checks a read count against its limit. `what` names the table in the debug line.
 pub fn check_read_count(nb: i32, max: i32, what: &str, diag: &mut dyn Diag) -> Result<()> {
@@ -80,6 +109,14 @@ impl Request<'_> {
             Request::MaskWriteRegister { .. } => fc::MASK_WRITE_REGISTER,
             Request::WriteAndReadRegisters { .. } => fc::WRITE_AND_READ_REGISTERS,
             Request::ReportSlaveId => fc::REPORT_SLAVE_ID,
+            Request::ReadExceptionStatus => fc::READ_EXCEPTION_STATUS,
+            Request::Diagnostics { .. } => fc::DIAGNOSTICS,
+            Request::GetCommEventCounter => fc::GET_COMM_EVENT_COUNTER,
+            Request::GetCommEventLog => fc::GET_COMM_EVENT_LOG,
+            Request::ReadFileRecord { .. } => fc::READ_FILE_RECORD,
+            Request::WriteFileRecord { .. } => fc::WRITE_FILE_RECORD,
+            Request::ReadFifoQueue { .. } => fc::READ_FIFO_QUEUE,
+            Request::ReadDeviceId { .. } => fc::ENCAPSULATED_INTERFACE,
         }
     }
 
@@ -141,7 +178,42 @@ impl Request<'_> {
                 write_registers_be(&mut out[p + 9..], values);
                 p + 9 + values.len() * 2
             }
-            Request::ReportSlaveId => p,
+            Request::ReportSlaveId
+            | Request::ReadExceptionStatus
+            | Request::GetCommEventCounter
+            | Request::GetCommEventLog => p,
+            Request::Diagnostics { sub_function, data } => {
+                put_u16(out, p, sub_function as i32);
+                write_registers_be(&mut out[p + 2..], data);
+                p + 2 + data.len() * 2
+            }
+            Request::ReadFileRecord { file, record, nb } => {
+                out[p] = 7;
+                out[p + 1] = FILE_RECORD_REFERENCE;
+                put_u16(out, p + 2, file as i32);
+                put_u16(out, p + 4, record as i32);
+                put_u16(out, p + 6, nb as i32);
+                p + 8
+            }
+            Request::WriteFileRecord { file, record, values } => {
+                out[p] = (7 + values.len() * 2) as u8;
+                out[p + 1] = FILE_RECORD_REFERENCE;
+                put_u16(out, p + 2, file as i32);
+                put_u16(out, p + 4, record as i32);
+                put_u16(out, p + 6, values.len() as i32);
+                write_registers_be(&mut out[p + 8..], values);
+                p + 8 + values.len() * 2
+            }
+            Request::ReadFifoQueue { addr } => {
+                put_u16(out, p, addr as i32);
+                p + 2
+            }
+            Request::ReadDeviceId { read_code, object_id } => {
+                out[p] = crate::core::frame::MEI_READ_DEVICE_ID;
+                out[p + 1] = read_code;
+                out[p + 2] = object_id;
+                p + 3
+            }
         }
     }
 }
@@ -211,6 +283,17 @@ mod tests {
                 vec![0, 17, 0x11, 0x17, 0, 3, 0, 6, 0, 0x0E, 0, 3, 6, 0, 0xFF, 0, 0xFF, 0, 0xFF],
             ),
             (Request::ReportSlaveId, vec![0, 2, 0x11, 0x11]),
+            (Request::ReadExceptionStatus, vec![0, 2, 0x11, 0x07]),
+            (Request::Diagnostics { sub_function: 0, data: &[0xA537] }, vec![0, 6, 0x11, 8, 0, 0, 0xA5, 0x37]),
+            (Request::GetCommEventCounter, vec![0, 2, 0x11, 0x0B]),
+            (Request::GetCommEventLog, vec![0, 2, 0x11, 0x0C]),
+            (Request::ReadFileRecord { file: 4, record: 1, nb: 2 }, vec![0, 10, 0x11, 0x14, 7, 6, 0, 4, 0, 1, 0, 2]),
+            (
+                Request::WriteFileRecord { file: 4, record: 7, values: &[0x06AF, 0x04BE] },
+                vec![0, 14, 0x11, 0x15, 11, 6, 0, 4, 0, 7, 0, 2, 0x06, 0xAF, 0x04, 0xBE],
+            ),
+            (Request::ReadFifoQueue { addr: 0x04DE }, vec![0, 4, 0x11, 0x18, 0x04, 0xDE]),
+            (Request::ReadDeviceId { read_code: 1, object_id: 0 }, vec![0, 5, 0x11, 0x2B, 0x0E, 1, 0]),
         ];
         for (req, tail) in cases {
             let mut want = h.to_vec();

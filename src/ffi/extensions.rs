@@ -1,0 +1,344 @@
+//! rsmodbus extensions: client calls for the function codes libmodbus lacks
+//! (07, 08, 0B, 0C, 14, 15, 18, 2B/0E). Same conventions as libmodbus: `modbus_t *`
+//! first, -1 with errno on failure (an exception answer gives `EMBX*`), counts as `int`.
+
+use std::ffi::{c_char, c_int};
+use std::slice;
+
+use crate::core::frame::MAX_ADU_LENGTH;
+use crate::core::request::{
+    MAX_DIAGNOSTICS_WORDS, MAX_FIFO_COUNT, MAX_FILE_READ_REGISTERS, MAX_FILE_RECORD, MAX_FILE_WRITE_REGISTERS, Request,
+};
+use crate::engine::{self, AduBuf, Guard};
+use crate::error::{Error, Result};
+use crate::ffi::{Modbus, fail, with_ctx};
+
+/// Sends `req` and returns the checked response with the offset of its PDU.
+fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Result<(usize, i32)> {
+    let done = engine::exchange(g, req, rsp)?;
+    Ok((g.framing.header_length(), done.count))
+}
+
+fn be16(b: &[u8]) -> u16 {
+    u16::from_be_bytes([b[0], b[1]])
+}
+
+/// Reads the eight exception status outputs of a serial device (FC 07) into
+/// `*status`. Returns 1.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `status` NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_exception_status(ctx: *mut Modbus, status: *mut u8) -> c_int {
+    if status.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract; `status` is non-NULL.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let (h, _) = exchange(g, &Request::ReadExceptionStatus, &mut rsp)?;
+            *status = rsp[h + 1];
+            Ok(1)
+        })
+    }
+}
+
+/// Sends a diagnostics request (FC 08) with sub-function `sub_function` and `nb`
+/// data words from `data`, and copies at most `max_dest` data words of the answer
+/// into `dest`. Returns the number of data words in the answer. Sub-function 0
+/// (return query data) must come back identical. Sub-function 4 (force listen only
+/// mode) gets no answer by definition: it returns 0 once sent.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `data` valid for `nb` values (or NULL when
+/// `nb` is 0), `dest` valid for `max_dest` values (or NULL when `max_dest` is 0).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_diagnostics(
+    ctx: *mut Modbus,
+    sub_function: c_int,
+    data: *const u16,
+    nb: c_int,
+    dest: *mut u16,
+    max_dest: c_int,
+) -> c_int {
+    if !(0..=0xFFFF).contains(&sub_function)
+        || !(0..=MAX_DIAGNOSTICS_WORDS).contains(&nb)
+        || (nb > 0 && data.is_null())
+        || max_dest < 0
+        || (max_dest > 0 && dest.is_null())
+    {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract, pointers checked against their counts.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let data = if nb > 0 { slice::from_raw_parts(data, nb as usize) } else { &[] };
+            let req = Request::Diagnostics { sub_function: sub_function as u16, data };
+            if sub_function == 4 {
+                let mut out: AduBuf = [0; MAX_ADU_LENGTH];
+                let n = engine::build_request(g, &req, &mut out);
+                engine::send_msg(g, &mut out, n)?;
+                return Ok(0);
+            }
+            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let (h, words) = exchange(g, &req, &mut rsp)?;
+            let copy = (words.min(max_dest)) as usize;
+            if copy > 0 {
+                let dest = slice::from_raw_parts_mut(dest, copy);
+                for (i, d) in dest.iter_mut().enumerate() {
+                    *d = be16(&rsp[h + 3 + 2 * i..]);
+                }
+            }
+            Ok(words)
+        })
+    }
+}
+
+/// Reads the status word and event counter of a serial device (FC 0B).
+/// Returns 1.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; the pointers NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_comm_event_counter(
+    ctx: *mut Modbus,
+    status: *mut u16,
+    event_count: *mut u16,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let (h, _) = exchange(g, &Request::GetCommEventCounter, &mut rsp)?;
+            if let Some(s) = status.as_mut() {
+                *s = be16(&rsp[h + 1..]);
+            }
+            if let Some(c) = event_count.as_mut() {
+                *c = be16(&rsp[h + 3..]);
+            }
+            Ok(1)
+        })
+    }
+}
+
+/// Reads the communication event log of a serial device (FC 0C): status word,
+/// event counter, message counter and up to 64 event bytes, newest first. Copies at
+/// most `max_events` events into `events` and returns the number of events the
+/// device sent.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; the counter pointers NULL or writable;
+/// `events` valid for `max_events` bytes (or NULL when `max_events` is 0).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_comm_event_log(
+    ctx: *mut Modbus,
+    status: *mut u16,
+    event_count: *mut u16,
+    message_count: *mut u16,
+    events: *mut u8,
+    max_events: c_int,
+) -> c_int {
+    if max_events < 0 || (max_events > 0 && events.is_null()) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let (h, n) = exchange(g, &Request::GetCommEventLog, &mut rsp)?;
+            for (ptr, at) in [(status, h + 2), (event_count, h + 4), (message_count, h + 6)] {
+                if let Some(p) = ptr.as_mut() {
+                    *p = be16(&rsp[at..]);
+                }
+            }
+            let copy = n.min(max_events) as usize;
+            if copy > 0 {
+                slice::from_raw_parts_mut(events, copy).copy_from_slice(&rsp[h + 8..h + 8 + copy]);
+            }
+            Ok(n)
+        })
+    }
+}
+
+fn check_file_args(file: c_int, record: c_int, nb: c_int, max: c_int) -> Result<()> {
+    if !(1..=0xFFFF).contains(&file) || !(0..=MAX_FILE_RECORD).contains(&record) || !(1..=max).contains(&nb) {
+        return Err(Error::INVALID);
+    }
+    Ok(())
+}
+
+/// Reads `nb` registers (1..124) from record `record` (0..9999) of file `file`
+/// (1..65535) with one FC 14 sub-request. Returns `nb`.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` valid for `nb` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_file_record(
+    ctx: *mut Modbus,
+    file: c_int,
+    record: c_int,
+    nb: c_int,
+    dest: *mut u16,
+) -> c_int {
+    if dest.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            check_file_args(file, record, nb, MAX_FILE_READ_REGISTERS)?;
+            let req = Request::ReadFileRecord { file: file as u16, record: record as u16, nb: nb as u16 };
+            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let (h, n) = exchange(g, &req, &mut rsp)?;
+            for (i, d) in slice::from_raw_parts_mut(dest, n as usize).iter_mut().enumerate() {
+                *d = be16(&rsp[h + 4 + 2 * i..]);
+            }
+            Ok(n)
+        })
+    }
+}
+
+/// Writes `nb` registers (1..122) from `src` to record `record` (0..9999) of file
+/// `file` (1..65535) with one FC 15 sub-request. Returns `nb`.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `src` valid for `nb` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_write_file_record(
+    ctx: *mut Modbus,
+    file: c_int,
+    record: c_int,
+    nb: c_int,
+    src: *const u16,
+) -> c_int {
+    if src.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            check_file_args(file, record, nb, MAX_FILE_WRITE_REGISTERS)?;
+            let values = slice::from_raw_parts(src, nb as usize);
+            let req = Request::WriteFileRecord { file: file as u16, record: record as u16, values };
+            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            exchange(g, &req, &mut rsp).map(|(_, n)| n)
+        })
+    }
+}
+
+/// Reads the FIFO queue whose pointer register is `addr` (FC 18) into `dest`, which
+/// must hold 31 values. Returns the number of values.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` valid for 31 values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_fifo_queue(ctx: *mut Modbus, addr: c_int, dest: *mut u16) -> c_int {
+    if dest.is_null() || !(0..=0xFFFF).contains(&addr) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let (h, n) = exchange(g, &Request::ReadFifoQueue { addr: addr as u16 }, &mut rsp)?;
+            let dest = slice::from_raw_parts_mut(dest, MAX_FIFO_COUNT);
+            for (i, d) in dest.iter_mut().take(n as usize).enumerate() {
+                *d = be16(&rsp[h + 5 + 2 * i..]);
+            }
+            Ok(n)
+        })
+    }
+}
+
+/// One device identification object (FC 2B / MEI 0E). `value` holds `length` bytes
+/// followed by a NUL, so text objects can be printed directly.
+#[repr(C)]
+pub struct modbus_device_id_object_t {
+    pub id: u8,
+    pub length: u8,
+    pub value: [c_char; 256],
+}
+
+/// `MODBUS_DEVICE_ID_*` read codes.
+const READ_BASIC: c_int = 1;
+const READ_SPECIFIC: c_int = 4;
+
+/// Reads device identification objects (FC 2B / MEI 0E).
+///
+/// `read_code` 1 (basic), 2 (regular) or 3 (extended) is a stream access starting at
+/// `object_id`: the "more follows" continuation is followed inside this call until
+/// the device has sent every object, or `max_objects` are stored. `read_code` 4 reads
+/// the single object `object_id`. The objects go to `objects[0..n]` in the order
+/// received; `*conformity` (if not NULL) gets the device's conformity level.
+/// Returns `n`, the number of objects stored.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `objects` valid for `max_objects` entries;
+/// `conformity` NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_device_identification(
+    ctx: *mut Modbus,
+    read_code: c_int,
+    object_id: c_int,
+    objects: *mut modbus_device_id_object_t,
+    max_objects: c_int,
+    conformity: *mut c_int,
+) -> c_int {
+    if !(READ_BASIC..=READ_SPECIFIC).contains(&read_code)
+        || !(0..=0xFF).contains(&object_id)
+        || max_objects < 1
+        || objects.is_null()
+    {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let out = slice::from_raw_parts_mut(objects, max_objects as usize);
+            read_device_id(g, read_code as u8, object_id as u8, out, conformity.as_mut())
+        })
+    }
+}
+
+fn read_device_id(
+    g: &mut Guard<'_>,
+    read_code: u8,
+    mut object_id: u8,
+    out: &mut [modbus_device_id_object_t],
+    mut conformity: Option<&mut c_int>,
+) -> Result<c_int> {
+    let mut stored = 0usize;
+    // Each round trip returns at least one object or ends the stream, so 256 rounds
+    // cover every object id; the bound keeps a misbehaving device from looping us.
+    for _ in 0..256 {
+        let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+        let (h, count) = exchange(g, &Request::ReadDeviceId { read_code, object_id }, &mut rsp)?;
+        let pdu = &rsp[h..];
+        if let Some(c) = conformity.as_deref_mut() {
+            *c = pdu[3] as c_int;
+        }
+        let (more_follows, next_id) = (pdu[4] == 0xFF, pdu[5]);
+        let mut pos = 7;
+        for _ in 0..count {
+            if stored == out.len() {
+                return Ok(stored as c_int);
+            }
+            let (id, len) = (pdu[pos], pdu[pos + 1] as usize);
+            let slot = &mut out[stored];
+            slot.id = id;
+            slot.length = len as u8;
+            for (dst, &src) in slot.value.iter_mut().zip(&pdu[pos + 2..pos + 2 + len]) {
+                *dst = src as c_char;
+            }
+            slot.value[len] = 0;
+            stored += 1;
+            pos += 2 + len;
+        }
+        if read_code as c_int == READ_SPECIFIC || !more_follows || next_id <= object_id && count == 0 {
+            break;
+        }
+        object_id = next_id;
+    }
+    Ok(stored as c_int)
+}
