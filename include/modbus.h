@@ -461,6 +461,22 @@ int modbus_read_device_identification(modbus_t *ctx,
                                       int *conformity);
 
 /**
+ * rsmodbus extension: a Modbus ASCII context on a serial line: frames are ':',
+ * hexadecimal digits, an LRC and CR LF. Same arguments and checks as
+ * `modbus_new_rtu`; 7 or 8 data bits. The byte timeout defaults to 1 s, the gap
+ * ASCII allows between characters. The RTU serial functions (RS-485, RTS) apply.
+ *
+ * # Safety
+ * `device` must be NULL or a NUL-terminated string.
+ */
+MODBUS_API
+modbus_t *modbus_new_ascii(const char *device,
+                           int baud,
+                           char parity,
+                           int data_bit,
+                           int stop_bit);
+
+/**
  * rsmodbus extension: a context that speaks RTU frames (slave id, PDU, CRC) over a
  * TCP/IPv4 connection, as most serial-to-Ethernet gateways do. Set the slave with
  * `modbus_set_slave`; the rest works as on an RTU context (CRC checks, slave

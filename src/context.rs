@@ -196,6 +196,15 @@ impl Context {
         Ok(Context::common(Framing::Rtu, Link::Rtu(link), -1))
     }
 
+    /// `modbus_new_ascii`: Modbus ASCII on a serial line. Same checks as RTU; the byte
+    /// timeout starts at 1 s, the longest gap ASCII allows inside a frame.
+    pub fn new_ascii(device: Option<&CStr>, baud: i32, parity: u8, data_bit: i32, stop_bit: i32) -> Result<Context> {
+        let mut ctx = Context::new_rtu(device, baud, parity, data_bit, stop_bit)?;
+        ctx.framing = Framing::Ascii;
+        ctx.byte_timeout = Timeout::new(1, 0);
+        Ok(ctx)
+    }
+
     /// `modbus_new_tcp`: NULL means any address ("0"); the address must fit the 15
     /// characters of a dotted quad.
     pub fn new_tcp(ip: Option<&CStr>, port: i32) -> Result<Context> {

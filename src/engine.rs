@@ -7,10 +7,10 @@ use std::time::Instant;
 use parking_lot::MutexGuard;
 
 use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP};
-use crate::core::Diag;
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
 use crate::core::request::{Request, next_tid};
+use crate::core::{Diag, ascii};
 use crate::error::{Error, Result, strerror_modbus};
 use crate::transport::{self, rtu, tcp};
 
@@ -159,9 +159,16 @@ pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> 
         line.push('\n');
         crate::stdio::out(format_args!("{line}"));
     }
+    let mut chars = [0u8; ascii::MAX_ENCODED];
+    let (wire, wire_len) = if g.framing == Framing::Ascii {
+        let n = ascii::encode(adu, &mut chars);
+        (&chars[..n], n)
+    } else {
+        (adu, len)
+    };
     loop {
-        match write_adu(g, adu) {
-            Ok(n) if n == len => return Ok(n),
+        match write_adu(g, wire) {
+            Ok(n) if n == wire_len => return Ok(len),
             Ok(_) => return Err(Error::BAD_DATA),
             Err(e) => {
                 error_print(g, e, None);
@@ -234,6 +241,9 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
     if ctx.s < 0 {
         diag.err(format_args!("ERROR The connection is not established.\n"));
         return Err(Error::UNCHANGED);
+    }
+    if ctx.framing == Framing::Ascii {
+        return receive_ascii(ctx, buf, kind);
     }
     let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
     if ctx.is_socket() && kind == MsgKind::Indication && ctx.rx.available().is_empty() {
@@ -317,6 +327,89 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
     }
 }
 
+/// The receive loop of Modbus ASCII: characters are read ahead (a frame ends at its
+/// CR LF, so nothing past it is consumed as part of it) and decoded into `buf`. The
+/// first wait uses the response or indication timeout, the later ones the byte
+/// timeout (1 s by default on ASCII contexts: the gap the protocol allows).
+fn receive_ascii(ctx: &mut Context, buf: &mut AduBuf, kind: MsgKind) -> Result<Received> {
+    let first = match kind {
+        MsgKind::Confirmation => Some(ctx.response_timeout),
+        MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then_some(ctx.indication_timeout),
+    };
+    let mut deadline = first.map(|t| Instant::now() + t.duration());
+    let mut decoder = ascii::Decoder::new();
+    let mut trace = String::new();
+    loop {
+        if ctx.rx.available().is_empty() {
+            if let Err(e) = wait_readable(ctx, deadline) {
+                flush_trace(ctx, &mut trace);
+                error_print(ctx, e, Some("select"));
+                recover_after_wait(ctx, e);
+                return Err(e);
+            }
+            match read_line(ctx.is_socket(), ctx.s, &mut ctx.rx.buf) {
+                Ok(0) | Err(Error(libc::ECONNRESET)) => {
+                    flush_trace(ctx, &mut trace);
+                    error_print(ctx, Error::CONN_RESET, Some("read"));
+                    recover_after_read(ctx, Error::CONN_RESET);
+                    return Err(Error::CONN_RESET);
+                }
+                Ok(n) => ctx.rx.end = n,
+                Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
+                Err(e) => {
+                    flush_trace(ctx, &mut trace);
+                    error_print(ctx, e, Some("read"));
+                    recover_after_read(ctx, e);
+                    return Err(e);
+                }
+            }
+        }
+        let mut used = 0;
+        let mut outcome = None;
+        for &c in ctx.rx.available() {
+            used += 1;
+            let before = decoder.len();
+            match decoder.feed(c, buf) {
+                Ok(ascii::Step::NeedMore) => {
+                    if ctx.debug && decoder.len() > before {
+                        push_trace(&mut trace, &buf[before..decoder.len()]);
+                    }
+                }
+                Ok(ascii::Step::Complete(len)) => {
+                    outcome = Some(Ok(len));
+                    break;
+                }
+                Err(e) => {
+                    outcome = Some(Err(e));
+                    break;
+                }
+            }
+        }
+        ctx.rx.consume(used);
+        match outcome {
+            None => {
+                if decoder.in_frame() && !ctx.byte_timeout.is_zero() {
+                    deadline = Some(Instant::now() + ctx.byte_timeout.duration());
+                }
+            }
+            Some(Ok(len)) => {
+                trace.push('\n');
+                flush_trace(ctx, &mut trace);
+                if len < 2 {
+                    error_print(ctx, Error::BAD_DATA, Some("frame too short"));
+                    return Err(Error::BAD_DATA);
+                }
+                return check_integrity(ctx, &buf[..len]);
+            }
+            Some(Err(e)) => {
+                flush_trace(ctx, &mut trace);
+                error_print(ctx, e, Some("invalid ASCII frame"));
+                return Err(e);
+            }
+        }
+    }
+}
+
 /// Waits until the line is readable or `deadline` passes (`None`: forever),
 /// resuming after signals as libmodbus does.
 fn wait_readable(ctx: &Context, deadline: Option<Instant>) -> Result<()> {
@@ -389,6 +482,21 @@ fn check_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
         return Ok(Received::Frame(frame.len()));
     }
     let mut diag = ctx.diag();
+    if ctx.framing == Framing::Ascii {
+        if let Err((received, computed)) = ascii::check_lrc(frame) {
+            diag.err(format_args!("ERROR LRC received 0x{received:0X} != LRC calculated 0x{computed:0X}\n"));
+            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 {
+                ctx.rx.clear();
+                let _ = rtu::flush(ctx.s);
+            }
+            return Err(Error::BAD_CRC);
+        }
+        if frame[0] as i32 != ctx.slave && frame[0] != 0 {
+            diag.out(format_args!("Request for slave {} ignored (not {})\n", frame[0], ctx.slave));
+            return Ok(Received::Ignored(frame.len()));
+        }
+        return Ok(Received::Frame(frame.len()));
+    }
     match rtu_integrity(frame, ctx.slave) {
         RtuIntegrity::Ok => Ok(Received::Frame(frame.len())),
         RtuIntegrity::BadCrc(received, computed) => {
@@ -627,6 +735,45 @@ mod tests {
         bad[7] ^= 0xFF;
         transport::write(peer, &bad).unwrap();
         assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::BAD_CRC));
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    #[test]
+    fn ascii_exchange_over_a_stream() {
+        let (ours, peer) = socket_pair();
+        let mut ctx = Context::new_ascii(Some(c"/dev/null"), 9600, b'E', 7, 1).unwrap();
+        ctx.s = ours;
+        ctx.slave = 1;
+        let m = Mutex::new(ctx);
+        let server = std::thread::spawn(move || {
+            let mut got = Vec::new();
+            let mut chunk = [0u8; 64];
+            while !got.ends_with(b"\r\n") {
+                let n = transport::read(peer, &mut chunk).unwrap();
+                got.extend_from_slice(&chunk[..n]);
+            }
+            // Noise, then the answer split with a pause inside the frame.
+            transport::write(peer, b"\0\0:0103020").unwrap();
+            std::thread::sleep(Duration::from_millis(30));
+            transport::write(peer, b"1A257\r\n").unwrap();
+            (peer, got)
+        });
+        let mut g = m.lock();
+        let mut rsp = [0u8; MAX_ADU_LENGTH];
+        let done = exchange(&mut g, &Request::ReadRegisters { function: 3, addr: 0, nb: 1 }, &mut rsp).unwrap();
+        assert_eq!(done.count, 1);
+        assert_eq!(rsp[..done.len], [0x01, 0x03, 0x02, 0x01, 0xA2, 0x57]);
+        let (peer, request) = server.join().unwrap();
+        assert_eq!(request, b":010300000001FB\r\n");
+        // A wrong LRC is a checksum error.
+        transport::write(peer, b":010302000100F0\r\n").unwrap();
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_CRC));
+        // Another slave's frame is ignored, a broadcast accepted.
+        transport::write(peer, b":020300000001FA\r\n:000300000001FC\r\n").unwrap();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Ignored(7)));
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(7)));
         transport::close(peer);
         transport::close(ours);
     }

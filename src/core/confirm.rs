@@ -69,7 +69,7 @@ pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> R
                 return Err(Rejection::Mismatch(Error::BAD_DATA));
             }
         }
-        Framing::Rtu => {
+        Framing::Rtu | Framing::Ascii => {
             if req[0] != rsp[0] && req[0] != 0 {
                 diag.err(format_args!("The responding slave {} isn't the requested slave {}\n", rsp[0], req[0]));
                 return Err(Rejection::Mismatch(Error::BAD_SLAVE));

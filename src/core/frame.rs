@@ -19,13 +19,16 @@ pub const TCP_MAX_ADU_LENGTH: usize = 260;
 pub enum Framing {
     Rtu,
     Tcp,
+    /// Modbus ASCII. Lengths and checksums here are those of the decoded binary
+    /// frame `[slave][pdu][lrc]`; `core::ascii` turns it into characters and back.
+    Ascii,
 }
 
 impl Framing {
     /// Bytes in front of the function code (`modbus_get_header_length`).
     pub const fn header_length(self) -> usize {
         match self {
-            Framing::Rtu => 1,
+            Framing::Rtu | Framing::Ascii => 1,
             Framing::Tcp => 7,
         }
     }
@@ -33,6 +36,7 @@ impl Framing {
     pub const fn checksum_length(self) -> usize {
         match self {
             Framing::Rtu => 2,
+            Framing::Ascii => 1,
             Framing::Tcp => 0,
         }
     }
@@ -40,15 +44,22 @@ impl Framing {
     pub const fn max_adu_length(self) -> usize {
         match self {
             Framing::Rtu => RTU_MAX_ADU_LENGTH,
+            Framing::Ascii => crate::core::ascii::MAX_DECODED,
             Framing::Tcp => TCP_MAX_ADU_LENGTH,
         }
+    }
+
+    /// Serial-line framings address a slave on a shared bus: they filter by slave id
+    /// and never answer a broadcast.
+    pub const fn is_serial(self) -> bool {
+        !matches!(self, Framing::Tcp)
     }
 
     /// Writes the header of a request: slave (RTU) or MBAP with transaction id and
     /// unit (TCP; the length field is filled by [`Framing::seal`]). Returns its length.
     pub fn write_header(self, out: &mut [u8], unit: u8, tid: u16) -> usize {
         match self {
-            Framing::Rtu => {
+            Framing::Rtu | Framing::Ascii => {
                 out[0] = unit;
                 1
             }
@@ -69,6 +80,10 @@ impl Framing {
                 let crc = crc16(&buf[..len]);
                 buf[len..len + 2].copy_from_slice(&crc.to_le_bytes());
                 len + 2
+            }
+            Framing::Ascii => {
+                buf[len] = crate::core::ascii::lrc(&buf[..len]);
+                len + 1
             }
             Framing::Tcp => {
                 let mbap_len = (len - 6) as u16;

@@ -469,7 +469,7 @@ impl Server {
         };
 
         let suppressed =
-            framing == Framing::Rtu && slave as i32 == BROADCAST_ADDRESS && self.quirks & QUIRK_REPLY_TO_BROADCAST == 0;
+            framing.is_serial() && slave as i32 == BROADCAST_ADDRESS && self.quirks & QUIRK_REPLY_TO_BROADCAST == 0;
         Outcome::Respond { len, exception: exc, flush_first, suppressed }
     }
 }
@@ -530,7 +530,7 @@ mod tests {
                 let len = (pdu.len() + 1) as u16;
                 vec![0x12, 0x34, 0, 0, (len >> 8) as u8, len as u8, unit]
             }
-            Framing::Rtu => vec![unit],
+            Framing::Rtu | Framing::Ascii => vec![unit],
         };
         v.extend_from_slice(pdu);
         if framing == Framing::Rtu {

@@ -27,6 +27,26 @@ pub unsafe extern "C" fn modbus_new_rtu(
     into_handle(Context::new_rtu(device, baud, parity as u8, data_bit, stop_bit))
 }
 
+/// rsmodbus extension: a Modbus ASCII context on a serial line: frames are ':',
+/// hexadecimal digits, an LRC and CR LF. Same arguments and checks as
+/// `modbus_new_rtu`; 7 or 8 data bits. The byte timeout defaults to 1 s, the gap
+/// ASCII allows between characters. The RTU serial functions (RS-485, RTS) apply.
+///
+/// # Safety
+/// `device` must be NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_new_ascii(
+    device: *const c_char,
+    baud: c_int,
+    parity: c_char,
+    data_bit: c_int,
+    stop_bit: c_int,
+) -> *mut Modbus {
+    // SAFETY: forwarded caller contract.
+    let device = unsafe { opt_cstr(device) };
+    into_handle(Context::new_ascii(device, baud, parity as u8, data_bit, stop_bit))
+}
+
 /// Runs `f` on an RTU context; other backends give EINVAL.
 ///
 /// # Safety
