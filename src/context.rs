@@ -139,6 +139,10 @@ pub struct Context {
     pub handle_addr: usize,
     /// Read-ahead of the client side (see [`ReadAhead`]).
     pub rx: ReadAhead,
+    /// The server answers function codes beyond libmodbus (set by the server
+    /// configuration calls), so their requests are framed whole. Off, a server
+    /// frames and answers them exactly as libmodbus does.
+    pub serves_extended: bool,
 }
 
 impl Context {
@@ -157,6 +161,7 @@ impl Context {
             t_id: 0,
             handle_addr: 0,
             rx: ReadAhead::new(),
+            serves_extended: false,
         }
     }
 

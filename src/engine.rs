@@ -248,7 +248,7 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
     let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
     if ctx.is_socket() && kind == MsgKind::Indication && ctx.rx.available().is_empty() {
         let blocking = ctx.indication_timeout.is_zero();
-        if let Some(len) = take_whole_indication(ctx.framing, ctx.s, buf, blocking) {
+        if let Some(len) = take_whole_indication(ctx.framing, ctx.serves_extended, ctx.s, buf, blocking) {
             if ctx.debug {
                 let mut trace = String::with_capacity(len * 4 + 1);
                 push_trace(&mut trace, &buf[..len]);
@@ -263,7 +263,7 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
         MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then_some(ctx.indication_timeout),
     };
     let mut deadline = first.map(|t| Instant::now() + t.duration());
-    let mut asm = Assembler::new(ctx.framing, kind);
+    let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended);
     let mut trace = String::new();
     loop {
         let start = asm.len();
@@ -433,7 +433,7 @@ fn read_line(socket: bool, fd: i32, buf: &mut [u8]) -> Result<usize> {
 /// timeout is infinite) and, when they hold a whole request, take exactly that
 /// request. `None` when the slow path must run (nothing queued yet, a partial
 /// request, an oversized one, or an error it will report).
-fn take_whole_indication(framing: Framing, fd: i32, buf: &mut AduBuf, blocking: bool) -> Option<usize> {
+fn take_whole_indication(framing: Framing, extended: bool, fd: i32, buf: &mut AduBuf, blocking: bool) -> Option<usize> {
     let flags = libc::MSG_PEEK | if blocking { 0 } else { libc::MSG_DONTWAIT };
     // Peek into scratch space: the caller's buffer only ever receives the request.
     let mut peeked: AduBuf = [0; MAX_ADU_LENGTH];
@@ -441,7 +441,7 @@ fn take_whole_indication(framing: Framing, fd: i32, buf: &mut AduBuf, blocking: 
         Ok(n) if n > 0 => n,
         _ => return None,
     };
-    let mut asm = Assembler::new(framing, MsgKind::Indication);
+    let mut asm = Assembler::new(framing, MsgKind::Indication).extended_requests(extended);
     let len = loop {
         let next = asm.len() + asm.wanted();
         if next > queued {
@@ -554,7 +554,7 @@ pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Resul
         // libmodbus checks a frame its RTU filter dropped with length 0: the slave
         // pre-check refuses it.
         diag.err(format_args!("The responding slave {} isn't the requested slave {}\n", rsp_adu[0], req_adu[0]));
-        Err(Rejection::Mismatch(Error::BAD_SLAVE))
+        Err(Rejection::Foreign(Error::BAD_SLAVE))
     } else {
         confirm::check(ctx.framing, req_adu, rsp_adu, &mut diag)
     };
@@ -570,6 +570,17 @@ pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Resul
                 let _ = flush(ctx);
             }
             Err(e)
+        }
+        Err(Rejection::Foreign(e)) => {
+            if ctx.error_recovery & RECOVERY_PROTOCOL == 0 {
+                return Err(e);
+            }
+            // errno first, then the flush, whose failed non-blocking read may
+            // overwrite it: the order libmodbus has.
+            transport::set_errno(e.0);
+            sleep_response_timeout(ctx);
+            let _ = flush(ctx);
+            Err(Error::UNCHANGED)
         }
     }
 }

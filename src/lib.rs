@@ -22,6 +22,6 @@ pub mod core;
 pub mod engine;
 pub mod error;
 pub mod ffi;
-pub mod stdio;
 pub mod server;
+pub mod stdio;
 pub mod transport;

@@ -14,6 +14,10 @@ pub enum Rejection {
     /// The response does not belong to the request: with PROTOCOL error recovery the
     /// caller sleeps the response timeout and flushes.
     Mismatch(Error),
+    /// The framing pre-check failed (TCP transaction or protocol id, RTU slave).
+    /// libmodbus sets errno before its PROTOCOL-recovery flush here, so the flush may
+    /// overwrite it (EAGAIN on TCP); the caller reproduces that order.
+    Foreign(Error),
 }
 
 fn be16(b: &[u8], at: usize) -> i32 {
@@ -61,18 +65,18 @@ pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> R
             let (req_tid, rsp_tid) = (be16(req, 0), be16(rsp, 0));
             if req_tid != rsp_tid {
                 diag.err(format_args!("Invalid transaction ID received 0x{rsp_tid:X} (not 0x{req_tid:X})\n"));
-                return Err(Rejection::Mismatch(Error::BAD_DATA));
+                return Err(Rejection::Foreign(Error::BAD_DATA));
             }
             let protocol = be16(rsp, 2);
             if protocol != 0 {
                 diag.err(format_args!("Invalid protocol ID received 0x{protocol:X} (not 0x0)\n"));
-                return Err(Rejection::Mismatch(Error::BAD_DATA));
+                return Err(Rejection::Foreign(Error::BAD_DATA));
             }
         }
         Framing::Rtu | Framing::Ascii => {
             if req[0] != rsp[0] && req[0] != 0 {
                 diag.err(format_args!("The responding slave {} isn't the requested slave {}\n", rsp[0], req[0]));
-                return Err(Rejection::Mismatch(Error::BAD_SLAVE));
+                return Err(Rejection::Foreign(Error::BAD_SLAVE));
             }
         }
     }
@@ -253,11 +257,11 @@ mod tests {
         let req = tcp_req(READ3);
         let mut d = Recorded::default();
         let rsp = tcp_rsp(0x0103, &[3, 6, 0, 0, 0, 0, 0, 0]);
-        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Mismatch(Error::BAD_DATA)));
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Foreign(Error::BAD_DATA)));
         assert_eq!(d.err, "Invalid transaction ID received 0x103 (not 0x102)\n");
         let mut rsp = tcp_rsp(0x0102, &[3, 6, 0, 0, 0, 0, 0, 0]);
         rsp[3] = 1; // 3.1.6 would accept a single non-zero byte; 3.1.12 does not.
-        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Mismatch(Error::BAD_DATA)));
+        assert_eq!(check(Framing::Tcp, &req, &rsp, &mut d), Err(Rejection::Foreign(Error::BAD_DATA)));
     }
 
     #[test]
@@ -267,7 +271,7 @@ mod tests {
         let n = Framing::Rtu.seal(&mut buf, n);
         let rsp = rtu(&[0x12, 3, 6, 0, 0, 0, 0, 0, 0]);
         let mut d = Recorded::default();
-        assert_eq!(check(Framing::Rtu, &buf[..n], &rsp, &mut d), Err(Rejection::Mismatch(Error::BAD_SLAVE)));
+        assert_eq!(check(Framing::Rtu, &buf[..n], &rsp, &mut d), Err(Rejection::Foreign(Error::BAD_SLAVE)));
         assert_eq!(d.err, "The responding slave 18 isn't the requested slave 17\n");
     }
 

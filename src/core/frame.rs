@@ -235,6 +235,8 @@ enum Step {
 pub struct Assembler {
     framing: Framing,
     kind: MsgKind,
+    /// Frame the function codes beyond libmodbus whole (see [`is_extended`]).
+    extended: bool,
     step: Step,
     length: usize,
     wanted: usize,
@@ -250,8 +252,23 @@ pub enum Progress {
 }
 
 impl Assembler {
+    /// An assembler as libmodbus frames messages, except that responses of the
+    /// function codes beyond libmodbus are read whole (libmodbus truncates them).
+    /// Requests of those codes are framed as libmodbus does (up to the function
+    /// code) unless [`Assembler::extended_requests`] says otherwise, so that a server
+    /// not configured for them behaves exactly like libmodbus.
     pub fn new(framing: Framing, kind: MsgKind) -> Self {
-        Assembler { framing, kind, step: Step::Function, length: 0, wanted: framing.header_length() + 1 }
+        let extended = kind == MsgKind::Confirmation;
+        Assembler { framing, kind, extended, step: Step::Function, length: 0, wanted: framing.header_length() + 1 }
+    }
+
+    /// Frames requests of the function codes beyond libmodbus whole, for a server
+    /// configured to answer them.
+    pub fn extended_requests(mut self, on: bool) -> Self {
+        if self.kind == MsgKind::Indication {
+            self.extended = on;
+        }
+        self
     }
 
     /// Bytes received so far.
@@ -279,7 +296,7 @@ impl Assembler {
             return Ok(Progress::NeedMore(self.wanted));
         }
         let h = self.framing.header_length();
-        if self.step == Step::Function && is_extended(self.kind, buf[h]) {
+        if self.step == Step::Function && self.extended && is_extended(self.kind, buf[h]) {
             self.step = Step::Extended;
         }
         if self.step == Step::Extended {
@@ -357,7 +374,15 @@ mod tests {
 
     /// Feeds `msg` to an assembler in pieces of at most `chunk` bytes.
     fn assemble(framing: Framing, kind: MsgKind, msg: &[u8], chunk: usize) -> Result<usize> {
-        let mut a = Assembler::new(framing, kind);
+        feed(Assembler::new(framing, kind), msg, chunk)
+    }
+
+    /// The same with the extended function codes framed on the server side too.
+    fn assemble_ext(framing: Framing, kind: MsgKind, msg: &[u8], chunk: usize) -> Result<usize> {
+        feed(Assembler::new(framing, kind).extended_requests(true), msg, chunk)
+    }
+
+    fn feed(mut a: Assembler, msg: &[u8], chunk: usize) -> Result<usize> {
         let mut pos = 0;
         loop {
             let n = a.wanted().min(chunk).min(msg.len() - pos);
@@ -426,22 +451,28 @@ mod tests {
         ];
         for (kind, frame) in cases {
             for chunk in [1, 3, 256] {
-                assert_eq!(assemble(Framing::Rtu, kind, &frame, chunk), Ok(frame.len()), "{kind:?} {frame:02X?}");
+                assert_eq!(assemble_ext(Framing::Rtu, kind, &frame, chunk), Ok(frame.len()), "{kind:?} {frame:02X?}");
             }
         }
+        // A server not configured for them frames requests as libmodbus does: up to
+        // the function code, then two bytes taken as the CRC.
+        let req = rtu(&[0x11, 0x2B, 0x0E, 0x01, 0x00]);
+        let mut a = Assembler::new(Framing::Rtu, MsgKind::Indication);
+        a.received(&req[..2], 2).unwrap();
+        assert_eq!(a.received(&req[..4], 2), Ok(Progress::Complete(4)));
     }
 
     #[test]
     fn tcp_diagnostics_use_the_mbap_length() {
         // Return query data with three words: the PDU has no count, MBAP says 10.
         let req = [0, 1, 0, 0, 0, 10, 0x11, 0x08, 0, 0, 1, 2, 3, 4, 5, 6];
-        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(16));
+        assert_eq!(assemble_ext(Framing::Tcp, MsgKind::Indication, &req, 256), Ok(16));
         assert_eq!(assemble(Framing::Tcp, MsgKind::Confirmation, &req, 1), Ok(16));
         // A length field that is too small falls back to one word.
         let short = [0, 1, 0, 0, 0, 1, 0x11, 0x08, 0, 0, 1, 2];
-        assert_eq!(assemble(Framing::Tcp, MsgKind::Indication, &short, 256), Ok(12));
+        assert_eq!(assemble_ext(Framing::Tcp, MsgKind::Indication, &short, 256), Ok(12));
         // One too large for the ADU is refused.
-        let mut a = Assembler::new(Framing::Tcp, MsgKind::Indication);
+        let mut a = Assembler::new(Framing::Tcp, MsgKind::Indication).extended_requests(true);
         let huge = [0, 1, 0, 0, 1, 0, 0x11, 0x08];
         assert_eq!(a.received(&huge, 8), Err(Error::BAD_DATA));
     }

@@ -1,1 +1,193 @@
-//! TCP listen/accept: owned by the server work (issue 3).
+//! TCP servers: `modbus_tcp_listen` / `modbus_tcp_pi_listen` open a listening socket
+//! and hand it to the caller (the context does not keep it); `modbus_tcp_accept` /
+//! `modbus_tcp_pi_accept` accept one client and make it the context's socket.
+//!
+//! Unlike libmodbus 3.1.12, descriptors at or above `FD_SETSIZE` are accepted: all
+//! waiting is done with `poll`, so they work like any other.
+
+use std::ffi::CStr;
+use std::mem::{size_of, zeroed};
+
+use crate::context::{Context, Link};
+use crate::core::Diag;
+use crate::error::{Error, Result};
+use crate::transport::tcp::{AddrInfo, gai_error, inet_pton};
+use crate::transport::{close, last_error};
+
+unsafe extern "C" {
+    /// POSIX `inet_ntop` (not bound by the libc crate).
+    fn inet_ntop(
+        af: libc::c_int,
+        src: *const libc::c_void,
+        dst: *mut libc::c_char,
+        size: libc::socklen_t,
+    ) -> *const libc::c_char;
+}
+
+fn set_reuseaddr(fd: i32) -> Result<()> {
+    let enable: libc::c_int = 1;
+    // SAFETY: `enable` is a live c_int and its size is passed alongside it.
+    let rc = unsafe {
+        libc::setsockopt(
+            fd,
+            libc::SOL_SOCKET,
+            libc::SO_REUSEADDR,
+            (&enable as *const libc::c_int).cast(),
+            size_of::<libc::c_int>() as libc::socklen_t,
+        )
+    };
+    if rc == -1 { Err(last_error()) } else { Ok(()) }
+}
+
+/// Runs `f`; on failure closes `fd` and passes the error (errno of the failed call) on.
+fn or_close<T>(fd: i32, r: Result<T>) -> Result<T> {
+    r.inspect_err(|_| close(fd))
+}
+
+fn bind_and_listen(fd: i32, addr: *const libc::sockaddr, len: libc::socklen_t, backlog: i32) -> Result<()> {
+    // SAFETY: `addr` points at a socket address of `len` bytes owned by the caller.
+    if unsafe { libc::bind(fd, addr, len) } == -1 {
+        return Err(last_error());
+    }
+    // SAFETY: plain system call with integer arguments.
+    if unsafe { libc::listen(fd, backlog) } == -1 {
+        return Err(last_error());
+    }
+    Ok(())
+}
+
+/// `modbus_tcp_listen`: an IPv4 socket bound to the context's address and port.
+/// An address starting with '0' (NULL ip, "0.0.0.0", ...) means any address.
+pub fn listen_ipv4(ctx: &Context, nb_connection: i32) -> Result<i32> {
+    let Link::Tcp(link) = &ctx.link else { return Err(Error::INVALID) };
+    // SAFETY: plain system call with integer arguments.
+    let fd = unsafe { libc::socket(libc::PF_INET, libc::SOCK_STREAM | libc::SOCK_CLOEXEC, libc::IPPROTO_TCP) };
+    if fd == -1 {
+        return Err(last_error());
+    }
+    or_close(fd, set_reuseaddr(fd))?;
+    // SAFETY: all-zero is a valid sockaddr_in.
+    let mut sa: libc::sockaddr_in = unsafe { zeroed() };
+    sa.sin_family = libc::AF_INET as libc::sa_family_t;
+    sa.sin_port = (link.port as u16).to_be();
+    if link.ip.to_bytes().first() == Some(&b'0') {
+        sa.sin_addr.s_addr = libc::INADDR_ANY.to_be();
+    } else {
+        // SAFETY: `ip` is NUL-terminated and `sin_addr` is a live in_addr.
+        let rc = unsafe { inet_pton(libc::AF_INET, link.ip.as_ptr(), (&mut sa.sin_addr as *mut libc::in_addr).cast()) };
+        if rc <= 0 {
+            ctx.diag().err(format_args!("Invalid IP address: {}\n", link.ip.to_string_lossy()));
+            close(fd);
+            return Err(Error::UNCHANGED);
+        }
+    }
+    let len = size_of::<libc::sockaddr_in>() as libc::socklen_t;
+    or_close(fd, bind_and_listen(fd, (&sa as *const libc::sockaddr_in).cast(), len, nb_connection))?;
+    Ok(fd)
+}
+
+/// `perror(what)` through the C library, as libmodbus does in debug mode.
+fn perror(ctx: &Context, what: &CStr, e: Error) {
+    if ctx.debug {
+        crate::transport::set_errno(e.0);
+        // SAFETY: `what` is NUL-terminated; perror only reads it.
+        unsafe { libc::perror(what.as_ptr()) };
+    }
+}
+
+/// `modbus_tcp_pi_listen`: the first address of getaddrinfo(node, service) (passive,
+/// any family) that can be bound and listened on.
+pub fn listen_pi(ctx: &Context, nb_connection: i32) -> Result<i32> {
+    let Link::TcpPi(link) = &ctx.link else { return Err(Error::INVALID) };
+    let node = (!link.node.is_empty()).then_some(link.node.as_c_str());
+    let service: &CStr = if link.service.is_empty() { c"502" } else { &link.service };
+    let list = match AddrInfo::lookup(node, service, libc::AI_PASSIVE | libc::AI_ADDRCONFIG) {
+        Ok(list) => list,
+        Err(code) => {
+            ctx.diag().err(format_args!("Error returned by getaddrinfo: {}\n", gai_error(code)));
+            return Err(Error::CONN_REFUSED);
+        }
+    };
+    let mut last = Error::UNCHANGED;
+    for ai in list.iter() {
+        // SAFETY: plain system call with integer arguments.
+        let fd = unsafe { libc::socket(ai.ai_family, ai.ai_socktype | libc::SOCK_CLOEXEC, ai.ai_protocol) };
+        if fd < 0 {
+            last = last_error();
+            perror(ctx, c"socket", last);
+            continue;
+        }
+        if let Err(e) = set_reuseaddr(fd) {
+            close(fd);
+            last = e;
+            perror(ctx, c"setsockopt", e);
+            continue;
+        }
+        // SAFETY: `ai_addr` points at `ai_addrlen` bytes of the list we own.
+        if unsafe { libc::bind(fd, ai.ai_addr, ai.ai_addrlen) } == -1 {
+            last = last_error();
+            close(fd);
+            perror(ctx, c"bind", last);
+            continue;
+        }
+        // SAFETY: plain system call with integer arguments.
+        if unsafe { libc::listen(fd, nb_connection) } == -1 {
+            last = last_error();
+            close(fd);
+            perror(ctx, c"listen", last);
+            continue;
+        }
+        return Ok(fd);
+    }
+    Err(last)
+}
+
+/// The textual address of an accepted peer (`inet_ntop`), or `None`.
+fn peer_text(addr: &libc::sockaddr_storage) -> Option<String> {
+    let mut buf = [0 as libc::c_char; 64];
+    let src: *const libc::c_void = match addr.ss_family as i32 {
+        libc::AF_INET => {
+            let sin = (addr as *const libc::sockaddr_storage).cast::<libc::sockaddr_in>();
+            // SAFETY: the family says the storage holds a sockaddr_in.
+            unsafe { (&raw const (*sin).sin_addr).cast() }
+        }
+        libc::AF_INET6 => {
+            let sin6 = (addr as *const libc::sockaddr_storage).cast::<libc::sockaddr_in6>();
+            // SAFETY: the family says the storage holds a sockaddr_in6.
+            unsafe { (&raw const (*sin6).sin6_addr).cast() }
+        }
+        _ => return None,
+    };
+    // SAFETY: `src` points at an address of the given family inside `addr`; `buf` has
+    // room for the longest IPv6 text (46 bytes) and its size is passed.
+    let p = unsafe { inet_ntop(addr.ss_family as i32, src, buf.as_mut_ptr(), buf.len() as libc::socklen_t) };
+    if p.is_null() {
+        return None;
+    }
+    // SAFETY: inet_ntop wrote a NUL-terminated string into `buf`.
+    Some(unsafe { CStr::from_ptr(buf.as_ptr()) }.to_string_lossy().into_owned())
+}
+
+/// Accepts one client on `listen_fd` (close-on-exec, blocking, no TCP_NODELAY, as
+/// libmodbus). Returns the new descriptor and the peer's address text.
+pub fn accept(listen_fd: i32) -> Result<(i32, Option<String>)> {
+    // SAFETY: all-zero is a valid sockaddr_storage.
+    let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
+    let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+    // SAFETY: `addr`/`len` are live locals describing a buffer of `len` bytes.
+    let fd = unsafe {
+        libc::accept4(listen_fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len, libc::SOCK_CLOEXEC)
+    };
+    if fd < 0 {
+        return Err(last_error());
+    }
+    Ok((fd, peer_text(&addr)))
+}
+
+/// Prints libmodbus 3.1.12's accept message.
+pub fn report_accept(diag: &mut dyn Diag, peer: Option<&str>) {
+    match peer {
+        Some(p) => diag.out(format_args!("Client connection accepted from {p}.\n")),
+        None => diag.err(format_args!("Client connection accepted from unparsable IP.\n")),
+    }
+}

@@ -1,0 +1,493 @@
+#!/usr/bin/env bash
+# run-server-tests.sh: the server side of rsmodbus against Debian's libmodbus 3.1.6.
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+#
+# Every C program is built once against Debian's <modbus.h> (gcc -Wall -Wextra -Werror)
+# and run loading Debian's libmodbus.so.5 and loading ours (LD_LIBRARY_PATH=target/release);
+# each program reports the library it mapped (/proc/self/maps) and the runner checks it.
+#
+#  1. raw-frame differential (c-tests/server/driver.c + srv.c) over TCP, TCP-PI and RTU
+#     on a pty: response bytes, timing class (immediate / after the flush delay / none)
+#     and the server's debug log, per case;
+#  2. the same frames against our server under valgrind memcheck: same responses and
+#     logs, no memory error, no leak, clean exit;
+#  3. Debian's unit-test-server and unit-test-client (copied from libmodbus-dev's
+#     examples at test time), all four client x server library combinations, per
+#     transport;
+#  4. descriptors above FD_SETSIZE (highfd.c);
+#  5. 50 concurrent clients plus two misbehaving ones on one poll loop (multi.c).
+# Differences are allowed only when named in c-tests/server/allowed-differences.txt.
+#
+# usage: scripts/run-server-tests.sh [--no-cargo] [--no-valgrind] [--only REGEX]
+# Output goes to target/server-tests (logs/ for every run). The last line is
+# "N passed, M failed"; the exit status is non-zero if M > 0.
+set -u
+set -o pipefail
+
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+SRC=$ROOT/c-tests/server
+OUT=${SRVTEST_OUT:-$ROOT/target/server-tests}
+BIN=$OUT/bin
+LOGS=$OUT/logs
+OURS_DIR=$ROOT/target/release
+ALLOWED=$SRC/allowed-differences.txt
+
+RUN_CARGO=1
+VALGRIND=1
+ONLY=""
+while [ $# -gt 0 ]; do
+    case "$1" in
+    --no-cargo) RUN_CARGO=0 ;;
+    --no-valgrind) VALGRIND=0 ;;
+    --only) shift; ONLY=$1 ;;
+    -h | --help) sed -n '2,/^set -u/p' "$0" | sed '$d'; exit 0 ;;
+    *) echo "unknown option $1" >&2; exit 2 ;;
+    esac
+    shift
+done
+
+PASS=0
+FAIL=0
+declare -a FAILED=()
+declare -a MATRIX=()
+
+result() { # result NAME PASS|FAIL [detail]
+    if [ "$2" = PASS ]; then
+        PASS=$((PASS + 1))
+    else
+        FAIL=$((FAIL + 1))
+        FAILED+=("$1${3:+: $3}")
+    fi
+    printf '%-4s %s%s\n' "$2" "$1" "${3:+  ($3)}"
+}
+section() { printf '\n=== %s ===\n' "$*"; }
+selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
+
+# ------------------------------------------------------------ processes we start
+declare -a PIDS=()
+LAST_PID=
+start_bg() { # start_bg OUT cmd...: sets LAST_PID
+    local o=$1
+    shift
+    "$@" >"$o" 2>&1 &
+    LAST_PID=$!
+    PIDS+=("$LAST_PID")
+}
+forget_pid() {
+    local keep=() p
+    for p in "${PIDS[@]}"; do [ "$p" = "$1" ] || keep+=("$p"); done
+    PIDS=("${keep[@]}")
+}
+stop_pid() { # stop_pid PID: TERM, then KILL after 3 s, then reap
+    local pid=$1 i
+    [ -n "$pid" ] || return 0
+    if kill -0 "$pid" 2>/dev/null; then
+        kill "$pid" 2>/dev/null
+        for i in $(seq 1 30); do
+            kill -0 "$pid" 2>/dev/null || break
+            sleep 0.1
+        done
+        kill -9 "$pid" 2>/dev/null
+    fi
+    wait "$pid" 2>/dev/null
+    forget_pid "$pid"
+}
+wait_pid() { # wait_pid PID: reap and return its status
+    local rc
+    wait "$1"
+    rc=$?
+    forget_pid "$1"
+    return $rc
+}
+cleanup() {
+    local p
+    for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done
+    sleep 0.3
+    for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
+}
+trap cleanup EXIT
+trap 'echo "interrupted"; exit 130' INT TERM
+
+# ------------------------------------------------------------ libraries
+DEB_LIBDIR=$(pkg-config --variable=libdir libmodbus 2>/dev/null || echo /usr/lib/x86_64-linux-gnu)
+DEB_LIB=$(readlink -f "$DEB_LIBDIR/libmodbus.so.5")
+OURS_LIB=
+
+lib_env() { # lib_env debian|ours: the env(1) arguments that select the library
+    if [ "$1" = ours ]; then
+        echo "env LD_LIBRARY_PATH=$OURS_DIR"
+    else
+        echo "env -u LD_LIBRARY_PATH"
+    fi
+}
+
+# check_loaded FILE debian|ours: every process that wrote FILE mapped that library.
+check_loaded() {
+    local want=$DEB_LIB line n=0 bad=0
+    [ "$2" = ours ] && want=$OURS_LIB
+    [ -s "$1" ] || { echo "no LOADED line in $1"; return 1; }
+    while read -r _ _ path; do
+        n=$((n + 1))
+        [ "$(readlink -f "$path")" = "$want" ] || { bad=1; echo "loaded $path, not $want"; }
+    done <"$1"
+    [ $bad = 0 ] && [ $n -gt 0 ]
+}
+
+# ------------------------------------------------------------ build
+section "build"
+if [ $RUN_CARGO = 1 ]; then
+    if (cd "$ROOT" && cargo build --release 2>&1 | tail -n 3); then
+        result "cargo build --release" PASS
+    else
+        result "cargo build --release" FAIL
+    fi
+fi
+if [ -f "$OURS_DIR/libmodbus.so" ] && [ ! -e "$OURS_DIR/libmodbus.so.5" ]; then
+    ln -s libmodbus.so "$OURS_DIR/libmodbus.so.5"
+fi
+OURS_LIB=$(readlink -f "$OURS_DIR/libmodbus.so.5" 2>/dev/null || true)
+if [ -z "$OURS_LIB" ] || [ ! -f "$OURS_LIB" ]; then
+    result "our libmodbus.so.5" FAIL "missing in $OURS_DIR"
+    echo "$PASS passed, $FAIL failed"
+    exit 1
+fi
+echo "debian: $DEB_LIB"
+echo "ours:   $OURS_LIB"
+
+rm -rf "$OUT"
+mkdir -p "$BIN" "$LOGS"
+CFLAGS="-Wall -Wextra -Werror -O1 -g"
+MCFLAGS=$(pkg-config --cflags libmodbus)
+MLIBS=$(pkg-config --libs libmodbus)
+build_ok=1
+build() { # build NAME gcc-args...
+    local name=$1
+    shift
+    # shellcheck disable=SC2086
+    if ! gcc $CFLAGS "$@" >"$LOGS/build-$name.log" 2>&1; then
+        build_ok=0
+        result "build $name" FAIL "see $LOGS/build-$name.log"
+        sed 's/^/    | /' "$LOGS/build-$name.log" | head -n 20
+    fi
+}
+# shellcheck disable=SC2086
+build driver -o "$BIN/driver" "$SRC/driver.c"
+# shellcheck disable=SC2086
+build srv $MCFLAGS -o "$BIN/srv" "$SRC/srv.c" "$SRC/loaded.c" $MLIBS
+# shellcheck disable=SC2086
+build highfd $MCFLAGS -o "$BIN/highfd" "$SRC/highfd.c" "$SRC/loaded.c" $MLIBS
+# shellcheck disable=SC2086
+build multi $MCFLAGS -o "$BIN/multi" "$SRC/multi.c" "$SRC/loaded.c" $MLIBS
+build libloaded -shared -fPIC -o "$BIN/libloaded.so" "$SRC/loaded.c"
+
+# Debian's unit tests, copied at test time. The port, the devices and three checks
+# are made run-time choices; everything else is Debian's code as shipped.
+UT=$OUT/unit
+mkdir -p "$UT"
+EX=/usr/share/doc/libmodbus-dev/examples
+for f in unit-test-client.c unit-test-server.c unit-test.h; do
+    if [ -f "$EX/$f" ]; then cp "$EX/$f" "$UT/$f"; elif [ -f "$EX/$f.gz" ]; then gzip -dc "$EX/$f.gz" >"$UT/$f"; fi
+done
+ut_helpers='#include "unit-test.h"\
+#include <stdlib.h>\
+__attribute__((unused)) static int ut_port(void) { const char *p = getenv("UT_PORT"); return p ? atoi(p) : 1502; }\
+__attribute__((unused)) static const char *ut_port_str(void) { const char *p = getenv("UT_PORT"); return p ? p : "1502"; }\
+__attribute__((unused)) static const char *ut_device(void) { const char *p = getenv("UT_DEVICE"); return p ? p : "/dev/ttyUSB0"; }\
+__attribute__((unused)) static int ut_nb_report_slave_id(void) {\
+    if (getenv("UT_SERVER_312") == NULL) return 10;\
+    printf("EXPECTED-3.1.12-DIFFERENCE: report-slave-id-length (the server sends LMB3.1.12, 11 bytes)\\n");\
+    return 11;\
+}\
+__attribute__((unused)) static int ut_float_312(const uint16_t *regs, const uint16_t *get) {\
+    if (getenv("UT_CLIENT_312") == NULL || regs[0] != get[0] || regs[1] != get[1]) return 0;\
+    printf("EXPECTED-3.1.12-DIFFERENCE: float-setters ");\
+    return 1;\
+}\
+__attribute__((unused)) static int ut_tcp_pi_312(modbus_t *ctx) {\
+    if (getenv("UT_CLIENT_312") == NULL || ctx == NULL) return 0;\
+    printf("EXPECTED-3.1.12-DIFFERENCE: tcp-pi-null-null ");\
+    return 1; /* the test frees ctx at its end */\
+}'
+if [ -f "$UT/unit-test-client.c" ]; then
+    for side in server client; do
+        sed -e "s@#include \"unit-test.h\"@$ut_helpers@" \
+            -e 's@"1502"@ut_port_str()@g' -e 's@1502@ut_port()@g' \
+            -e 's@"/dev/ttyUSB[01]"@ut_device()@' \
+            -e 's@const int NB_REPORT_SLAVE_ID = 10;@const int NB_REPORT_SLAVE_ID = ut_nb_report_slave_id();@' \
+            -e 's@ASSERT_TRUE(is_memory_equal(tab_rp_registers, UT_IREAL_\([A-D]*\)_SET, 4),@ASSERT_TRUE(is_memory_equal(tab_rp_registers, UT_IREAL_\1_SET, 4) || ut_float_312(tab_rp_registers, UT_IREAL_\1_GET),@' \
+            "$UT/unit-test-$side.c" >"$UT/ut-$side.c"
+    done
+    perl -0pi -e 's/(modbus_new_tcp_pi\(NULL, NULL\);\s*ASSERT_TRUE\()(ctx == NULL && errno == EINVAL)/$1($2) || ut_tcp_pi_312(ctx)/' "$UT/ut-client.c"
+    n_patched=$(grep -c 'ut_float_312(tab\|ut_tcp_pi_312(ctx)\|ut_nb_report_slave_id()' "$UT/ut-client.c")
+    if [ "$n_patched" != 6 ]; then
+        result "patch unit-test-client.c" FAIL "$n_patched of 6 patch points found"
+        build_ok=0
+    fi
+    # shellcheck disable=SC2086
+    build unit-test-server $MCFLAGS -I"$UT" -o "$UT/unit-test-server" "$UT/ut-server.c" $MLIBS
+    # shellcheck disable=SC2086
+    build unit-test-client $MCFLAGS -I"$UT" -o "$UT/unit-test-client" "$UT/ut-client.c" $MLIBS
+else
+    result "copy Debian's unit tests" FAIL "not found in $EX"
+    build_ok=0
+fi
+[ $build_ok = 1 ] && result "build the C programs (-Wall -Wextra -Werror)" PASS
+
+# ------------------------------------------------------------ 1. raw-frame differential
+declare -A DIFF_DONE=()
+differential() { # differential TRANSPORT
+    local t=$1 d=$LOGS/diff-$1 lib pids=() p ok=1 why=""
+    mkdir -p "$d"
+    for lib in debian ours; do
+        # shellcheck disable=SC2046
+        $(lib_env $lib) SRVTEST_LOADED_FILE="$d/loaded-$lib" \
+            timeout -k 5 180 "$BIN/driver" run "$t" "$d/server-$lib.log" -- "$BIN/srv" \
+            >"$d/record-$lib.txt" 2>"$d/driver-$lib.err" &
+        pids+=("$!")
+        PIDS+=("$!")
+    done
+    for p in "${pids[@]}"; do
+        wait_pid "$p" || { ok=0; why="$why driver exit $?;"; }
+    done
+    for lib in debian ours; do
+        check_loaded "$d/loaded-$lib" $lib >"$d/loaded-$lib.check" || { ok=0; why="$why server did not load $lib's library;"; }
+    done
+    if [ $ok = 0 ]; then
+        result "differential $t: runs" FAIL "$why see $d"
+        return
+    fi
+    result "differential $t: runs (server loaded debian, then ours; $(grep -c '^C ' "$d/record-ours.txt") cases)" PASS
+    "$BIN/driver" compare "$d/record-debian.txt" "$d/record-ours.txt" >"$d/compare.txt"
+    while IFS= read -r line; do
+        case "$line" in
+        PASS\ *) result "differential $t: ${line#PASS }" PASS ;;
+        FAIL\ *)
+            result "differential $t: ${line#FAIL }" FAIL
+            ;;
+        "    "*) echo "$line" | cut -c1-400 ;;
+        esac
+    done <"$d/compare.txt"
+    # Every allowed difference used must be a named one.
+    for name in $(grep -o 'allowed difference [a-z0-9-]*' "$d/compare.txt" | awk '{print $3}' | sort -u); do
+        grep -q "^$name|" "$ALLOWED" || result "differential $t: allowed difference $name is named in $ALLOWED" FAIL
+    done
+    MATRIX+=("differential|$t|$(grep -c '^PASS' "$d/compare.txt") pass, $(grep -c '^FAIL' "$d/compare.txt") fail, $(grep -c '^PASS .*(allowed difference' "$d/compare.txt") allowed")
+    DIFF_DONE[$t]=1
+}
+
+section "1. raw-frame differential: Debian's libmodbus vs ours, same server program, same frames"
+for t in tcp tcppi rtu; do
+    selected "differential $t" || continue
+    differential "$t"
+done
+
+# ------------------------------------------------------------ 2. valgrind
+valgrind_run() { # valgrind_run TRANSPORT
+    local t=$1 d=$LOGS/valgrind-$1 ok=1 why=""
+    mkdir -p "$d"
+    env LD_LIBRARY_PATH="$OURS_DIR" SRVTEST_LOADED_FILE="$d/loaded" \
+        timeout -k 5 600 "$BIN/driver" run "$t" "$d/server.log" --slow -- \
+        valgrind -q --error-exitcode=99 --leak-check=full --errors-for-leak-kinds=definite \
+        --show-leak-kinds=definite --track-fds=no --log-file="$d/valgrind.%p.log" "$BIN/srv" \
+        >"$d/record.txt" 2>"$d/driver.err" &
+    local pid=$!
+    PIDS+=("$pid")
+    wait_pid "$pid" || { ok=0; why="driver exit $?;"; }
+    if [ -s "$d/loaded" ]; then
+        check_loaded "$d/loaded" ours >"$d/loaded.check" || { ok=0; why="$why server did not load ours;"; }
+    fi
+    if cat "$d"/valgrind.*.log 2>/dev/null | grep -q .; then
+        ok=0
+        why="$why valgrind reported errors (see $d/valgrind.*.log);"
+        cat "$d"/valgrind.*.log | head -n 30 | sed 's/^/    | /'
+    fi
+    grep -q '^S exit 0$' "$d/record.txt" || { ok=0; why="$why $(grep '^S ' "$d/record.txt" | head -n 1);"; }
+    if [ -n "${DIFF_DONE[$t]:-}" ]; then
+        "$BIN/driver" compare "$LOGS/diff-$t/record-ours.txt" "$d/record.txt" --same-lib >"$d/compare.txt"
+        if ! grep -q '^COMPARED .* 0 failed' "$d/compare.txt"; then
+            ok=0
+            why="$why responses or logs differ from the run without valgrind ($(grep -c '^FAIL' "$d/compare.txt") cases, see $d/compare.txt);"
+            grep '^FAIL' "$d/compare.txt" | head -n 5 | cut -c1-300 | sed 's/^/    | /'
+        fi
+    fi
+    if [ $ok = 1 ]; then
+        result "valgrind $t: every frame, no memory error, no leak, clean exit, same responses and logs" PASS
+    else
+        result "valgrind $t" FAIL "$why"
+    fi
+    MATRIX+=("valgrind|$t|$([ $ok = 1 ] && echo clean || echo FAIL)")
+}
+
+if [ $VALGRIND = 1 ] && command -v valgrind >/dev/null; then
+    section "2. the same frames, our server under valgrind memcheck"
+    for t in tcp rtu; do
+        selected "valgrind $t" || continue
+        valgrind_run "$t"
+    done
+fi
+
+# ------------------------------------------------------------ 3. Debian's unit tests
+declare -A UT_ORACLE=()
+declare -A UT_SRV=() UT_CLI=() UT_SOCAT=()
+ut_dir() { echo "$LOGS/unit-$1-client-$2-server-$3"; }
+
+# unit_start TRANSPORT CLIENT_LIB SERVER_LIB: starts socat (RTU), the server and the client.
+unit_start() {
+    local t=$1 clib=$2 slib=$3 d port i key="$1 $2 $3" extra=()
+    d=$(ut_dir "$t" "$clib" "$slib")
+    mkdir -p "$d"
+    port=$("$BIN/driver" freeport)
+    [ "$slib" = ours ] && extra+=(UT_SERVER_312=1)
+    [ "$clib" = ours ] && extra+=(UT_CLIENT_312=1)
+    UT_SOCAT[$key]=""
+    if [ "$t" = rtu ]; then
+        start_bg "$d/socat.log" socat -d -d "pty,raw,echo=0,link=$d/ttyV0" "pty,raw,echo=0,link=$d/ttyV1"
+        UT_SOCAT[$key]=$LAST_PID
+        for i in $(seq 1 50); do [ -e "$d/ttyV0" ] && [ -e "$d/ttyV1" ] && break; sleep 0.1; done
+    fi
+    # shellcheck disable=SC2046
+    start_bg "$d/server.log" $(lib_env "$slib") LD_PRELOAD="$BIN/libloaded.so" SRVTEST_LOADED_FILE="$d/loaded-server" \
+        UT_PORT="$port" UT_DEVICE="$d/ttyV0" "$UT/unit-test-server" "$t"
+    UT_SRV[$key]=$LAST_PID
+    for i in $(seq 1 100); do
+        if [ "$t" = rtu ]; then
+            ls -l /proc/"$LAST_PID"/fd 2>/dev/null | grep -q '/dev/pts/' && break
+        else
+            ss -ltnH 2>/dev/null | grep -q ":$port " && break
+        fi
+        sleep 0.05
+    done
+    [ "$t" = rtu ] && sleep 0.2
+    # shellcheck disable=SC2046
+    (cd "$d" && exec timeout -k 5 60 $(lib_env "$clib") LD_PRELOAD="$BIN/libloaded.so" \
+        SRVTEST_LOADED_FILE="$d/loaded-client" UT_PORT="$port" UT_DEVICE="$d/ttyV1" "${extra[@]}" \
+        "$UT/unit-test-client" "$t") >"$d/client.log" 2>"$d/client.err" &
+    UT_CLI[$key]=$!
+    PIDS+=("$!")
+}
+
+# unit_finish TRANSPORT CLIENT_LIB SERVER_LIB: waits for the client, stops the rest, judges.
+unit_finish() {
+    local t=$1 clib=$2 slib=$3 d rc key="$1 $2 $3" why="" oks soft diffs n
+    d=$(ut_dir "$t" "$clib" "$slib")
+    wait_pid "${UT_CLI[$key]}"
+    rc=$?
+    stop_pid "${UT_SRV[$key]}"
+    stop_pid "${UT_SOCAT[$key]}"
+    oks=$(grep -c 'OK$' "$d/client.log")
+    # Checks that Debian's test itself calls optional ("can fail on some platforms").
+    soft=$(grep -c 'FAILED (can fail on some platforms)' "$d/client.log")
+    diffs=$(grep -o 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$d/client.log" | awk '{print $2}' | sort | uniq -c |
+        awk '{printf "%s%s x%d", sep, $2, $1; sep=", "}')
+    [ "$rc" = 0 ] || why="$why exit $rc;"
+    grep -q 'ALL TESTS PASS WITH SUCCESS' "$d/client.log" ||
+        why="$why $(grep -m1 'assertion error' "$d/client.log" | cut -c1-160);"
+    check_loaded "$d/loaded-client" "$clib" >"$d/loaded.check" || why="$why client did not load $clib;"
+    check_loaded "$d/loaded-server" "$slib" >>"$d/loaded.check" || why="$why server did not load $slib;"
+    for n in $(grep -o 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$d/client.log" | awk '{print $2}' | sort -u); do
+        grep -q "^$n|" "$ALLOWED" || why="$why difference $n is not named;"
+    done
+    if [ "$clib" = debian ] && [ "$slib" = debian ]; then
+        UT_ORACLE[$t]=$((oks + soft))
+    elif [ -n "${UT_ORACLE[$t]:-}" ] && [ $((oks + soft)) != "${UT_ORACLE[$t]}" ]; then
+        why="$why $oks OK + $soft optional lines, the oracle has ${UT_ORACLE[$t]};"
+    fi
+    local cell="$oks OK" names
+    [ "$soft" != 0 ] && cell="$cell, $soft optional check failed"
+    [ -n "$diffs" ] && cell="$cell; allowed: $diffs"
+    names=$(grep -o 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$d/client.log" | awk '{print $2}' | sort -u | paste -sd, -)
+    if [ -z "$why" ]; then
+        result "unit-test $t, client $clib, server $slib: ALL TESTS PASS WITH SUCCESS ($cell)" PASS
+        UT_CELL["$t $clib $slib"]="PASS $oks+${soft}opt${names:+ [$names]}"
+    else
+        result "unit-test $t, client $clib, server $slib" FAIL "$why see $d"
+        grep -B2 'assertion error' "$d/client.log" | head -n 6 | sed 's/^/    | /'
+        UT_CELL["$t $clib $slib"]="FAIL"
+    fi
+}
+
+declare -A UT_CELL=()
+if [ -x "$UT/unit-test-server" ] && [ -x "$UT/unit-test-client" ]; then
+    section "3. Debian's unit-test-client x unit-test-server, every library combination"
+    for t in tcp tcppi rtu; do
+        selected "unit-test $t" || continue
+        # The four combinations of a transport run side by side (own ports and ptys).
+        for combo in "debian debian" "debian ours" "ours debian" "ours ours"; do
+            unit_start "$t" ${combo% *} ${combo#* }
+        done
+        for combo in "debian debian" "debian ours" "ours debian" "ours ours"; do
+            unit_finish "$t" ${combo% *} ${combo#* }
+        done
+    done
+fi
+
+# ------------------------------------------------------------ 4. descriptors >= FD_SETSIZE
+if selected "highfd"; then
+    section "4. descriptors above FD_SETSIZE"
+    d=$LOGS/highfd
+    mkdir -p "$d"
+    env LD_LIBRARY_PATH="$OURS_DIR" SRVTEST_LOADED_FILE="$d/loaded-ours" timeout -k 5 60 "$BIN/highfd" >"$d/ours.log" 2>&1
+    rc=$?
+    if [ $rc = 0 ] && grep -q '^HIGHFD PASS' "$d/ours.log" && check_loaded "$d/loaded-ours" ours >/dev/null; then
+        result "highfd, ours: $(grep '^HIGHFD PASS' "$d/ours.log" | cut -d' ' -f3- | sed 's/, with .*//')" PASS
+        MATRIX+=("highfd|ours|PASS")
+    else
+        result "highfd, ours" FAIL "exit $rc: $(grep HIGHFD "$d/ours.log" | head -n 1)"
+        MATRIX+=("highfd|ours|FAIL")
+    fi
+    # (In a subshell, so that the shell's "Aborted" notice stays out of the output.)
+    (env -u LD_LIBRARY_PATH SRVTEST_LOADED_FILE="$d/loaded-debian" timeout -k 5 60 "$BIN/highfd" >"$d/debian.log" 2>&1
+        exit $?) 2>/dev/null
+    rc=$?
+    if [ $rc = 134 ] && grep -q 'bit out of range 0 - FD_SETSIZE on fd_set' "$d/debian.log" &&
+        check_loaded "$d/loaded-debian" debian >/dev/null; then
+        result "highfd, debian aborts in FD_SET as documented (allowed difference fd-setsize)" PASS
+        MATRIX+=("highfd|debian|aborts (fd-setsize)")
+    else
+        result "highfd, debian" FAIL "expected the FORTIFY abort, got exit $rc"
+        MATRIX+=("highfd|debian|unexpected")
+    fi
+fi
+
+# ------------------------------------------------------------ 5. many clients
+if selected "multi"; then
+    section "5. 50 concurrent clients + 2 misbehaving ones, one poll loop, modbus_set_socket"
+    d=$LOGS/multi
+    mkdir -p "$d"
+    for lib in debian ours; do
+        # shellcheck disable=SC2046
+        $(lib_env $lib) SRVTEST_LOADED_FILE="$d/loaded-$lib" timeout -k 5 120 "$BIN/multi" >"$d/$lib.log" 2>&1
+        rc=$?
+        if [ $rc = 0 ] && grep -q '^MULTI PASS' "$d/$lib.log" && check_loaded "$d/loaded-$lib" $lib >/dev/null; then
+            result "multi, $lib: $(grep '^MULTI PASS' "$d/$lib.log" | cut -d' ' -f3- | sed 's/, with .*//')" PASS
+            MATRIX+=("multi|$lib|PASS")
+        else
+            result "multi, $lib" FAIL "exit $rc: $(grep MULTI "$d/$lib.log" | tail -n 1)"
+            MATRIX+=("multi|$lib|FAIL")
+        fi
+    done
+fi
+
+# ------------------------------------------------------------ summary
+section "summary"
+for t in tcp tcppi rtu; do
+    [ -n "${UT_CELL["$t debian debian"]:-}" ] || continue
+    echo "unit-test matrix, $t (client library x server library; N+Mopt = OK lines + optional checks that failed):"
+    printf '  %-14s %-52s %s\n' "" "server debian" "server ours"
+    for c in debian ours; do
+        printf '  client %-7s %-52s %s\n' "$c" "${UT_CELL["$t $c debian"]:-}" "${UT_CELL["$t $c ours"]:-}"
+    done
+done
+for row in "${MATRIX[@]}"; do
+    IFS='|' read -r what col cell <<<"$row"
+    printf '%-12s %-8s %s\n' "$what" "$col" "$cell"
+done
+if [ ${#FAILED[@]} -gt 0 ]; then
+    echo
+    echo "failed:"
+    printf '  %s\n' "${FAILED[@]}"
+fi
+echo "logs: $LOGS"
+echo "$PASS passed, $FAIL failed"
+[ $FAIL = 0 ]
