@@ -483,6 +483,53 @@ static void write_ready(const char *path, const char *text)
     }
 }
 
+/* Serves the clients that are readable: those in `ready`, or (poll != 0) those readable
+ * right now. A client whose connection fails or must be closed is removed. */
+static void service_clients(modbus_t *ctx, modbus_mapping_t *map, int *clients, int *nclients,
+                            fd_set *ready, int poll)
+{
+    uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
+    fd_set now;
+    int i;
+
+    if (poll) {
+        struct timeval tv = {0, 0};
+        int maxfd = -1;
+        FD_ZERO(&now);
+        for (i = 0; i < *nclients; i++) {
+            FD_SET(clients[i], &now);
+            if (clients[i] > maxfd) {
+                maxfd = clients[i];
+            }
+        }
+        if (maxfd < 0 || select(maxfd + 1, &now, NULL, NULL, &tv) <= 0) {
+            return;
+        }
+        ready = &now;
+    }
+    for (i = 0; i < *nclients; i++) {
+        int rc, fd = clients[i];
+        if (!FD_ISSET(fd, ready)) {
+            continue;
+        }
+        modbus_set_socket(ctx, fd);
+        rc = modbus_receive(ctx, query);
+        if (rc > 0 && handle(ctx, fd, query, rc, map) == 0) {
+            continue;
+        }
+        if (rc == -1) {
+            printf("client gone: %s\n", modbus_strerror(errno));
+        } else {
+            printf("closing the client connection\n");
+            shutdown(fd, SHUT_RDWR);
+        }
+        close(fd);
+        FD_CLR(fd, ready);
+        clients[i] = clients[--*nclients];
+        i--;
+    }
+}
+
 int main(int argc, char **argv)
 {
     modbus_t *ctx;
@@ -588,8 +635,12 @@ int main(int argc, char **argv)
                 return 1;
             }
             if (FD_ISSET(listen_fd, &rset)) {
-                int s = listen_fd;
-                int nfd = is_pi ? modbus_tcp_pi_accept(ctx, &s) : modbus_tcp_accept(ctx, &s);
+                int s = listen_fd, nfd;
+                /* A client that closes and reconnects at once: let its FIN land and
+                 * serve the old connection first, so that the log order is stable. */
+                mbt_msleep(20);
+                service_clients(ctx, map, clients, &nclients, NULL, 1);
+                nfd = is_pi ? modbus_tcp_pi_accept(ctx, &s) : modbus_tcp_accept(ctx, &s);
                 if (nfd >= 0) {
                     if (nclients < MAX_CLIENTS) {
                         clients[nclients++] = nfd;
@@ -597,27 +648,9 @@ int main(int argc, char **argv)
                         close(nfd);
                     }
                 }
+                continue;
             }
-            for (i = 0; i < nclients; i++) {
-                int rc, fd = clients[i];
-                if (!FD_ISSET(fd, &rset)) {
-                    continue;
-                }
-                modbus_set_socket(ctx, fd);
-                rc = modbus_receive(ctx, query);
-                if (rc > 0 && handle(ctx, fd, query, rc, map) == 0) {
-                    continue;
-                }
-                if (rc == -1) {
-                    printf("client gone: %s\n", modbus_strerror(errno));
-                } else {
-                    printf("closing the client connection\n");
-                    shutdown(fd, SHUT_RDWR);
-                }
-                close(fd);
-                clients[i] = clients[--nclients];
-                i--;
-            }
+            service_clients(ctx, map, clients, &nclients, &rset, 0);
         }
     }
     return 0;

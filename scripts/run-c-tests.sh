@@ -1,0 +1,864 @@
+#!/usr/bin/env bash
+# run-c-tests.sh: differential C tests of rsmodbus against Debian's libmodbus 3.1.6.
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+#
+# Every C program is built ONCE against Debian's <modbus.h> and run twice: with Debian's
+# libmodbus.so.5 (LD_LIBRARY_PATH unset: the oracle) and with ours
+# (LD_LIBRARY_PATH=target/release). stdout, stderr, the exit code and the log of the
+# (Debian-pinned) server are compared byte for byte; the only differences allowed are
+# the named ones in c-tests/allowed-differences.txt. See c-tests/README.md.
+#
+# usage: scripts/run-c-tests.sh [options]
+#   --oracle-only      harness self-check: run everything with Debian's library on both
+#                      sides and compare strictly (no allowed difference is masked)
+#   --valgrind         also run every client scenario once under valgrind memcheck
+#                      loading ours (errors and definite leaks fail the test)
+#   --valgrind-only    only the valgrind runs (plus the builds)
+#   --with-our-server  also run Debian's unit tests with unit-test-server loading OUR
+#                      library (client=debian/server=ours and client=ours/server=ours)
+#   --no-cargo         do not run `cargo build --release` (use the existing build)
+#   --only REGEX       only the tests whose name matches REGEX
+#   --skip-unit, --skip-mbpoll, --skip-scenarios
+#   --keep-going-logs  print every failing diff in full (default: first 40 lines)
+# Environment: MBTEST_OUT (default target/c-tests), MBTEST_PORT (first port tried, 15020)
+#
+# The last line is always "N passed, M failed"; the exit status is non-zero if M > 0.
+set -u
+set -o pipefail
+
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+CT=$ROOT/c-tests
+OUT=${MBTEST_OUT:-$ROOT/target/c-tests}
+BIN=$OUT/bin
+LOGS=$OUT/logs
+OURS_DIR=$ROOT/target/release
+ALLOWED_FILE=$CT/allowed-differences.txt
+NORMALIZE=$CT/tools/normalize.awk
+
+ORACLE_ONLY=0
+VALGRIND=0
+VALGRIND_ONLY=0
+WITH_OUR_SERVER=0
+RUN_CARGO=1
+ONLY=""
+SKIP_UNIT=0
+SKIP_MBPOLL=0
+SKIP_SCEN=0
+FULL_DIFFS=0
+
+while [ $# -gt 0 ]; do
+    case "$1" in
+    --oracle-only) ORACLE_ONLY=1 ;;
+    --valgrind) VALGRIND=1 ;;
+    --valgrind-only) VALGRIND=1; VALGRIND_ONLY=1 ;;
+    --with-our-server) WITH_OUR_SERVER=1 ;;
+    --no-cargo) RUN_CARGO=0 ;;
+    --only) shift; ONLY=$1 ;;
+    --skip-unit) SKIP_UNIT=1 ;;
+    --skip-mbpoll) SKIP_MBPOLL=1 ;;
+    --skip-scenarios) SKIP_SCEN=1 ;;
+    --keep-going-logs) FULL_DIFFS=1 ;;
+    -h | --help) sed -n '2,/^set -u/p' "$0" | sed '$d'; exit 0 ;;
+    *) echo "unknown option $1" >&2; exit 2 ;;
+    esac
+    shift
+done
+
+PASS=0
+FAIL=0
+declare -a MATRIX=()
+declare -a FAILED_NAMES=()
+
+log() { printf '%s\n' "$*"; }
+section() { printf '\n=== %s ===\n' "$*"; }
+
+# result NAME COLUMN STATUS [detail]
+result() {
+    local name=$1 col=$2 status=$3 detail=${4:-}
+    if [ "$status" = PASS ]; then
+        PASS=$((PASS + 1))
+    else
+        FAIL=$((FAIL + 1))
+        FAILED_NAMES+=("$name [$col] $detail")
+    fi
+    MATRIX+=("$name|$col|$status${detail:+ ($detail)}")
+    printf '%-4s %-40s %-22s %s\n' "$status" "$name" "$col" "$detail"
+}
+
+selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
+
+# ---------------------------------------------------------------- process bookkeeping
+declare -a PIDS=()
+LAST_PID=
+start_bg() { # start_bg OUTFILE ERRFILE cmd...: LAST_PID
+    local o=$1 e=$2
+    shift 2
+    "$@" >"$o" 2>"$e" 9>&- &
+    LAST_PID=$!
+    PIDS+=("$LAST_PID")
+}
+stop_pid() {
+    local pid=$1 i
+    [ -n "$pid" ] || return 0
+    if kill -0 "$pid" 2>/dev/null; then
+        kill "$pid" 2>/dev/null
+        for i in $(seq 1 50); do
+            kill -0 "$pid" 2>/dev/null || break
+            sleep 0.1
+        done
+        kill -9 "$pid" 2>/dev/null
+    fi
+    wait "$pid" 2>/dev/null
+    local keep=()
+    for i in "${PIDS[@]}"; do [ "$i" = "$pid" ] || keep+=("$i"); done
+    PIDS=("${keep[@]}")
+}
+cleanup() {
+    local p
+    for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done
+    sleep 0.2
+    for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
+}
+trap cleanup EXIT
+trap 'echo "interrupted"; exit 130' INT TERM
+
+wait_file() { # wait_file PATH SECONDS
+    local i
+    for i in $(seq 1 $(($2 * 10))); do
+        [ -s "$1" ] && return 0
+        sleep 0.1
+    done
+    return 1
+}
+port_listening() { # port_listening PORT -> 0 if some socket listens on it (v4 or v6)
+    local hex
+    hex=$(printf ':%04X ' "$1")
+    cat /proc/net/tcp /proc/net/tcp6 2>/dev/null | awk -v h="$hex" '$2 ~ h"$" || index($2" ", h) { if ($4 == "0A") f = 1 } END { exit f ? 0 : 1 }'
+}
+wait_listen() { # wait_listen PORT SECONDS
+    local i
+    for i in $(seq 1 $(($2 * 10))); do
+        port_listening "$1" && return 0
+        sleep 0.1
+    done
+    return 1
+}
+wait_pts_open() { # wait_pts_open PID SECONDS: the process has a /dev/pts/* open
+    local i
+    for i in $(seq 1 $(($2 * 10))); do
+        ls -l /proc/"$1"/fd 2>/dev/null | grep -q '/dev/pts/' && return 0
+        sleep 0.1
+    done
+    return 1
+}
+port_free() {
+    ! port_listening "$1" && ! (exec 3<>/dev/tcp/127.0.0.1/"$1") 2>/dev/null
+}
+pick_port() { # pick_port START -> prints a free port
+    local p=$1
+    while ! port_free "$p"; do p=$((p + 1)); done
+    echo "$p"
+}
+
+# ---------------------------------------------------------------- dependencies
+ensure_deps() {
+    local missing=() p
+    for p in libmodbus-dev socat mbpoll valgrind pkg-config gcc; do
+        dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
+    done
+    if [ ${#missing[@]} -gt 0 ]; then
+        log "installing: ${missing[*]}"
+        if [ "$(id -u)" != 0 ]; then
+            log "ERROR: missing packages (${missing[*]}) and not root"
+            exit 2
+        fi
+        if ! DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "${missing[@]}"; then
+            apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "${missing[@]}" || exit 2
+        fi
+    fi
+}
+
+# ---------------------------------------------------------------- allowed differences
+ALLOWED_TAGS=""
+declare -a SED_RULES=()
+declare -A SED_NAME=()
+declare -A UNIT_ALLOWED=()
+load_allowed() {
+    local name kind rule reason
+    while IFS='|' read -r name kind rule reason; do
+        case "$name" in '' | '#'*) continue ;; esac
+        case "$kind" in
+        tag) ALLOWED_TAGS="$ALLOWED_TAGS $name" ;;
+        sed) SED_RULES+=("$rule"); SED_NAME[$name]=$rule ;;
+        unit) UNIT_ALLOWED[$name]=1 ;;
+        *) log "bad kind '$kind' in $ALLOWED_FILE"; exit 2 ;;
+        esac
+    done <"$ALLOWED_FILE"
+}
+
+# normalize IN OUT: applies the sed rules then the tag masking (not in --oracle-only).
+normalize() {
+    if [ "$ORACLE_ONLY" = 1 ]; then
+        cp "$1" "$2"
+        return
+    fi
+    local args=() r
+    for r in "${SED_RULES[@]}"; do args+=(-e "$r"); done
+    if [ ${#args[@]} -gt 0 ]; then
+        sed "${args[@]}" "$1" | awk -v allowed="$ALLOWED_TAGS" -f "$NORMALIZE" >"$2"
+    else
+        awk -v allowed="$ALLOWED_TAGS" -f "$NORMALIZE" "$1" >"$2"
+    fi
+}
+
+# compare_streams DIR_A DIR_B FILE... -> 0 if all equal after normalisation; writes diffs
+compare_streams() {
+    local a=$1 b=$2
+    shift 2
+    local f bad=""
+    for f in "$@"; do
+        normalize "$a/$f" "$a/$f.norm"
+        normalize "$b/$f" "$b/$f.norm"
+        if ! diff -u --label "debian/$f" --label "ours/$f" "$a/$f.norm" "$b/$f.norm" >"$b/$f.diff"; then
+            bad="$bad $f"
+        else
+            rm -f "$b/$f.diff"
+        fi
+    done
+    COMPARE_BAD=$bad
+    [ -z "$bad" ]
+}
+# observe TEST DIR_A DIR_B FILES...: which allowed differences really showed up here
+declare -A OBSERVED=()
+observe() {
+    [ "$ORACLE_ONLY" = 1 ] && return 0
+    local test=$1 a=$2 b=$3 f name rule
+    shift 3
+    for f in "$@"; do
+        [ -f "$a/$f" ] && [ -f "$b/$f" ] || continue
+        for name in $ALLOWED_TAGS; do
+            if ! cmp -s <(awk -f "$CT/tools/extract-tags.awk" "$a/$f" | grep "^$name	") \
+                <(awk -f "$CT/tools/extract-tags.awk" "$b/$f" | grep "^$name	"); then
+                OBSERVED[$name]="${OBSERVED[$name]:-}${OBSERVED[$name]:+, }$test"
+            fi
+        done
+        for rule in "${!SED_NAME[@]}"; do
+            local ca=0 cb=0
+            sed -e "${SED_NAME[$rule]}" "$a/$f" | cmp -s - "$a/$f" || ca=1
+            sed -e "${SED_NAME[$rule]}" "$b/$f" | cmp -s - "$b/$f" || cb=1
+            if [ $ca != $cb ]; then
+                OBSERVED[$rule]="${OBSERVED[$rule]:-}${OBSERVED[$rule]:+, }$test"
+            fi
+        done
+    done
+}
+show_diffs() { # show_diffs DIR FILES...
+    local d=$1 f
+    shift
+    for f in "$@"; do
+        [ -f "$d/$f.diff" ] || continue
+        if [ "$FULL_DIFFS" = 1 ]; then
+            sed 's/^/    | /' "$d/$f.diff"
+        else
+            head -n 40 "$d/$f.diff" | sed 's/^/    | /'
+            [ "$(wc -l <"$d/$f.diff")" -gt 40 ] && log "    | ... (full diff: $d/$f.diff)"
+        fi
+    done
+    # Unexpected values reported by the scenario itself.
+    grep -h "DIFF-UNEXPECTED" "$d"/stdout 2>/dev/null | head -n 10 | sed 's/^/    ! /'
+}
+
+# ---------------------------------------------------------------- library selection
+# lib_env debian|ours -> the env(1) arguments for a process that must load that library
+lib_env() {
+    if [ "$1" = ours ]; then
+        echo "env LD_LIBRARY_PATH=$OURS_DIR EXPECT_LIB=ours"
+    else
+        echo "env -u LD_LIBRARY_PATH EXPECT_LIB=debian"
+    fi
+}
+# In --oracle-only mode the "ours" side is Debian's library again.
+CLIENT_B=ours
+
+check_libinfo() { # check_libinfo FILE debian|ours -> 0 if every line names that library
+    local f=$1 want=$2
+    [ -s "$f" ] || return 1
+    if [ "$want" = ours ]; then
+        ! grep -v "libmodbus.so.5 = $OURS_DIR/libmodbus.so[.0-9]* (rsmodbus " "$f" | grep -q .
+    else
+        ! grep -v "libmodbus.so.5 = /[^ ]*/libmodbus.so[.0-9]* (debian libmodbus, no rsmodbus_version)" "$f" | grep -q . &&
+            ! grep -q "libmodbus.so.5 = $OURS_DIR/" "$f"
+    fi
+}
+
+# ---------------------------------------------------------------- build
+CFLAGS_COMMON="-std=gnu11 -Wall -Wextra -Werror -O1 -g"
+build_all() {
+    section "build"
+    mkdir -p "$BIN" "$LOGS"
+    local mcf mlibs
+    mcf=$(pkg-config --cflags libmodbus) || return 1
+    mlibs=$(pkg-config --libs libmodbus) || return 1
+    local ok=1 f
+    # shellcheck disable=SC2086
+    gcc $CFLAGS_COMMON $mcf -c "$CT/common/mbtest.c" -o "$BIN/mbtest.o" || ok=0
+    # shellcheck disable=SC2086
+    gcc $CFLAGS_COMMON $mcf -c "$CT/common/libinfo.c" -o "$BIN/libinfo.o" || ok=0
+    # shellcheck disable=SC2086
+    gcc $CFLAGS_COMMON -fPIC -shared "$CT/common/libinfo.c" -o "$BIN/libmbtest-libinfo.so" -ldl || ok=0
+    for f in "$CT"/servers/*.c "$CT"/client/*.c; do
+        local name
+        name=$(basename "$f" .c)
+        case "$f" in */client/*) name="scn-$name" ;; esac
+        # shellcheck disable=SC2086
+        gcc $CFLAGS_COMMON $mcf "$f" "$BIN/mbtest.o" "$BIN/libinfo.o" -o "$BIN/$name" $mlibs -lutil -ldl || ok=0
+    done
+    if [ $ok = 1 ]; then result "build (Debian header, -Werror)" build PASS; else result "build (Debian header, -Werror)" build FAIL; fi
+
+    # Optional: the same sources against OUR headers (include/), compile only.
+    if [ -f "$ROOT/include/modbus.h" ]; then
+        local hok=1 hdir=$OUT/build-our-headers
+        mkdir -p "$hdir"
+        : >"$hdir/errors.txt"
+        for f in "$CT"/common/*.c "$CT"/servers/*.c "$CT"/client/*.c; do
+            # shellcheck disable=SC2086
+            gcc $CFLAGS_COMMON -I"$ROOT/include" -c "$f" -o "$hdir/$(basename "$f" .c).o" 2>>"$hdir/errors.txt" || hok=0
+        done
+        if [ $hok = 1 ]; then result "build (our include/ headers, -Werror)" build PASS
+        else result "build (our include/ headers, -Werror)" build FAIL "see $hdir/errors.txt"; fi
+    fi
+    [ $ok = 1 ]
+}
+
+OURS_AVAILABLE=0
+build_ours() {
+    section "rsmodbus library"
+    if [ "$RUN_CARGO" = 1 ] && [ "$ORACLE_ONLY" = 0 ]; then
+        if ! (cd "$ROOT" && cargo build --release >"$LOGS/cargo-build.log" 2>&1); then
+            log "cargo build --release FAILED (tail of $LOGS/cargo-build.log):"
+            tail -n 20 "$LOGS/cargo-build.log" | sed 's/^/    | /'
+        fi
+    fi
+    if [ -f "$OURS_DIR/libmodbus.so" ]; then
+        [ -e "$OURS_DIR/libmodbus.so.5" ] || ln -sf libmodbus.so "$OURS_DIR/libmodbus.so.5"
+        OURS_AVAILABLE=1
+        log "using $OURS_DIR/libmodbus.so.5 -> $(readlink -f "$OURS_DIR/libmodbus.so.5")"
+        if ! nm -D --defined-only "$OURS_DIR/libmodbus.so" 2>/dev/null | grep -q ' rsmodbus_version$'; then
+            log "WARNING: our library does not export rsmodbus_version(); EXPECT_LIB=ours checks will fail"
+        fi
+    else
+        log "our library $OURS_DIR/libmodbus.so is missing: every 'ours' test fails"
+    fi
+}
+
+# ---------------------------------------------------------------- servers
+PORT=0
+AUXPORT=0
+RTU_SLAVE=17
+SRV_PID=
+RELAY_PID=
+LINK0=
+LINK1=
+
+# start_mbtest_server BACKEND DIR [SERVER_LIB]: mbtest-server (Debian's lib unless told)
+start_mbtest_server() {
+    local backend=$1 dir=$2 slib=${3:-debian}
+    SRV_PID=
+    RELAY_PID=
+    rm -f "$dir/ready" "$dir/relay-ready"
+    case "$backend" in
+    tcp)
+        # shellcheck disable=SC2046
+        start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") MBTEST_LIBINFO="$dir/libinfo-server" \
+            "$BIN/mbtest-server" tcp 127.0.0.1 "$PORT" "$dir/ready"
+        SRV_PID=$LAST_PID
+        ;;
+    tcppi)
+        # shellcheck disable=SC2046
+        start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") MBTEST_LIBINFO="$dir/libinfo-server" \
+            "$BIN/mbtest-server" tcppi "::" "$PORT" "$dir/ready"
+        SRV_PID=$LAST_PID
+        ;;
+    rtu)
+        # Same paths for every run: they appear in the debug traces.
+        mkdir -p "$OUT/pty"
+        LINK0=$OUT/pty/ttyS-server
+        LINK1=$OUT/pty/ttyS-client
+        start_bg "$dir/relay.out" "$dir/relay.err" env -u LD_LIBRARY_PATH MBTEST_NO_LIBINFO=1 \
+            "$BIN/pty-relay" "$LINK0" "$LINK1" "$dir/relay-ready"
+        RELAY_PID=$LAST_PID
+        if ! wait_file "$dir/relay-ready" 10; then
+            log "pty-relay did not start"
+            return 1
+        fi
+        # shellcheck disable=SC2046
+        start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") MBTEST_LIBINFO="$dir/libinfo-server" \
+            "$BIN/mbtest-server" rtu "$LINK0" "$RTU_SLAVE" "$dir/ready"
+        SRV_PID=$LAST_PID
+        ;;
+    none) return 0 ;;
+    esac
+    if ! wait_file "$dir/ready" 10; then
+        log "mbtest-server ($backend) did not start:"
+        sed 's/^/    | /' "$dir/server.err"
+        return 1
+    fi
+    if ! check_libinfo "$dir/libinfo-server" "$slib"; then
+        log "mbtest-server did not load the expected library ($slib):"
+        sed 's/^/    | /' "$dir/libinfo-server" "$dir/server.err"
+        return 1
+    fi
+    return 0
+}
+stop_mbtest_server() {
+    stop_pid "$SRV_PID"
+    stop_pid "$RELAY_PID"
+    SRV_PID=
+    RELAY_PID=
+}
+
+client_args() { # client_args BACKEND
+    case "$1" in
+    tcp) echo "tcp 127.0.0.1 $PORT $AUXPORT" ;;
+    tcppi) echo "tcppi ::1 $PORT $AUXPORT" ;;
+    rtu) echo "rtu $LINK1 $RTU_SLAVE $AUXPORT" ;;
+    none) echo "" ;;
+    esac
+}
+
+# run_scenario_once SCENARIO BACKEND LIB DIR [wrapper...]
+run_scenario_once() {
+    local scn=$1 backend=$2 lib=$3 dir=$4
+    shift 4
+    mkdir -p "$dir"
+    rm -f "$dir"/*
+    if ! start_mbtest_server "$backend" "$dir"; then
+        stop_mbtest_server
+        echo 125 >"$dir/rc"
+        : >"$dir/stdout"
+        : >"$dir/stderr"
+        return 1
+    fi
+    local args
+    args=$(client_args "$backend")
+    # shellcheck disable=SC2046,SC2086
+    (cd "$dir" && exec timeout -k 5 120 $(lib_env "$lib") MBTEST_LIBINFO="$dir/libinfo-client" \
+        "$@" "$BIN/scn-$scn" $args >"$dir/stdout" 2>"$dir/stderr")
+    echo $? >"$dir/rc"
+    sleep 0.3 # let the server log the last disconnection
+    stop_mbtest_server
+    [ -f "$dir/server.out" ] || : >"$dir/server.out"
+    [ -f "$dir/server.err" ] || : >"$dir/server.err"
+    # The server's own LIBINFO/pid lines are not part of the comparison.
+    return 0
+}
+
+# ---------------------------------------------------------------- differential scenarios
+# scenario: backends it runs on
+SCENARIOS=(
+    "config none"
+    "basic tcp tcppi rtu"
+    "args tcp rtu"
+    "errors tcp rtu"
+    "timeouts tcp rtu"
+    "recovery tcp rtu"
+    "connect tcppi"
+    "rtu rtu"
+)
+
+run_scenarios() {
+    section "differential client scenarios (client: debian vs $CLIENT_B; server: debian)"
+    local entry scn backends backend
+    for entry in "${SCENARIOS[@]}"; do
+        scn=${entry%% *}
+        backends=${entry#* }
+        [ -x "$BIN/scn-$scn" ] || { result "scenario $scn" build FAIL "not built"; continue; }
+        for backend in $backends; do
+            local name="scenario $scn/$backend"
+            selected "$name" || continue
+            local da=$LOGS/scn-$scn-$backend/debian db=$LOGS/scn-$scn-$backend/$CLIENT_B
+            local col="debian-vs-$CLIENT_B"
+            run_scenario_once "$scn" "$backend" debian "$da"
+            if [ "$(cat "$da/rc")" != 0 ] || ! check_libinfo "$da/libinfo-client" debian; then
+                result "$name" "$col" FAIL "oracle run failed (rc $(cat "$da/rc")), see $da"
+                sed 's/^/    | /' "$da/stderr" | tail -n 5
+                continue
+            fi
+            if [ "$CLIENT_B" = ours ] && [ "$OURS_AVAILABLE" = 0 ]; then
+                result "$name" "$col" FAIL "our library not built"
+                continue
+            fi
+            local blib=$CLIENT_B
+            [ "$ORACLE_ONLY" = 1 ] && blib=debian
+            run_scenario_once "$scn" "$backend" "$blib" "$db"
+            local why=""
+            if ! check_libinfo "$db/libinfo-client" "$blib"; then
+                why="client did not load $blib library;"
+            fi
+            echo "exit status $(cat "$da/rc")" >"$da/exit"
+            echo "exit status $(cat "$db/rc")" >"$db/exit"
+            if ! compare_streams "$da" "$db" exit stdout stderr server.out server.err; then
+                why="$why differs:$COMPARE_BAD"
+            fi
+            observe "$name" "$da" "$db" stdout stderr server.out server.err
+            if grep -q "DIFF-UNEXPECTED" "$db/stdout" "$da/stdout"; then
+                why="$why DIFF-UNEXPECTED;"
+            fi
+            if [ -z "$why" ]; then
+                result "$name" "$col" PASS
+            else
+                result "$name" "$col" FAIL "$why"
+                show_diffs "$db" exit stdout stderr server.out server.err
+            fi
+        done
+    done
+}
+
+run_valgrind() {
+    section "valgrind memcheck (client scenarios loading ours)"
+    local vlib=ours
+    [ "$ORACLE_ONLY" = 1 ] && vlib=debian
+    if [ "$vlib" = ours ] && [ "$OURS_AVAILABLE" = 0 ]; then
+        result "valgrind" "$vlib" FAIL "our library not built"
+        return
+    fi
+    local entry scn backends backend
+    for entry in "${SCENARIOS[@]}"; do
+        scn=${entry%% *}
+        backends=${entry#* }
+        for backend in $backends; do
+            local name="valgrind $scn/$backend"
+            selected "$name" || continue
+            local d=$LOGS/valgrind-$scn-$backend
+            run_scenario_once "$scn" "$backend" "$vlib" "$d" \
+                valgrind -q --error-exitcode=99 --leak-check=full --errors-for-leak-kinds=definite \
+                --child-silent-after-fork=yes --log-file="$d/valgrind.%p.log"
+            local rc
+            rc=$(cat "$d/rc")
+            # Warnings (e.g. "unhandled ioctl 0x542e" for TIOCSRS485) are not errors.
+            if [ "$rc" = 0 ] && ! grep -qsE "Invalid (read|write|free)|uninitialised|definitely lost|Mismatched free|Syscall param|overlap|Process terminating" "$d"/valgrind.*.log; then
+                result "$name" "valgrind-$vlib" PASS
+            else
+                result "$name" "valgrind-$vlib" FAIL "rc $rc, see $d/valgrind.*.log"
+                cat "$d"/valgrind.*.log 2>/dev/null | head -n 30 | sed 's/^/    | /'
+            fi
+        done
+    done
+}
+
+# ---------------------------------------------------------------- Debian's unit tests
+UNIT_DIR=
+UPORT=0
+prepare_unit_tests() {
+    UNIT_DIR=$OUT/unit
+    mkdir -p "$UNIT_DIR"
+    local ex=/usr/share/doc/libmodbus-dev/examples f
+    for f in unit-test-client.c unit-test-server.c unit-test.h; do
+        if [ -f "$ex/$f" ]; then
+            cp "$ex/$f" "$UNIT_DIR/$f"
+        elif [ -f "$ex/$f.gz" ]; then
+            gzip -dc "$ex/$f.gz" >"$UNIT_DIR/$f"
+        else
+            log "missing $ex/$f"
+            return 1
+        fi
+    done
+    local link0=$UNIT_DIR/ttyV0 link1=$UNIT_DIR/ttyV1
+    # The 3.1.6 programs hard-code port 1502 and /dev/ttyUSB0 (server) / ttyUSB1 (client).
+    sed -e "s#/dev/ttyUSB0#$link0#" -e "s/1502/$UPORT/g" "$UNIT_DIR/unit-test-server.c" >"$UNIT_DIR/uts.c"
+    sed -e "s#/dev/ttyUSB1#$link1#" -e "s/1502/$UPORT/g" "$UNIT_DIR/unit-test-client.c" >"$UNIT_DIR/utc.c"
+    # Checks that fail only in a documented 3.1.12 way are turned into
+    # "EXPECTED-3.1.12-DIFFERENCE: <name>" (see c-tests/tools/patch-unit-test-client.pl).
+    if ! perl "$CT/tools/patch-unit-test-client.pl" "$UNIT_DIR/utc.c"; then
+        log "patching unit-test-client.c failed (did Debian's file change?)"
+        return 1
+    fi
+    local mcf mlibs
+    mcf=$(pkg-config --cflags libmodbus)
+    mlibs=$(pkg-config --libs libmodbus)
+    # shellcheck disable=SC2086
+    gcc -O1 -g $mcf -I"$UNIT_DIR" -o "$UNIT_DIR/unit-test-server" "$UNIT_DIR/uts.c" $mlibs || return 1
+    # shellcheck disable=SC2086
+    gcc -O1 -g $mcf -I"$UNIT_DIR" -o "$UNIT_DIR/unit-test-client" "$UNIT_DIR/utc.c" $mlibs || return 1
+    return 0
+}
+
+# run_unit BACKEND CLIENT_LIB SERVER_LIB DIR -> sets UNIT_RC UNIT_OKS UNIT_DIFFS
+run_unit() {
+    local backend=$1 clib=$2 slib=$3 dir=$4
+    mkdir -p "$dir"
+    rm -f "$dir"/*
+    local socat_pid="" srv_pid=""
+    local preload=$BIN/libmbtest-libinfo.so
+    if [ "$backend" = rtu ]; then
+        rm -f "$UNIT_DIR/ttyV0" "$UNIT_DIR/ttyV1"
+        start_bg "$dir/socat.out" "$dir/socat.err" socat -d -d \
+            "pty,raw,echo=0,link=$UNIT_DIR/ttyV0" "pty,raw,echo=0,link=$UNIT_DIR/ttyV1"
+        socat_pid=$LAST_PID
+        local i
+        for i in $(seq 1 100); do
+            [ -e "$UNIT_DIR/ttyV0" ] && [ -e "$UNIT_DIR/ttyV1" ] && break
+            sleep 0.1
+        done
+    fi
+    # shellcheck disable=SC2046
+    start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") LD_PRELOAD="$preload" \
+        MBTEST_LIBINFO="$dir/libinfo-server" "$UNIT_DIR/unit-test-server" "$backend"
+    srv_pid=$LAST_PID
+    if [ "$backend" = rtu ]; then
+        wait_pts_open "$srv_pid" 10
+        sleep 0.3
+    else
+        wait_listen "$UPORT" 10
+    fi
+    # shellcheck disable=SC2046
+    (cd "$dir" && exec timeout -k 5 120 $(lib_env "$clib") LD_PRELOAD="$preload" MBTEST_LIBINFO="$dir/libinfo-client" \
+        "$UNIT_DIR/unit-test-client" "$backend" >"$dir/client.out" 2>"$dir/client.err")
+    UNIT_RC=$?
+    stop_pid "$srv_pid"
+    stop_pid "$socat_pid"
+    # "4/6 1us response timeout" is a soft check upstream ("can fail on some
+    # platforms"): it is not counted, so that the OK counts are comparable.
+    UNIT_OKS=$(grep -a 'OK$' "$dir/client.out" | grep -avc '1us response timeout')
+    UNIT_DIFFS=$(grep -ao 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$dir/client.out" | awk '{print $2}' | sort | uniq -c | awk '{printf "%s%s(x%d)", sep, $2, $1; sep=","}')
+    UNIT_WHY=""
+    check_libinfo "$dir/libinfo-client" "$clib" || UNIT_WHY="client did not load $clib;"
+    check_libinfo "$dir/libinfo-server" "$slib" || UNIT_WHY="$UNIT_WHY server did not load $slib;"
+}
+
+declare -A UNIT_ORACLE_OKS=()
+run_unit_tests() {
+    section "Debian's unit-test-client/server (copied from libmodbus-dev examples at test time)"
+    UPORT=$(pick_port $((PORT + 10)))
+    if ! prepare_unit_tests; then
+        result "unit-test build" build FAIL
+        return
+    fi
+    result "unit-test build" build PASS
+    local backend combo
+    local combos=("debian debian")
+    if [ "$ORACLE_ONLY" = 1 ]; then
+        combos+=("debian debian")
+    else
+        combos+=("ours debian")
+        [ "$WITH_OUR_SERVER" = 1 ] && combos+=("debian ours" "ours ours")
+    fi
+    for backend in tcp tcppi rtu; do
+        local seen_oracle=0
+        for combo in "${combos[@]}"; do
+            local clib=${combo% *} slib=${combo#* }
+            local col="client=$clib/server=$slib"
+            local name="unit-test $backend"
+            if [ "$clib" = debian ] && [ "$slib" = debian ]; then
+                if [ $seen_oracle = 1 ]; then col="$col#2"; fi
+                seen_oracle=1
+            fi
+            selected "$name" || continue
+            if { [ "$clib" = ours ] || [ "$slib" = ours ]; } && [ "$OURS_AVAILABLE" = 0 ]; then
+                result "$name" "$col" FAIL "our library not built"
+                continue
+            fi
+            local dir=$LOGS/unit-$backend-client-${clib}-server-${slib}
+            [[ $col == *"#2" ]] && dir=$dir-2
+            run_unit "$backend" "$clib" "$slib" "$dir"
+            local pass_line=0
+            grep -aq "ALL TESTS PASS WITH SUCCESS" "$dir/client.out" && pass_line=1
+            local why=$UNIT_WHY
+            [ "$UNIT_RC" = 0 ] || why="$why rc=$UNIT_RC;"
+            [ $pass_line = 1 ] || why="$why no 'ALL TESTS PASS WITH SUCCESS' ($(grep -a -m1 'assertion error' "$dir/client.out" | tr -d '\n'));"
+            # Every EXPECTED-3.1.12-DIFFERENCE must be a named, allowed one, and none may
+            # appear when both sides are Debian's library.
+            local d
+            for d in $(grep -ao 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$dir/client.out" | awk '{print $2}' | sort -u); do
+                if [ "$clib" = debian ] && [ "$slib" = debian ]; then
+                    why="$why unexpected difference $d on the oracle;"
+                elif [ -z "${UNIT_ALLOWED[$d]:-}" ]; then
+                    why="$why difference $d not in allowed-differences.txt;"
+                fi
+            done
+            for d in $(grep -ao 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$dir/client.out" | awk '{print $2}' | sort -u); do
+                OBSERVED["unit:$d"]="${OBSERVED["unit:$d"]:-}${OBSERVED["unit:$d"]:+, }$name $col"
+            done
+            local ndiff
+            ndiff=$(grep -ac 'EXPECTED-3.1.12-DIFFERENCE' "$dir/client.out")
+            if [ "$clib" = debian ] && [ "$slib" = debian ]; then
+                UNIT_ORACLE_OKS[$backend]=$UNIT_OKS
+            elif [ -n "${UNIT_ORACLE_OKS[$backend]:-}" ] && [ $((UNIT_OKS + ndiff)) != "${UNIT_ORACLE_OKS[$backend]}" ]; then
+                why="$why $UNIT_OKS OK + $ndiff expected differences != ${UNIT_ORACLE_OKS[$backend]} OK of the oracle;"
+            fi
+            local detail="$UNIT_OKS OK"
+            [ -n "$UNIT_DIFFS" ] && detail="$detail; EXPECTED-3.1.12-DIFFERENCE: $UNIT_DIFFS"
+            if [ -z "$why" ]; then
+                result "$name" "$col" PASS "$detail"
+            else
+                result "$name" "$col" FAIL "$detail;$why see $dir"
+                grep -a -B3 -A1 'assertion error' "$dir/client.out" | head -n 10 | sed 's/^/    | /'
+            fi
+            grep -ao 'EXPECTED-3.1.12-DIFFERENCE: .*' "$dir/client.out" | sort | uniq -c | sed 's/^/    /'
+        done
+    done
+}
+
+# ---------------------------------------------------------------- mbpoll
+# Each case runs a list of mbpoll commands against one fresh mbtest-server.
+MBPOLL_CASES=(
+    "tcp-read-holding|tcp|-m tcp -a 1 -r 1 -c 5 -1 -p @PORT@ 127.0.0.1"
+    "tcp-write-then-read|tcp|-m tcp -a 1 -r 20 -1 -p @PORT@ 127.0.0.1 1234 5678;-m tcp -a 1 -r 20 -c 2 -1 -p @PORT@ 127.0.0.1"
+    "tcp-coils-inputs|tcp|-m tcp -t 0 -r 1 -c 10 -1 -p @PORT@ 127.0.0.1;-m tcp -t 1 -r 1 -c 10 -1 -p @PORT@ 127.0.0.1;-m tcp -t 3:hex -r 1 -c 4 -1 -p @PORT@ 127.0.0.1"
+    "tcp-write-coil-float|tcp|-m tcp -t 0 -r 2 -1 -p @PORT@ 127.0.0.1 1;-m tcp -t 0 -r 1 -c 4 -1 -p @PORT@ 127.0.0.1;-m tcp -t 4:float -r 40 -1 -p @PORT@ 127.0.0.1 -- -2.5;-m tcp -t 4:float -r 40 -c 1 -1 -p @PORT@ 127.0.0.1;-m tcp -t 4:hex -r 40 -c 2 -1 -p @PORT@ 127.0.0.1"
+    "tcp-exception|tcp|-m tcp -a 1 -r 200 -c 5 -1 -p @PORT@ 127.0.0.1"
+    "tcp-refused|tcp|-m tcp -a 1 -r 1 -c 1 -1 -o 0.5 -p @AUXPORT@ 127.0.0.1"
+    "rtu-read-holding|rtu|-m rtu -b 115200 -P none -a 17 -r 1 -c 5 -1 @LINK1@"
+    "rtu-write-then-read|rtu|-m rtu -b 115200 -P none -a 17 -r 30 -1 @LINK1@ 42 43 44;-m rtu -b 115200 -P none -a 17 -r 29 -c 5 -1 @LINK1@"
+    "rtu-report-slave-id|rtu|-m rtu -b 115200 -P none -a 17 -u -1 @LINK1@"
+    "rtu-wrong-slave-timeout|rtu|-m rtu -b 115200 -P none -a 18 -r 1 -c 1 -o 0.3 -1 @LINK1@"
+)
+# Values that the Debian-pinned server must have produced for us (independent of the oracle).
+declare -A MBPOLL_EXPECT=(
+    [tcp-read-holding]=$'\\[1\\]: \t256|\\[5\\]: \t268'
+    [tcp-write-then-read]=$'\\[20\\]: \t1234|\\[21\\]: \t5678'
+    [rtu-read-holding]=$'\\[1\\]: \t256|\\[5\\]: \t268'
+    [rtu-write-then-read]=$'\\[30\\]: \t42|\\[32\\]: \t44'
+    [rtu-report-slave-id]='Data  : LMB3.1.6'
+)
+
+run_mbpoll_case() { # run_mbpoll_case NAME BACKEND CMDS LIB DIR
+    local name=$1 backend=$2 cmds=$3 lib=$4 dir=$5
+    mkdir -p "$dir"
+    rm -f "$dir"/*
+    : >"$dir/stdout"
+    : >"$dir/stderr"
+    : >"$dir/exit"
+    if ! start_mbtest_server "$backend" "$dir"; then
+        stop_mbtest_server
+        echo "server failed" >"$dir/exit"
+        touch "$dir/server.out" "$dir/server.err"
+        return
+    fi
+    local cmdlist cmd i=0 words
+    IFS=';' read -ra cmdlist <<<"$cmds"
+    for cmd in "${cmdlist[@]}"; do
+        i=$((i + 1))
+        cmd=${cmd//@PORT@/$PORT}
+        cmd=${cmd//@AUXPORT@/$AUXPORT}
+        cmd=${cmd//@LINK1@/$LINK1}
+        read -ra words <<<"$cmd"
+        local rc
+        # shellcheck disable=SC2046
+        timeout -k 5 30 $(lib_env "$lib") LD_PRELOAD="$BIN/libmbtest-libinfo.so" MBTEST_LIBINFO="$dir/libinfo-client" \
+            LD_DEBUG=libs LD_DEBUG_OUTPUT="$dir/lddebug" \
+            /usr/bin/mbpoll "${words[@]}" >>"$dir/stdout" 2>>"$dir/stderr" </dev/null
+        rc=$?
+        echo "command $i exit status $rc" >>"$dir/exit"
+    done
+    sleep 0.3 # let the server log the last disconnection
+    stop_mbtest_server
+}
+
+run_mbpoll() {
+    section "Debian's unmodified /usr/bin/mbpoll (client: debian vs $CLIENT_B; server: debian)"
+    local entry
+    for entry in "${MBPOLL_CASES[@]}"; do
+        local name=${entry%%|*} rest=${entry#*|}
+        local backend=${rest%%|*} cmds=${rest#*|}
+        local tname="mbpoll $name"
+        selected "$tname" || continue
+        local da=$LOGS/mbpoll-$name/debian db=$LOGS/mbpoll-$name/$CLIENT_B
+        local blib=$CLIENT_B
+        [ "$ORACLE_ONLY" = 1 ] && blib=debian
+        if [ "$blib" = ours ] && [ "$OURS_AVAILABLE" = 0 ]; then
+            result "$tname" "debian-vs-$CLIENT_B" FAIL "our library not built"
+            continue
+        fi
+        run_mbpoll_case "$name" "$backend" "$cmds" debian "$da"
+        run_mbpoll_case "$name" "$backend" "$cmds" "$blib" "$db"
+        local why=""
+        check_libinfo "$db/libinfo-client" "$blib" || why="mbpoll did not load $blib (LIBINFO);"
+        # Second, independent proof: the dynamic loader's own log.
+        local want_path
+        if [ "$blib" = ours ]; then want_path="$OURS_DIR/libmodbus.so.5"; else want_path="/lib/x86_64-linux-gnu/libmodbus.so.5"; fi
+        if ! cat "$db"/lddebug.* 2>/dev/null | grep -q "calling init: .*$(basename "$want_path")" ||
+            ! cat "$db"/lddebug.* 2>/dev/null | grep "calling init: .*libmodbus" | grep -q "$(dirname "$want_path")"; then
+            why="$why LD_DEBUG=libs does not show $want_path being initialised;"
+        fi
+        compare_streams "$da" "$db" exit stdout stderr server.out server.err || why="$why differs:$COMPARE_BAD"
+        observe "$tname" "$da" "$db" stdout stderr server.out server.err
+        local exp=${MBPOLL_EXPECT[$name]:-}
+        if [ -n "$exp" ]; then
+            local pats pat
+            IFS='|' read -ra pats <<<"$exp"
+            for pat in "${pats[@]}"; do
+                grep -q -- "$pat" "$db/stdout" || why="$why missing '$pat';"
+            done
+            grep -q "exit status [^0]" "$db/exit" && why="$why non-zero exit;"
+        fi
+        if [ -z "$why" ]; then
+            result "$tname" "debian-vs-$CLIENT_B" PASS "$(tr '\n' ' ' <"$db/exit" | sed 's/command [0-9]* exit status //g; s/ $//; s/^/exit /')"
+        else
+            result "$tname" "debian-vs-$CLIENT_B" FAIL "$why"
+            show_diffs "$db" exit stdout stderr server.out server.err
+        fi
+    done
+    # Show the proof once.
+    local proof
+    proof=$(cat "$LOGS"/mbpoll-tcp-read-holding/"$CLIENT_B"/libinfo-client 2>/dev/null | head -n 1)
+    [ -n "$proof" ] && log "    mbpoll $proof"
+    proof=$(cat "$LOGS"/mbpoll-tcp-read-holding/"$CLIENT_B"/lddebug.* 2>/dev/null | grep -m1 "calling init: .*libmodbus")
+    [ -n "$proof" ] && log "    LD_DEBUG=libs:$proof"
+}
+
+# ---------------------------------------------------------------- main
+START=$(date +%s)
+ensure_deps
+# One run at a time per output directory: runs share the pty link paths and the logs.
+mkdir -p "$OUT"
+exec 9>"$OUT/.lock"
+if ! flock -n 9; then
+    log "another run-c-tests.sh is using $OUT; waiting for it (set MBTEST_OUT to run in parallel)"
+    flock -w 900 9 || { log "gave up waiting for $OUT/.lock"; log "0 passed, 1 failed"; exit 1; }
+fi
+load_allowed
+[ "$ORACLE_ONLY" = 1 ] && CLIENT_B=debian2
+mkdir -p "$LOGS"
+build_all || true
+if [ "$ORACLE_ONLY" = 0 ]; then
+    build_ours
+fi
+PORT=$(pick_port "${MBTEST_PORT:-15020}")
+AUXPORT=$(pick_port $((PORT + 1)))
+log "ports: server $PORT, auxiliary (nothing listens) $AUXPORT; logs in $LOGS"
+
+if [ "$VALGRIND_ONLY" = 0 ]; then
+    [ "$SKIP_SCEN" = 1 ] || run_scenarios
+    [ "$SKIP_UNIT" = 1 ] || run_unit_tests
+    [ "$SKIP_MBPOLL" = 1 ] || run_mbpoll
+fi
+[ "$VALGRIND" = 1 ] && run_valgrind
+
+section "summary matrix"
+printf '%-40s %-26s %s\n' "test" "column" "result"
+for row in "${MATRIX[@]}"; do
+    IFS='|' read -r n c s <<<"$row"
+    printf '%-40s %-26s %s\n' "$n" "$c" "$s"
+done
+if [ "$ORACLE_ONLY" = 0 ]; then
+    section "allowed differences observed in this run (c-tests/allowed-differences.txt)"
+    while IFS='|' read -r name kind rule reason; do
+        case "$name" in '' | '#'*) continue ;; esac
+        key=$name
+        [ "$kind" = unit ] && key="unit:$name"
+        obs=${OBSERVED[$key]:-}
+        # Each test name appears once per stream; keep it short.
+        obs=$(tr ',' '\n' <<<"$obs" | sed 's/^ *//' | sort -u | paste -sd, - | sed 's/,/, /g')
+        printf '  %-30s %-5s %s\n' "$name" "$kind" "${obs:-not observed}"
+    done <"$ALLOWED_FILE"
+fi
+if [ ${#FAILED_NAMES[@]} -gt 0 ]; then
+    section "failed"
+    for row in "${FAILED_NAMES[@]}"; do log "  $row"; done
+fi
+log ""
+log "runtime $(($(date +%s) - START)) s; allowed differences: $ALLOWED_FILE"
+log "$PASS passed, $FAIL failed"
+[ "$FAIL" = 0 ]
