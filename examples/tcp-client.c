@@ -1,5 +1,7 @@
 /* A Modbus TCP client: reads and writes a few registers and coils and prints what
  * it exchanged. Usage: tcp-client [host [port]] (default 127.0.0.1 1502).
+ *
+ * Build: gcc tcp-client.c -o tcp-client $(pkg-config --cflags --libs libmodbus)
  * SPDX-License-Identifier: MIT OR Apache-2.0 */
 #include <errno.h>
 #include <stdio.h>

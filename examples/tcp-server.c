@@ -1,6 +1,11 @@
 /* A Modbus TCP server for several clients at once: a poll() loop over the listening
  * socket and every accepted connection, one shared register map.
  * Usage: tcp-server [port [max_requests]] (default 1502; 0 = serve forever).
+ *
+ * The map holds 100 of each table. Holding register i starts at 1000 + i, input
+ * register i at 2000 + i, input bit i at i % 2; coils start at 0.
+ *
+ * Build: gcc tcp-server.c -o tcp-server $(pkg-config --cflags --libs libmodbus)
  * SPDX-License-Identifier: MIT OR Apache-2.0 */
 #include <errno.h>
 #include <poll.h>
@@ -26,6 +31,11 @@ int main(int argc, char *argv[])
     if (ctx == NULL || map == NULL) {
         fprintf(stderr, "setup failed: %s\n", modbus_strerror(errno));
         return EXIT_FAILURE;
+    }
+    for (int i = 0; i < 100; i++) {
+        map->tab_registers[i] = (uint16_t)(1000 + i);
+        map->tab_input_registers[i] = (uint16_t)(2000 + i);
+        map->tab_input_bits[i] = (uint8_t)(i % 2);
     }
     int listener = modbus_tcp_listen(ctx, MAX_CLIENTS);
     if (listener == -1) {

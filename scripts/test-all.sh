@@ -49,6 +49,9 @@ ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/check-symbols.sh ] && run symbols scripts/check-symbols.sh
 [ -x scripts/run-c-tests.sh ] && run c-client scripts/run-c-tests.sh
 [ -x scripts/run-server-tests.sh ] && run c-server scripts/run-server-tests.sh
+[ -x scripts/check-examples.sh ] && run examples scripts/check-examples.sh
+[ -x scripts/check-man.sh ] && run man scripts/check-man.sh
+[ -x scripts/check-package.sh ] && run package scripts/check-package.sh
 run demo scripts/demo.sh
 
 echo
