@@ -7,7 +7,8 @@
 #     against our server and ours against a server built on Debian's;
 #   - rtu-client against rtu-server over a pty pair (socat), and a client asking the
 #     wrong slave id (it must time out);
-#   - tcp-client linked statically with libmodbus.a (pkg-config --static).
+#   - tcp-client linked statically with libmodbus.a (pkg-config --static), and
+#     fully static (gcc -static).
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
 # Usage: scripts/check-examples.sh   (builds with `cargo build --release` first)
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -164,6 +165,19 @@ if [ -x "$WORK/tcp-client-static" ]; then
         ok "static tcp-client does not need libmodbus.so.5"
     fi
     tcp_pair static "$WORK/tcp-server" "$WORK/tcp-client-static"
+fi
+
+# A fully static executable (gcc -static): libc too comes from its archive.
+check "compile tcp-client fully static (gcc -static)" \
+    "$CC" "${CFLAGS_W[@]}" -static examples/tcp-client.c -o "$WORK/tcp-client-full-static" \
+    $(pkg-config --cflags "$PC") -Wl,--gc-sections -lmodbus $(pkg-config --static --libs "$PC" | sed 's/-lgcc_s//')
+if [ -x "$WORK/tcp-client-full-static" ]; then
+    if readelf -d "$WORK/tcp-client-full-static" 2>/dev/null | grep -q NEEDED; then
+        bad "fully static tcp-client needs no shared library" "$(readelf -d "$WORK/tcp-client-full-static" | grep NEEDED)"
+    else
+        ok "fully static tcp-client needs no shared library"
+    fi
+    tcp_pair full-static "$WORK/tcp-server" "$WORK/tcp-client-full-static"
 fi
 
 summary

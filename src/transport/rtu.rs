@@ -40,14 +40,14 @@ pub fn speed_for(baud: i32) -> Option<libc::speed_t> {
 }
 
 /// The raw-mode termios libmodbus builds for these line settings (from all-zero).
-pub fn raw_termios(speed: libc::speed_t, parity: u8, data_bit: i32, stop_bit: i32) -> Result<libc::termios> {
+pub fn raw_termios(speed: libc::speed_t, parity: u8, data_bit: i32, stop_bit: i32) -> libc::termios {
     // SAFETY: all-zero is a valid termios.
     let mut tios: libc::termios = unsafe { zeroed() };
-    // SAFETY: `tios` is a live termios; the speed is one of the B* constants.
-    let rc = unsafe { if libc::cfsetispeed(&mut tios, speed) < 0 { -1 } else { libc::cfsetospeed(&mut tios, speed) } };
-    if rc < 0 {
-        return Err(last_error());
-    }
+    // What cfsetispeed/cfsetospeed do on Linux, written out: the libc crate binds
+    // those two to versioned glibc symbols, which a fully static link cannot resolve.
+    tios.c_cflag = (tios.c_cflag & !libc::CBAUD) | speed;
+    tios.c_ispeed = speed;
+    tios.c_ospeed = speed;
     tios.c_cflag |= libc::CREAD | libc::CLOCAL;
     tios.c_cflag &= !libc::CSIZE;
     tios.c_cflag |= match data_bit {
@@ -79,7 +79,7 @@ pub fn raw_termios(speed: libc::speed_t, parity: u8, data_bit: i32, stop_bit: i3
     tios.c_oflag &= !libc::OPOST;
     tios.c_cc[libc::VMIN] = 0;
     tios.c_cc[libc::VTIME] = 0;
-    Ok(tios)
+    tios
 }
 
 /// `modbus_connect` for RTU: open the device non-blocking and set raw mode.
@@ -111,13 +111,7 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
         diag.err(format_args!("WARNING Unknown baud rate {} (B9600 used)\n", link.baud));
         libc::B9600
     });
-    let tios = match raw_termios(speed, link.parity, link.data_bit, link.stop_bit) {
-        Ok(t) => t,
-        Err(e) => {
-            close(fd);
-            return Err(e);
-        }
-    };
+    let tios = raw_termios(speed, link.parity, link.data_bit, link.stop_bit);
     // SAFETY: `tios` is a fully initialised termios.
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &tios) } < 0 {
         let e = last_error();
@@ -222,14 +216,14 @@ mod tests {
 
     #[test]
     fn termios_flags() {
-        let t = raw_termios(libc::B9600, b'E', 7, 2).unwrap();
+        let t = raw_termios(libc::B9600, b'E', 7, 2);
         assert_eq!(t.c_cflag & libc::CSIZE, libc::CS7);
         assert_ne!(t.c_cflag & libc::CSTOPB, 0);
         assert_ne!(t.c_cflag & libc::PARENB, 0);
         assert_eq!(t.c_cflag & libc::PARODD, 0);
         assert_ne!(t.c_iflag & libc::INPCK, 0);
         assert_ne!(t.c_cflag & (libc::CREAD | libc::CLOCAL), 0);
-        let t = raw_termios(libc::B115200, b'N', 8, 1).unwrap();
+        let t = raw_termios(libc::B115200, b'N', 8, 1);
         assert_eq!(t.c_cflag & libc::CSIZE, libc::CS8);
         assert_eq!(t.c_cflag & (libc::CSTOPB | libc::PARENB), 0);
         assert_eq!(t.c_lflag & libc::ICANON, 0);
@@ -237,7 +231,7 @@ mod tests {
         assert_eq!((t.c_cc[libc::VMIN], t.c_cc[libc::VTIME]), (0, 0));
         // SAFETY: reading the speed of a live termios.
         assert_eq!(unsafe { libc::cfgetospeed(&t) }, libc::B115200);
-        let t = raw_termios(libc::B9600, b'O', 8, 1).unwrap();
+        let t = raw_termios(libc::B9600, b'O', 8, 1);
         assert_ne!(t.c_cflag & libc::PARODD, 0);
     }
 }
