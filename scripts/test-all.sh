@@ -47,7 +47,7 @@ run build cargo build --release
 ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/check-headers.sh ] && run headers scripts/check-headers.sh
 [ -x scripts/check-symbols.sh ] && run symbols scripts/check-symbols.sh
-[ -x scripts/run-c-tests.sh ] && run c-client scripts/run-c-tests.sh
+[ -x scripts/run-c-tests.sh ] && run c-client scripts/run-c-tests.sh --valgrind --with-our-server
 [ -x scripts/run-server-tests.sh ] && run c-server scripts/run-server-tests.sh
 [ -x scripts/check-examples.sh ] && run examples scripts/check-examples.sh
 [ -x scripts/check-man.sh ] && run man scripts/check-man.sh
