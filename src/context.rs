@@ -41,6 +41,10 @@ impl Timeout {
     pub fn duration(self) -> Duration {
         Duration::new(self.sec as u64, self.usec * 1000)
     }
+
+    pub fn timespec(self) -> libc::timespec {
+        libc::timespec { tv_sec: self.sec as libc::time_t, tv_nsec: self.usec as libc::c_long * 1000 }
+    }
 }
 
 /// The application's RTS callback (`modbus_rtu_set_custom_rts`).
@@ -143,6 +147,10 @@ pub struct Context {
     /// configuration calls), so their requests are framed whole. Off, a server
     /// frames and answers them exactly as libmodbus does.
     pub serves_extended: bool,
+    /// Server-side configuration and diagnostics state beyond libmodbus (see
+    /// [`crate::server_ext`]); `None` until a server configuration call, so an
+    /// unconfigured context is exactly libmodbus and pays nothing for it.
+    pub server_ext: Option<Box<crate::server_ext::ServerExt>>,
 }
 
 impl Context {
@@ -162,6 +170,7 @@ impl Context {
             handle_addr: 0,
             rx: ReadAhead::new(),
             serves_extended: false,
+            server_ext: None,
         }
     }
 

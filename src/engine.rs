@@ -2,8 +2,6 @@
 //! the debug trace and LINK recovery, the receive loop with its three timeouts, and
 //! the client's request/confirmation exchange.
 
-use std::time::Instant;
-
 use parking_lot::MutexGuard;
 
 use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP};
@@ -159,8 +157,9 @@ pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> 
         line.push('\n');
         crate::stdio::out(format_args!("{line}"));
     }
-    let mut chars = [0u8; ascii::MAX_ENCODED];
+    let mut chars;
     let (wire, wire_len) = if g.framing == Framing::Ascii {
+        chars = [0u8; ascii::MAX_ENCODED];
         let n = ascii::encode(adu, &mut chars);
         (&chars[..n], n)
     } else {
@@ -258,72 +257,82 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
             return check_integrity(ctx, &buf[..len]);
         }
     }
-    let first = match kind {
-        MsgKind::Confirmation => Some(ctx.response_timeout),
-        MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then_some(ctx.indication_timeout),
-    };
-    let mut deadline = first.map(|t| Instant::now() + t.duration());
+    let mut budget = first_timeout(ctx, kind);
     let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended);
     let mut trace = String::new();
+    // Bytes in `buf`: those the assembler took, then (reading ahead) any after them.
+    let mut filled = 0;
     loop {
-        let start = asm.len();
-        let want = asm.wanted();
-        let n = if !ctx.rx.available().is_empty() {
-            let n = want.min(ctx.rx.available().len());
-            buf[start..start + n].copy_from_slice(&ctx.rx.available()[..n]);
-            ctx.rx.consume(n);
-            n
-        } else {
-            if let Err(e) = wait_readable(ctx, deadline) {
-                flush_trace(ctx, &mut trace);
-                error_print(ctx, e, Some("select"));
-                recover_after_wait(ctx, e);
-                return Err(e);
+        while asm.len() < filled {
+            let start = asm.len();
+            let n = asm.wanted().min(filled - start);
+            if ctx.debug {
+                push_trace(&mut trace, &buf[start..start + n]);
             }
-            let got = if read_ahead {
-                read_line(ctx.is_socket(), ctx.s, &mut ctx.rx.buf)
-            } else {
-                read_line(ctx.is_socket(), ctx.s, &mut buf[start..start + want])
-            };
-            let got = match got {
-                Ok(0) => Err(Error::CONN_RESET),
-                Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
-                other => other,
-            };
-            match got {
-                Ok(n) if read_ahead => {
-                    ctx.rx.end = n;
-                    continue;
+            match asm.received(&buf[..start + n], n) {
+                Ok(Progress::NeedMore(_)) => {}
+                Ok(Progress::Complete(len)) => {
+                    keep_unread(ctx, &buf[len..filled]);
+                    if ctx.debug {
+                        trace.push('\n');
+                        flush_trace(ctx, &mut trace);
+                    }
+                    return check_integrity(ctx, &buf[..len]);
                 }
-                Ok(n) => n,
                 Err(e) => {
+                    keep_unread(ctx, &buf[start + n..filled]);
                     flush_trace(ctx, &mut trace);
-                    error_print(ctx, e, Some("read"));
-                    recover_after_read(ctx, e);
+                    error_print(ctx, e, Some("too many data"));
                     return Err(e);
                 }
             }
-        };
-        if ctx.debug {
-            push_trace(&mut trace, &buf[start..start + n]);
         }
-        match asm.received(&buf[..start + n], n) {
-            Ok(Progress::NeedMore(_)) => {
-                if !ctx.byte_timeout.is_zero() {
-                    deadline = Some(Instant::now() + ctx.byte_timeout.duration());
-                }
-            }
-            Ok(Progress::Complete(len)) => {
-                trace.push('\n');
+        let want = asm.wanted();
+        if !ctx.rx.available().is_empty() {
+            // Left over from an earlier read: take only what this message needs, so
+            // whatever stays behind keeps its order.
+            let n = want.min(ctx.rx.available().len());
+            buf[filled..filled + n].copy_from_slice(&ctx.rx.available()[..n]);
+            ctx.rx.consume(n);
+            filled += n;
+            continue;
+        }
+        if let Err(e) = wait_readable(ctx, budget.as_mut()) {
+            flush_trace(ctx, &mut trace);
+            error_print(ctx, e, Some("select"));
+            recover_after_wait(ctx, e);
+            return Err(e);
+        }
+        let room = if read_ahead { &mut buf[filled..] } else { &mut buf[filled..filled + want] };
+        match read_line(ctx.is_socket(), ctx.s, room) {
+            Ok(0) | Err(Error(libc::ECONNRESET)) => {
                 flush_trace(ctx, &mut trace);
-                return check_integrity(ctx, &buf[..len]);
+                error_print(ctx, Error::CONN_RESET, Some("read"));
+                recover_after_read(ctx, Error::CONN_RESET);
+                return Err(Error::CONN_RESET);
             }
+            Ok(n) => filled += n,
+            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
             Err(e) => {
                 flush_trace(ctx, &mut trace);
-                error_print(ctx, e, Some("too many data"));
+                error_print(ctx, e, Some("read"));
+                recover_after_read(ctx, e);
                 return Err(e);
             }
         }
+        if !ctx.byte_timeout.is_zero() {
+            budget = Some(ctx.byte_timeout.timespec());
+        }
+    }
+}
+
+/// Keeps bytes read past the end of a message for the next receive (the read-ahead
+/// buffer is empty whenever a read runs, so order is kept).
+fn keep_unread(ctx: &mut Context, rest: &[u8]) {
+    if !rest.is_empty() {
+        ctx.rx.buf[..rest.len()].copy_from_slice(rest);
+        ctx.rx.start = 0;
+        ctx.rx.end = rest.len();
     }
 }
 
@@ -332,16 +341,12 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
 /// first wait uses the response or indication timeout, the later ones the byte
 /// timeout (1 s by default on ASCII contexts: the gap the protocol allows).
 fn receive_ascii(ctx: &mut Context, buf: &mut AduBuf, kind: MsgKind) -> Result<Received> {
-    let first = match kind {
-        MsgKind::Confirmation => Some(ctx.response_timeout),
-        MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then_some(ctx.indication_timeout),
-    };
-    let mut deadline = first.map(|t| Instant::now() + t.duration());
+    let mut budget = first_timeout(ctx, kind);
     let mut decoder = ascii::Decoder::new();
     let mut trace = String::new();
     loop {
         if ctx.rx.available().is_empty() {
-            if let Err(e) = wait_readable(ctx, deadline) {
+            if let Err(e) = wait_readable(ctx, budget.as_mut()) {
                 flush_trace(ctx, &mut trace);
                 error_print(ctx, e, Some("select"));
                 recover_after_wait(ctx, e);
@@ -389,12 +394,14 @@ fn receive_ascii(ctx: &mut Context, buf: &mut AduBuf, kind: MsgKind) -> Result<R
         match outcome {
             None => {
                 if decoder.in_frame() && !ctx.byte_timeout.is_zero() {
-                    deadline = Some(Instant::now() + ctx.byte_timeout.duration());
+                    budget = Some(ctx.byte_timeout.timespec());
                 }
             }
             Some(Ok(len)) => {
-                trace.push('\n');
-                flush_trace(ctx, &mut trace);
+                if ctx.debug {
+                    trace.push('\n');
+                    flush_trace(ctx, &mut trace);
+                }
                 if len < 2 {
                     error_print(ctx, Error::BAD_DATA, Some("frame too short"));
                     return Err(Error::BAD_DATA);
@@ -410,12 +417,21 @@ fn receive_ascii(ctx: &mut Context, buf: &mut AduBuf, kind: MsgKind) -> Result<R
     }
 }
 
-/// Waits until the line is readable or `deadline` passes (`None`: forever),
-/// resuming after signals as libmodbus does.
-fn wait_readable(ctx: &Context, deadline: Option<Instant>) -> Result<()> {
+/// The first wait of a receive: the response timeout for a confirmation, the
+/// indication timeout (0 = forever) for a request.
+fn first_timeout(ctx: &Context, kind: MsgKind) -> Option<libc::timespec> {
+    match kind {
+        MsgKind::Confirmation => Some(ctx.response_timeout.timespec()),
+        MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then(|| ctx.indication_timeout.timespec()),
+    }
+}
+
+/// Waits until the line is readable or the time in `budget` runs out (`None`:
+/// forever). The kernel counts `budget` down, so a later wait with the same value
+/// gets what is left, and a signal does not restart the timeout.
+fn wait_readable(ctx: &Context, mut budget: Option<&mut libc::timespec>) -> Result<()> {
     loop {
-        let timeout = deadline.map(|d| d.saturating_duration_since(Instant::now()));
-        match transport::wait(ctx.s, libc::POLLIN, timeout) {
+        match transport::wait_counting_down(ctx.s, libc::POLLIN, budget.as_deref_mut()) {
             Ok(true) => return Ok(()),
             Ok(false) => return Err(Error::TIMED_OUT),
             Err(e) if e.0 == libc::EINTR => ctx.diag().err(format_args!("A non blocked signal was caught\n")),
@@ -599,7 +615,7 @@ mod tests {
     use super::*;
     use crate::context::Timeout;
     use parking_lot::Mutex;
-    use std::time::Duration;
+    use std::time::{Duration, Instant};
 
     /// A connected pair of stream sockets: (ours, peer).
     fn socket_pair() -> (i32, i32) {

@@ -35,12 +35,30 @@ fn to_timespec(d: Duration) -> libc::timespec {
 /// Returns `Ok(false)` on timeout; `Err` carries the errno (EINTR included, so the
 /// caller decides whether to retry).
 pub fn wait(fd: i32, events: libc::c_short, timeout: Option<Duration>) -> Result<bool> {
+    let mut ts = timeout.map(to_timespec);
+    wait_counting_down(fd, events, ts.as_mut())
+}
+
+/// Like [`wait`], but the kernel writes the time left back into `timeout`, as
+/// Linux's `select` does with its `timeval` (libmodbus relies on that: with no byte
+/// timeout, every wait of one message shares the response timeout). Reusing the same
+/// value across waits therefore needs no clock reads in user space.
+pub fn wait_counting_down(fd: i32, events: libc::c_short, timeout: Option<&mut libc::timespec>) -> Result<bool> {
     let mut pfd = libc::pollfd { fd, events, revents: 0 };
-    let ts = timeout.map(to_timespec);
-    let ts_ptr = ts.as_ref().map_or(std::ptr::null(), |t| t as *const libc::timespec);
-    // SAFETY: `pfd` is one valid pollfd; `ts_ptr` is NULL or points at `ts`, alive for
-    // the call; no signal mask is passed.
-    let rc = unsafe { libc::ppoll(&mut pfd, 1, ts_ptr, std::ptr::null()) };
+    let ts_ptr = timeout.map_or(std::ptr::null_mut(), |t| t as *mut libc::timespec);
+    // SAFETY: the raw ppoll system call (glibc's wrapper declares the timeout const,
+    // though the kernel updates it): `pfd` is one valid pollfd; `ts_ptr` is NULL or
+    // points at a live, writable timespec; no signal mask.
+    let rc = unsafe {
+        libc::syscall(
+            libc::SYS_ppoll,
+            &mut pfd as *mut libc::pollfd,
+            1 as libc::nfds_t,
+            ts_ptr,
+            std::ptr::null::<libc::sigset_t>(),
+            8usize,
+        )
+    };
     match rc {
         -1 => Err(last_error()),
         0 => Ok(false),
