@@ -477,6 +477,160 @@ modbus_t *modbus_new_ascii(const char *device,
                            int stop_bit);
 
 /**
+ * rsmodbus extension (server): turns the serial-line diagnostics of this server
+ * context on (`enable` != 0) or off. On, `modbus_receive` and `modbus_reply` keep
+ * the eight bus counters, the comm event counter and the 64-entry event log, and
+ * `modbus_reply` answers function codes 08 (every diagnostics sub-function,
+ * listen-only mode included), 0B and 0C. Turning it on starts from zero; off
+ * forgets everything and answers those codes as libmodbus does. Returns 0.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_enable_diagnostics(modbus_t *ctx, int enable);
+
+/**
+ * rsmodbus extension (server): reads into `*value` what diagnostics sub-function
+ * `sub_function` reports: 0x02 the diagnostic register, 0x03 the ASCII input
+ * delimiter, 0x04 1 in listen-only mode (else 0), 0x0B to 0x12 the bus message,
+ * bus communication error, bus exception error, server message, server no
+ * response, server NAK, server busy and bus character overrun counters. Returns 0;
+ * EINVAL when diagnostics are off or for another sub-function.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `value` NULL or writable.
+ */
+MODBUS_API int modbus_get_diagnostics(modbus_t *ctx, int sub_function, uint16_t *value);
+
+/**
+ * rsmodbus extension (server): the comm event counter into `*event_count`, the
+ * message count (bus messages) into `*message_count` (each may be NULL), and up to
+ * `max_events` bytes of the event log, newest first, into `events`. Returns the
+ * number of events in the log (0 to 64); EINVAL when diagnostics are off.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; the counter pointers NULL or writable;
+ * `events` valid for `max_events` bytes (or NULL when `max_events` is 0).
+ */
+MODBUS_API
+int modbus_get_event_log(modbus_t *ctx,
+                         uint16_t *event_count,
+                         uint16_t *message_count,
+                         uint8_t *events,
+                         int max_events);
+
+/**
+ * rsmodbus extension (server): sets the application's bits of the diagnostic
+ * register that sub-function 0x02 returns (bit 0 also reads as 1 while the
+ * character overrun flag is set). Sub-function 0x0A clears it. Returns 0; EINVAL
+ * when diagnostics are off.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_set_diagnostic_register(modbus_t *ctx, uint16_t value);
+
+/**
+ * rsmodbus extension (server): the byte function code 07 (read exception status)
+ * answers, 0 to 255; -1 restores libmodbus's behaviour (no answer, `modbus_reply`
+ * fails with ENOPROTOOPT). Returns 0; EINVAL for another value.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_set_exception_status(modbus_t *ctx, int status);
+
+/**
+ * rsmodbus extension (server): sets device identification object `object_id`
+ * (function code 2B / MEI 0E) to the `length` bytes at `value`, or to the
+ * NUL-terminated string `value` when `length` is -1; a NULL `value` removes the
+ * object. Ids 0x00-0x02 are the basic objects (VendorName, ProductCode,
+ * MajorMinorRevision; served empty while unset), 0x03-0x06 the regular ones,
+ * 0x80-0xFF the extended ones; 0x07-0x7F are reserved. At most 244 bytes. The
+ * first object enables device identification; removing the last disables it.
+ * Returns 0; EINVAL for a bad id or length.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `value` NULL, a NUL-terminated string
+ * (`length` -1), or valid for `length` bytes.
+ */
+MODBUS_API
+int modbus_set_device_identification(modbus_t *ctx,
+                                     int object_id,
+                                     const char *value,
+                                     int length);
+
+/**
+ * rsmodbus extension (server): the conformity level device identification
+ * answers: 0x01, 0x02, 0x03 (basic, regular, extended; stream access only) or
+ * 0x81, 0x82, 0x83 (the same with individual access). Stream requests for a
+ * higher category get the objects up to the declared one; without the 0x80 bit,
+ * individual access is refused. 0 (the default) derives it from the objects set.
+ * Returns 0; EINVAL for another value.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_set_conformity_level(modbus_t *ctx, int level);
+
+/**
+ * rsmodbus extension (server): writes `nb` registers from `src` (zeros when `src`
+ * is NULL) into file `file` (1 to 65535) from record `record` (0 to 9999) of the
+ * records function codes 14 and 15 serve. The file is created, or grown to
+ * `record + nb` records (at most 10000), as needed. Returns `nb`; EINVAL for a bad
+ * argument.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `src` NULL or valid for `nb` values.
+ */
+MODBUS_API
+int modbus_set_file_record(modbus_t *ctx,
+                           int file,
+                           int record,
+                           int nb,
+                           const uint16_t *src);
+
+/**
+ * rsmodbus extension (server): copies `nb` registers of file `file` from record
+ * `record` into `dest` (what clients wrote with function code 15, for example).
+ * Returns `nb`; EINVAL when the file does not hold them.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` valid for `nb` values.
+ */
+MODBUS_API int modbus_get_file_record(modbus_t *ctx, int file, int record, int nb, uint16_t *dest);
+
+/**
+ * rsmodbus extension (server): the FIFO queue function code 18 reads at pointer
+ * address `addr` (0 to 65535): a copy of the `count` values at `values` (count 0
+ * to 65535; `values` may be NULL when `count` is 0). A read of a queue of more
+ * than 31 values gets ILLEGAL DATA VALUE, as the protocol says. Returns 0; EINVAL
+ * for a bad argument.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `values` valid for `count` values.
+ */
+MODBUS_API int modbus_set_fifo_queue(modbus_t *ctx, int addr, const uint16_t *values, int count);
+
+/**
+ * rsmodbus extension (server): what function code 11 (report slave id) answers:
+ * the byte `slave_id` (0 to 255), the run indicator (0xFF when `run_status` is
+ * not 0, else 0x00) and the `length` bytes at `data` (0 to 249). A `slave_id` of
+ * -1 restores libmodbus's answer ("LMB" and the version). Returns 0; EINVAL for a
+ * bad argument.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `data` valid for `length` bytes (or NULL
+ * when `length` is 0).
+ */
+MODBUS_API
+int modbus_set_report_slave_id(modbus_t *ctx,
+                               int slave_id,
+                               int run_status,
+                               const uint8_t *data,
+                               int length);
+
+/**
  * rsmodbus extension: a context that speaks RTU frames (slave id, PDU, CRC) over a
  * TCP/IPv4 connection, as most serial-to-Ethernet gateways do. Set the slave with
  * `modbus_set_slave`; the rest works as on an RTU context (CRC checks, slave

@@ -147,6 +147,9 @@ pub struct Context {
     /// configuration calls), so their requests are framed whole. Off, a server
     /// frames and answers them exactly as libmodbus does.
     pub serves_extended: bool,
+    /// Length of header + PDU of the last diagnostics request sent on a serial
+    /// framing: its answer is as long, and its PDU says nothing of its length.
+    pub diagnostics_sent: Option<usize>,
     /// Server-side configuration and diagnostics state beyond libmodbus (see
     /// [`crate::server_ext`]); `None` until a server configuration call, so an
     /// unconfigured context is exactly libmodbus and pays nothing for it.
@@ -170,6 +173,7 @@ impl Context {
             handle_addr: 0,
             rx: ReadAhead::new(),
             serves_extended: false,
+            diagnostics_sent: None,
             server_ext: None,
         }
     }

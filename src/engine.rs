@@ -258,7 +258,8 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
         }
     }
     let mut budget = first_timeout(ctx, kind);
-    let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended);
+    let expecting = if kind == MsgKind::Confirmation { ctx.diagnostics_sent.take() } else { None };
+    let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended).expecting(expecting);
     let mut trace = String::new();
     // Bytes in `buf`: those the assembler took, then (reading ahead) any after them.
     let mut filled = 0;
@@ -298,6 +299,14 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
             continue;
         }
         if let Err(e) = wait_readable(ctx, budget.as_mut()) {
+            if e == Error::TIMED_OUT && asm.searching_crc() {
+                // The diagnostics request ended without a matching CRC: a bad frame.
+                if ctx.debug {
+                    trace.push('\n');
+                    flush_trace(ctx, &mut trace);
+                }
+                return check_integrity(ctx, &buf[..asm.len()]);
+            }
             flush_trace(ctx, &mut trace);
             error_print(ctx, e, Some("select"));
             recover_after_wait(ctx, e);
@@ -557,6 +566,7 @@ pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Resul
     }
     let mut out: AduBuf = [0; MAX_ADU_LENGTH];
     let n = build_request(g, req, &mut out);
+    note_diagnostics(g, &out[..n]);
     let sent = send_msg(g, &mut out, n)?;
     let received = receive_msg(g, rsp, MsgKind::Confirmation)?;
     let req_adu = &out[..sent];
@@ -607,7 +617,16 @@ pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
     let h = g.framing.write_header(&mut out, raw[0], tid);
     let pdu = &raw[1..];
     out[h..h + pdu.len()].copy_from_slice(pdu);
+    note_diagnostics(g, &out[..h + pdu.len()]);
     send_msg(g, &mut out, h + pdu.len())
+}
+
+/// Remembers the length of a diagnostics request about to go out on a serial
+/// framing, so that its answer can be framed (see `Context::diagnostics_sent`).
+fn note_diagnostics(ctx: &mut Context, unsealed: &[u8]) {
+    let h = ctx.framing.header_length();
+    ctx.diagnostics_sent = (ctx.framing != Framing::Tcp && unsealed.get(h) == Some(&crate::core::fc::DIAGNOSTICS))
+        .then_some(unsealed.len());
 }
 
 #[cfg(test)]

@@ -23,5 +23,6 @@ pub mod engine;
 pub mod error;
 pub mod ffi;
 pub mod server;
+pub mod server_ext;
 pub mod stdio;
 pub mod transport;

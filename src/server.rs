@@ -1,21 +1,31 @@
 //! Server flows: `modbus_receive`, `modbus_reply` and `modbus_reply_exception` over a
 //! locked context. The decisions are made by the sans-I/O core
-//! ([`crate::core::reply`]); this module only does what the outcome says, in
-//! libmodbus's order: sleep and flush, then send (or not, for an RTU broadcast).
+//! ([`crate::core::reply`], and [`crate::server_ext`] for a context configured
+//! beyond libmodbus); this module only does what the outcome says, in libmodbus's
+//! order: sleep and flush, then send (or not, for an RTU broadcast).
+//!
+//! A context with diagnostics enabled (`modbus_enable_diagnostics`) also reports
+//! here what happened on the line: frames and checksum errors from the receive,
+//! responses sent or not from the replies (see [`crate::core::diagnostics`]). A
+//! context without the extension pays one pointer test per call.
 
 use crate::context::Context;
 use crate::core::Diag;
+use crate::core::diagnostics::Delivery;
 use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::core::reply::{Mapping, Outcome, Server, exception_response};
 use crate::engine::{self, AduBuf, Guard, Received};
 use crate::error::{Error, Result, exception};
+use crate::server_ext::BusEvent;
 
 /// `modbus_receive`: waits for one request and returns its length, or 0 for a frame
 /// libmodbus filters out (RTU: addressed to another slave, or the answer of that
 /// slave which follows it on a shared bus).
 pub fn receive(g: &mut Guard<'_>, buf: &mut AduBuf) -> Result<usize> {
     if g.framing == Framing::Tcp {
-        return Ok(match engine::receive_msg(g, buf, MsgKind::Indication)? {
+        let r = engine::receive_msg(g, buf, MsgKind::Indication);
+        count_bus(g, &r);
+        return Ok(match r? {
             Received::Frame(len) => len,
             Received::Ignored(_) => 0,
         });
@@ -24,12 +34,15 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut AduBuf) -> Result<usize> {
     if ignore_next {
         // The reply of the slave addressed by the previous request: read it as a
         // confirmation, whatever happens, and drop it.
-        let _ = engine::receive_msg(g, buf, MsgKind::Confirmation);
+        let r = engine::receive_msg(g, buf, MsgKind::Confirmation);
+        count_bus(g, &r);
         set_confirmation_to_ignore(g, false);
         g.diag().out(format_args!("Confirmation to ignore\n"));
         return Ok(0);
     }
-    match engine::receive_msg(g, buf, MsgKind::Indication)? {
+    let r = engine::receive_msg(g, buf, MsgKind::Indication);
+    count_bus(g, &r);
+    match r? {
         Received::Frame(len) => Ok(len),
         Received::Ignored(_) => {
             set_confirmation_to_ignore(g, true);
@@ -38,21 +51,32 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut AduBuf) -> Result<usize> {
     }
 }
 
+/// Feeds the diagnostics counters (when enabled) with what a receive got.
+fn count_bus(ctx: &mut Context, r: &Result<Received>) {
+    let framing = ctx.framing;
+    let Some(ext) = ctx.server_ext.as_deref_mut() else { return };
+    let e = match r {
+        Ok(_) => BusEvent::Frame,
+        Err(e) if *e == Error::BAD_CRC => BusEvent::CommunicationError,
+        // ASCII: a frame that cannot be decoded; RTU and TCP: more bytes announced
+        // than the ADU holds.
+        Err(e) if *e == Error::BAD_DATA && framing == Framing::Ascii => BusEvent::CommunicationError,
+        Err(e) if *e == Error::BAD_DATA => BusEvent::CharacterOverrun,
+        Err(_) => return,
+    };
+    ext.bus_event(e);
+}
+
 fn set_confirmation_to_ignore(ctx: &mut Context, value: bool) {
     if let Some(link) = ctx.rtu_mut() {
         link.confirmation_to_ignore = value;
     }
 }
 
-/// `modbus_reply`: answers `req` (at most the bytes the request describes; see
-/// [`crate::core::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
-/// for a suppressed RTU broadcast.
-pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
-    let server = Server { framing: g.framing, quirks: g.quirks };
-    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
-    let outcome = server.reply(req, req_length, mapping, &mut g.diag(), &mut out);
+/// Carries out an outcome: flush first if asked, then send unless suppressed.
+fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usize>, Delivery) {
     match outcome {
-        Outcome::Fail(e) => Err(e),
+        Outcome::Fail(e) => (Err(e), Delivery::NotSent),
         Outcome::Respond { len, flush_first, suppressed, .. } => {
             if flush_first {
                 // The rest of a request libmodbus could not frame may still be arriving.
@@ -60,20 +84,54 @@ pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn M
                 let _ = engine::flush(g);
             }
             if suppressed {
-                return Ok(0);
+                return (Ok(0), Delivery::NotSent);
             }
-            engine::send_msg(g, &mut out, len)
+            match engine::send_msg(g, out, len) {
+                Ok(n) => (Ok(n), Delivery::Sent),
+                Err(e) => (Err(e), Delivery::SendFailed),
+            }
         }
     }
 }
 
+/// `modbus_reply`: answers `req` (at most the bytes the request describes; see
+/// [`crate::core::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
+/// for a suppressed RTU broadcast (and, with diagnostics, in listen-only mode).
+pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
+    let server = Server { framing: g.framing, quirks: g.quirks };
+    let mut sink = g.diag();
+    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
+    let Some(ext) = g.server_ext.as_deref_mut() else {
+        let outcome = server.reply(req, req_length, mapping, &mut sink, &mut out);
+        return perform(g, outcome, &mut out).0;
+    };
+    let answer = ext.reply(server, req, req_length, mapping, &mut sink, &mut out);
+    let (result, delivery) = perform(g, answer.outcome, &mut out);
+    if let Some(ext) = g.server_ext.as_deref_mut() {
+        ext.complete(&answer, delivery);
+    }
+    result
+}
+
 /// `modbus_reply_exception`: sends exception `code` (below `MODBUS_EXCEPTION_MAX`,
-/// else EINVAL) for `req`, without flushing and even for a broadcast.
+/// else EINVAL) for `req`, without flushing and even for a broadcast. With
+/// diagnostics in listen-only mode nothing is sent and 0 is returned.
 pub fn reply_exception(g: &mut Guard<'_>, req: &[u8], code: u32) -> Result<usize> {
     if code >= exception::MAX as u32 {
         return Err(Error::INVALID);
     }
+    let framing = g.framing;
+    if let Some(ext) = g.server_ext.as_deref_mut() {
+        if !ext.exception_request(framing, req) {
+            ext.exception_done(code as u8, Delivery::NotSent);
+            return Ok(0);
+        }
+    }
     let mut out: AduBuf = [0; MAX_ADU_LENGTH];
-    let len = exception_response(g.framing, req, code as u8, &mut out);
-    engine::send_msg(g, &mut out, len)
+    let len = exception_response(framing, req, code as u8, &mut out);
+    let r = engine::send_msg(g, &mut out, len);
+    if let Some(ext) = g.server_ext.as_deref_mut() {
+        ext.exception_done(code as u8, if r.is_ok() { Delivery::Sent } else { Delivery::SendFailed });
+    }
+    r
 }

@@ -165,10 +165,13 @@ pub const MEI_READ_DEVICE_ID: u8 = 0x0E;
 
 /// For an extended function code: the length of header + PDU as far as the first
 /// `msg.len()` bytes tell it. When the result equals `msg.len()` the PDU is whole;
-/// otherwise read up to the result and ask again. `mbap_total` is 6 + the MBAP length
-/// field on TCP (used only where the PDU itself has no length: FC 08 and MEI types
-/// other than device identification).
-pub fn extended_length(kind: MsgKind, h: usize, msg: &[u8], mbap_total: Option<usize>) -> usize {
+/// otherwise read up to the result and ask again. `known_total` is the length of
+/// header + PDU known from elsewhere, used only where the PDU itself has no length
+/// (FC 08 and MEI types other than device identification): 6 + the MBAP length field
+/// on TCP, or, for a response on a serial line, the length of the request it answers
+/// (every diagnostics answer is as long as its request).
+pub fn extended_length(kind: MsgKind, h: usize, msg: &[u8], known_total: Option<usize>) -> usize {
+    let mbap_total = known_total;
     let fc_end = h + 1;
     let at_least = |n: usize| n.max(msg.len());
     // Bytes up to a one-byte count at `at`, then the counted bytes.
@@ -237,6 +240,11 @@ pub struct Assembler {
     kind: MsgKind,
     /// Frame the function codes beyond libmodbus whole (see [`is_extended`]).
     extended: bool,
+    /// Length of header + PDU known from the request (see [`extended_length`]).
+    known_total: Option<usize>,
+    /// An RTU diagnostics request whose CRC did not match at its shortest length:
+    /// reading on, two bytes (one data word) at a time.
+    crc_search: bool,
     step: Step,
     length: usize,
     wanted: usize,
@@ -259,7 +267,29 @@ impl Assembler {
     /// not configured for them behaves exactly like libmodbus.
     pub fn new(framing: Framing, kind: MsgKind) -> Self {
         let extended = kind == MsgKind::Confirmation;
-        Assembler { framing, kind, extended, step: Step::Function, length: 0, wanted: framing.header_length() + 1 }
+        Assembler {
+            framing,
+            kind,
+            extended,
+            known_total: None,
+            crc_search: false,
+            step: Step::Function,
+            length: 0,
+            wanted: framing.header_length() + 1,
+        }
+    }
+
+    /// The length of header + PDU the response to a diagnostics request must have
+    /// (the request's own), for serial framings where the PDU carries no length.
+    pub fn expecting(mut self, total: Option<usize>) -> Self {
+        self.known_total = total;
+        self
+    }
+
+    /// True while an RTU diagnostics request is being extended in search of its CRC:
+    /// if the line goes quiet now, the frame ends here (and its CRC is bad).
+    pub fn searching_crc(&self) -> bool {
+        self.crc_search
     }
 
     /// Frames requests of the function codes beyond libmodbus whole, for a server
@@ -269,6 +299,20 @@ impl Assembler {
             self.extended = on;
         }
         self
+    }
+
+    /// A diagnostics request on RTU has no length field: "return query data" may
+    /// carry any number of words. It ends where its CRC matches; until then read one
+    /// more word, up to the largest ADU.
+    fn search_crc(&mut self, buf: &[u8]) -> Progress {
+        let frame = &buf[..self.length];
+        let matches = crate::core::crc::stored_crc(frame) == Some(crate::core::crc::crc16(&frame[..frame.len() - 2]));
+        if matches || self.length + 2 > self.framing.max_adu_length() {
+            self.crc_search = false;
+            return Progress::Complete(self.length);
+        }
+        self.wanted = 2;
+        Progress::NeedMore(2)
     }
 
     /// Bytes received so far.
@@ -299,9 +343,15 @@ impl Assembler {
         if self.step == Step::Function && self.extended && is_extended(self.kind, buf[h]) {
             self.step = Step::Extended;
         }
+        if self.crc_search {
+            return Ok(self.search_crc(buf));
+        }
         if self.step == Step::Extended {
-            let mbap_total = (self.framing == Framing::Tcp).then(|| 6 + (((buf[4] as usize) << 8) | buf[5] as usize));
-            let body = extended_length(self.kind, h, &buf[..self.length], mbap_total);
+            let known = match self.framing {
+                Framing::Tcp => Some(6 + (((buf[4] as usize) << 8) | buf[5] as usize)),
+                _ => self.known_total,
+            };
+            let body = extended_length(self.kind, h, &buf[..self.length], known);
             if body > self.length {
                 if body + self.framing.checksum_length() > self.framing.max_adu_length() {
                     return Err(Error::BAD_DATA);
@@ -312,6 +362,8 @@ impl Assembler {
             // The PDU is whole: only the checksum is left.
             self.step = Step::Data;
             self.wanted = self.framing.checksum_length();
+            self.crc_search =
+                self.framing == Framing::Rtu && self.kind == MsgKind::Indication && buf[h] == fc::DIAGNOSTICS;
             if self.wanted > 0 {
                 return Ok(Progress::NeedMore(self.wanted));
             }
@@ -460,6 +512,31 @@ mod tests {
         let mut a = Assembler::new(Framing::Rtu, MsgKind::Indication);
         a.received(&req[..2], 2).unwrap();
         assert_eq!(a.received(&req[..4], 2), Ok(Progress::Complete(4)));
+    }
+
+    #[test]
+    fn rtu_diagnostics_of_any_length() {
+        // Return query data with three words.
+        let frame = rtu(&[0x11, 0x08, 0x00, 0x00, 0x12, 0x34, 0x56, 0x78, 0x9A, 0xBC]);
+        // A client knows the answer's length from its request.
+        let asm = Assembler::new(Framing::Rtu, MsgKind::Confirmation).expecting(Some(10));
+        assert_eq!(feed(asm, &frame, 1), Ok(12));
+        // A server reads on, a word at a time, until the CRC matches.
+        for chunk in [1, 2, 256] {
+            assert_eq!(assemble_ext(Framing::Rtu, MsgKind::Indication, &frame, chunk), Ok(12));
+        }
+        // A one-word request is complete at once.
+        let short = rtu(&[0x11, 0x08, 0x00, 0x0B, 0x00, 0x00]);
+        assert_eq!(assemble_ext(Framing::Rtu, MsgKind::Indication, &short, 256), Ok(8));
+        // A corrupted one keeps searching (the engine ends it when the line goes
+        // quiet, as a CRC error).
+        let mut bad = short.clone();
+        bad[7] ^= 0xFF;
+        let mut a = Assembler::new(Framing::Rtu, MsgKind::Indication).extended_requests(true);
+        a.received(&bad[..2], 2).unwrap();
+        a.received(&bad[..6], 4).unwrap();
+        assert_eq!(a.received(&bad, 2), Ok(Progress::NeedMore(2)));
+        assert!(a.searching_crc());
     }
 
     #[test]

@@ -8,6 +8,7 @@ pub mod ascii;
 pub mod confirm;
 pub mod crc;
 pub mod data;
+pub mod diagnostics;
 pub mod frame;
 pub mod reply;
 pub mod request;

@@ -13,7 +13,8 @@
 //! the sleep-and-flush for "illegal number of values" and unknown functions, then the
 //! send, unless an RTU broadcast suppresses it.
 
-use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind, data_length, meta_length};
+use crate::core::crc::{crc16, stored_crc};
+use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind, data_length, extended_length, is_extended, meta_length};
 use crate::core::limits::*;
 use crate::core::{Diag, fc};
 use crate::error::{Error, exception};
@@ -130,16 +131,69 @@ pub fn exception_response(framing: Framing, req: &[u8], code: u8, out: &mut [u8;
 /// How many bytes of a caller's request buffer the reply may read: the length of the
 /// indication its own bytes describe (as `modbus_receive` frames it, from the function
 /// code and the byte counts), capped by the framing's maximum ADU and by `bound`.
+/// `extended` says that the server frames the function codes beyond libmodbus whole
+/// (`Context::serves_extended`); their length then comes from their own layout.
 /// `byte_at(i)` is only called for `i` below the returned length, so an FFI caller
 /// can read the buffer one byte at a time without ever going past what it vouches for.
-pub fn request_extent(framing: Framing, bound: usize, mut byte_at: impl FnMut(usize) -> u8) -> usize {
+pub fn request_extent(framing: Framing, extended: bool, bound: usize, mut byte_at: impl FnMut(usize) -> u8) -> usize {
     let cap = bound.min(framing.max_adu_length());
     let h = framing.header_length();
     if cap <= h {
         return cap;
     }
+    let function = byte_at(h);
+    if extended && function == fc::DIAGNOSTICS && bound != usize::MAX {
+        // Nothing in a diagnostics PDU tells its length ("return query data" may
+        // carry any number of words). An ASCII frame is delimited by its characters,
+        // so the received length is the request's; an RTU request ends where its
+        // CRC matches, one word at a time (as `modbus_receive` frames it).
+        match framing {
+            Framing::Ascii => return cap,
+            Framing::Rtu => {
+                let mut msg = [0u8; MAX_ADU_LENGTH];
+                let first = h + 1 + 4 + framing.checksum_length();
+                for (i, b) in msg.iter_mut().enumerate().take(first.min(cap)) {
+                    *b = if i == h { function } else { byte_at(i) };
+                }
+                let mut len = first;
+                while len <= cap {
+                    if stored_crc(&msg[..len]) == Some(crc16(&msg[..len - 2])) {
+                        return len;
+                    }
+                    for (i, b) in msg.iter_mut().enumerate().take((len + 2).min(cap)).skip(len) {
+                        *b = byte_at(i);
+                    }
+                    len += 2;
+                }
+                return cap;
+            }
+            Framing::Tcp => {}
+        }
+    }
+    if extended && is_extended(MsgKind::Indication, function) {
+        let mut msg = [0u8; MAX_ADU_LENGTH];
+        for (i, b) in msg.iter_mut().enumerate().take(h + 1) {
+            *b = if i == h { function } else { byte_at(i) };
+        }
+        let mbap_total = (framing == Framing::Tcp).then(|| 6 + u16::from_be_bytes([msg[4], msg[5]]) as usize);
+        let mut have = h + 1;
+        loop {
+            let want = extended_length(MsgKind::Indication, h, &msg[..have], mbap_total);
+            if want <= have {
+                return (want + framing.checksum_length()).min(cap);
+            }
+            let want = want.min(cap);
+            if want <= have {
+                return cap;
+            }
+            for (i, b) in msg.iter_mut().enumerate().take(want).skip(have) {
+                *b = byte_at(i);
+            }
+            have = want;
+        }
+    }
     let mut head = [0u8; 32];
-    head[h] = byte_at(h);
+    head[h] = function;
     let len = h + 1 + meta_length(MsgKind::Indication, head[h]);
     if len > cap {
         return cap;
@@ -1236,7 +1290,7 @@ mod tests {
     #[test]
     fn request_extent_follows_the_indication_parser() {
         let ext = |framing: Framing, req: &[u8], bound: usize| {
-            request_extent(framing, bound, |i| {
+            request_extent(framing, false, bound, |i| {
                 assert!(i < req.len().min(bound), "read past the bound: {i}");
                 req[i]
             })
@@ -1265,6 +1319,59 @@ mod tests {
         assert_eq!(s.exception(), None);
         let rtu = adu(R, 1, &wr_pdu(0, 1, 0, 1, 255, &[0; 128]));
         assert_eq!(ext(R, &rtu, big), 256);
+    }
+
+    #[test]
+    fn request_extent_of_extended_requests() {
+        let ext = |framing: Framing, extended: bool, req: &[u8], bound: usize| {
+            request_extent(framing, extended, bound, |i| {
+                assert!(i < req.len().min(bound), "read past the bound: {i}");
+                req[i]
+            })
+        };
+        let big = usize::MAX;
+        // Diagnostics: RTU one word; TCP as the MBAP length says.
+        let rtu = adu(R, 1, &[0x08, 0, 0, 0xA5, 0x37]);
+        assert_eq!(ext(R, true, &rtu, big), 8);
+        assert_eq!(ext(R, false, &rtu, big), 4, "libmodbus framing when not served");
+        let tcp = adu(T, 1, &[0x08, 0, 0, 1, 2, 3, 4, 5, 6]);
+        assert_eq!(ext(T, true, &tcp, big), 16);
+        assert_eq!(ext(T, false, &tcp, big), 8);
+        // File records by their byte count, FIFO and device identification fixed.
+        let rd = adu(R, 1, &[0x14, 7, 6, 0, 1, 0, 0, 0, 2]);
+        assert_eq!(ext(R, true, &rd, big), rd.len());
+        let wr = adu(T, 1, &[0x15, 9, 6, 0, 1, 0, 0, 0, 1, 0xAB, 0xCD]);
+        assert_eq!(ext(T, true, &wr, big), wr.len());
+        assert_eq!(ext(T, true, &adu(T, 1, &[0x18, 0, 1]), big), 10);
+        assert_eq!(ext(R, true, &adu(R, 1, &[0x2B, 0x0E, 1, 0]), big), 7);
+        // Bounded by the caller's length and by the ADU.
+        assert_eq!(ext(R, true, &rd, 5), 5);
+        assert_eq!(ext(R, true, &rd, 2), 2);
+        assert_eq!(ext(T, true, &tcp, 13), 13);
+        let mut huge = adu(T, 1, &[0x08, 0, 0]);
+        huge[4] = 0xFF;
+        huge.resize(300, 0);
+        assert_eq!(ext(T, true, &huge, big), 260);
+        let mut counted = adu(R, 1, &[0x15, 255]);
+        counted.resize(300, 0);
+        assert_eq!(ext(R, true, &counted, big), 256);
+        // Other function codes are unaffected.
+        assert_eq!(ext(T, true, &adu(T, 1, &read_pdu(3, 0, 1)), big), 12);
+        // RTU diagnostics: where the CRC matches, within the caller's length.
+        let three_words = adu(R, 1, &[0x08, 0, 0, 1, 2, 3, 4, 5, 6]);
+        assert_eq!(ext(R, true, &three_words, three_words.len()), 12);
+        let mut padded = three_words.clone();
+        padded.extend([0xEE; 20]);
+        assert_eq!(ext(R, true, &padded, padded.len()), 12);
+        assert_eq!(ext(R, true, &three_words, 11), 11, "no match: the caller's length");
+        assert_eq!(ext(R, true, &three_words, 7), 7);
+        assert_eq!(ext(R, true, &three_words, big), 8, "no length given: one word");
+        // ASCII diagnostics: the received length when the caller gives it.
+        let mut ascii = vec![1, 0x08, 0, 0, 1, 2, 3, 4];
+        ascii.push(crate::core::ascii::lrc(&ascii));
+        assert_eq!(ext(Framing::Ascii, true, &ascii, ascii.len()), 9);
+        assert_eq!(ext(Framing::Ascii, true, &ascii, big), 7);
+        assert_eq!(ext(Framing::Ascii, false, &ascii, ascii.len()), 3);
     }
 
     /// Deterministic pseudo-random requests of every shape: the reply never panics,

@@ -5,16 +5,18 @@
 //! Where libmodbus would dereference a NULL pointer (request buffer, mapping, the
 //! accept socket pointer) these give EINVAL, or an empty table for a NULL mapping.
 
-use std::ffi::{c_int, c_uint};
+use std::ffi::{CStr, c_char, c_int, c_uint};
 use std::mem::{offset_of, size_of};
 use std::ptr;
 use std::slice;
 
+use crate::core::diagnostics::Diagnostics;
 use crate::core::frame::MAX_ADU_LENGTH;
 use crate::core::reply::{Mapping, Table, request_extent};
-use crate::engine::AduBuf;
-use crate::error::Error;
+use crate::engine::{AduBuf, Guard};
+use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail, status, with_ctx};
+use crate::server_ext::ServerExt;
 use crate::transport::listen;
 
 /// The data a server exposes (`modbus_mapping_t`): four tables, each with its size
@@ -277,7 +279,7 @@ pub unsafe extern "C" fn modbus_reply(
             let bound = if req_length < 0 { usize::MAX } else { req_length as usize };
             // SAFETY: request_extent only asks for bytes inside the request as its own
             // header describes it (and below a non-negative req_length).
-            let extent = request_extent(g.framing, bound, |i| *req.add(i));
+            let extent = request_extent(g.framing, g.serves_extended, bound, |i| *req.add(i));
             // SAFETY: the same bytes, now as one slice.
             let req = slice::from_raw_parts(req, extent);
             let mut mapping = CMapping(mb_mapping);
@@ -379,6 +381,308 @@ pub unsafe extern "C" fn modbus_tcp_pi_listen(ctx: *mut Modbus, nb_connection: c
 pub unsafe extern "C" fn modbus_tcp_pi_accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
     // SAFETY: forwarded caller contract.
     unsafe { accept(ctx, s) }
+}
+
+// ---------------------------------------------------------------- beyond libmodbus
+
+/// Runs `f` on the context's server extension (created on first use), then drops
+/// it again if nothing is configured and updates how requests are framed.
+fn configure(g: &mut Guard<'_>, f: impl FnOnce(&mut ServerExt) -> Result<c_int>) -> Result<c_int> {
+    let ext = g.server_ext.get_or_insert_with(Default::default);
+    let r = f(ext);
+    if ext.is_idle() {
+        g.server_ext = None;
+    }
+    g.serves_extended = g.server_ext.as_ref().is_some_and(|e| e.needs_extended_framing());
+    r
+}
+
+/// The diagnostics state, or EINVAL when diagnostics are off.
+fn diagnostics<'a>(g: &'a mut Guard<'_>) -> Result<&'a mut Diagnostics> {
+    g.server_ext.as_deref_mut().and_then(ServerExt::diagnostics_mut).ok_or(Error::INVALID)
+}
+
+/// rsmodbus extension (server): turns the serial-line diagnostics of this server
+/// context on (`enable` != 0) or off. On, `modbus_receive` and `modbus_reply` keep
+/// the eight bus counters, the comm event counter and the 64-entry event log, and
+/// `modbus_reply` answers function codes 08 (every diagnostics sub-function,
+/// listen-only mode included), 0B and 0C. Turning it on starts from zero; off
+/// forgets everything and answers those codes as libmodbus does. Returns 0.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_enable_diagnostics(ctx: *mut Modbus, enable: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            configure(g, |e| {
+                e.enable_diagnostics(enable != 0);
+                Ok(0)
+            })
+        })
+    }
+}
+
+/// rsmodbus extension (server): reads into `*value` what diagnostics sub-function
+/// `sub_function` reports: 0x02 the diagnostic register, 0x03 the ASCII input
+/// delimiter, 0x04 1 in listen-only mode (else 0), 0x0B to 0x12 the bus message,
+/// bus communication error, bus exception error, server message, server no
+/// response, server NAK, server busy and bus character overrun counters. Returns 0;
+/// EINVAL when diagnostics are off or for another sub-function.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `value` NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_diagnostics(ctx: *mut Modbus, sub_function: c_int, value: *mut u16) -> c_int {
+    if value.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let d = diagnostics(g)?;
+            let sub = u16::try_from(sub_function).map_err(|_| Error::INVALID)?;
+            // SAFETY: `value` is non-NULL and writable per the caller.
+            *value = d.get(sub).ok_or(Error::INVALID)?;
+            Ok(0)
+        })
+    }
+}
+
+/// rsmodbus extension (server): the comm event counter into `*event_count`, the
+/// message count (bus messages) into `*message_count` (each may be NULL), and up to
+/// `max_events` bytes of the event log, newest first, into `events`. Returns the
+/// number of events in the log (0 to 64); EINVAL when diagnostics are off.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; the counter pointers NULL or writable;
+/// `events` valid for `max_events` bytes (or NULL when `max_events` is 0).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_event_log(
+    ctx: *mut Modbus,
+    event_count: *mut u16,
+    message_count: *mut u16,
+    events: *mut u8,
+    max_events: c_int,
+) -> c_int {
+    if max_events < 0 || (max_events > 0 && events.is_null()) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let d = diagnostics(g)?;
+            if let Some(p) = event_count.as_mut() {
+                *p = d.event_counter();
+            }
+            if let Some(p) = message_count.as_mut() {
+                *p = d.message_count();
+            }
+            let log = d.events();
+            let n = log.len().min(max_events as usize);
+            if n > 0 {
+                // SAFETY: `events` holds `max_events` >= n bytes per the caller.
+                slice::from_raw_parts_mut(events, n).copy_from_slice(&log[..n]);
+            }
+            Ok(log.len() as c_int)
+        })
+    }
+}
+
+/// rsmodbus extension (server): sets the application's bits of the diagnostic
+/// register that sub-function 0x02 returns (bit 0 also reads as 1 while the
+/// character overrun flag is set). Sub-function 0x0A clears it. Returns 0; EINVAL
+/// when diagnostics are off.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_diagnostic_register(ctx: *mut Modbus, value: u16) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            diagnostics(g)?.set_register(value);
+            Ok(0)
+        })
+    }
+}
+
+/// rsmodbus extension (server): the byte function code 07 (read exception status)
+/// answers, 0 to 255; -1 restores libmodbus's behaviour (no answer, `modbus_reply`
+/// fails with ENOPROTOOPT). Returns 0; EINVAL for another value.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_exception_status(ctx: *mut Modbus, status: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let status = match status {
+                -1 => None,
+                0..=0xFF => Some(status as u8),
+                _ => return Err(Error::INVALID),
+            };
+            configure(g, |e| {
+                e.set_exception_status(status);
+                Ok(0)
+            })
+        })
+    }
+}
+
+/// rsmodbus extension (server): sets device identification object `object_id`
+/// (function code 2B / MEI 0E) to the `length` bytes at `value`, or to the
+/// NUL-terminated string `value` when `length` is -1; a NULL `value` removes the
+/// object. Ids 0x00-0x02 are the basic objects (VendorName, ProductCode,
+/// MajorMinorRevision; served empty while unset), 0x03-0x06 the regular ones,
+/// 0x80-0xFF the extended ones; 0x07-0x7F are reserved. At most 244 bytes. The
+/// first object enables device identification; removing the last disables it.
+/// Returns 0; EINVAL for a bad id or length.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `value` NULL, a NUL-terminated string
+/// (`length` -1), or valid for `length` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_device_identification(
+    ctx: *mut Modbus,
+    object_id: c_int,
+    value: *const c_char,
+    length: c_int,
+) -> c_int {
+    let bytes: Option<&[u8]> = if value.is_null() {
+        None
+    } else if length == -1 {
+        // SAFETY: a NUL-terminated string per the caller.
+        Some(unsafe { CStr::from_ptr(value) }.to_bytes())
+    } else if length >= 0 {
+        // SAFETY: `length` readable bytes per the caller.
+        Some(unsafe { slice::from_raw_parts(value.cast::<u8>(), length as usize) })
+    } else {
+        return fail(Error::INVALID);
+    };
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| configure(g, |e| e.set_device_identification(object_id, bytes).map(|()| 0))) }
+}
+
+/// rsmodbus extension (server): the conformity level device identification
+/// answers: 0x01, 0x02, 0x03 (basic, regular, extended; stream access only) or
+/// 0x81, 0x82, 0x83 (the same with individual access). Stream requests for a
+/// higher category get the objects up to the declared one; without the 0x80 bit,
+/// individual access is refused. 0 (the default) derives it from the objects set.
+/// Returns 0; EINVAL for another value.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_conformity_level(ctx: *mut Modbus, level: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| configure(g, |e| e.set_conformity_level(level).map(|()| 0))) }
+}
+
+/// rsmodbus extension (server): writes `nb` registers from `src` (zeros when `src`
+/// is NULL) into file `file` (1 to 65535) from record `record` (0 to 9999) of the
+/// records function codes 14 and 15 serve. The file is created, or grown to
+/// `record + nb` records (at most 10000), as needed. Returns `nb`; EINVAL for a bad
+/// argument.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `src` NULL or valid for `nb` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_file_record(
+    ctx: *mut Modbus,
+    file: c_int,
+    record: c_int,
+    nb: c_int,
+    src: *const u16,
+) -> c_int {
+    if nb < 1 {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: `nb` readable values per the caller.
+    let values = (!src.is_null()).then(|| unsafe { slice::from_raw_parts(src, nb as usize) });
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| configure(g, |e| e.set_file_record(file, record, nb, values).map(|()| nb))) }
+}
+
+/// rsmodbus extension (server): copies `nb` registers of file `file` from record
+/// `record` into `dest` (what clients wrote with function code 15, for example).
+/// Returns `nb`; EINVAL when the file does not hold them.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` valid for `nb` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_file_record(
+    ctx: *mut Modbus,
+    file: c_int,
+    record: c_int,
+    nb: c_int,
+    dest: *mut u16,
+) -> c_int {
+    if dest.is_null() || nb < 1 {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let ext = g.server_ext.as_deref().ok_or(Error::INVALID)?;
+            // SAFETY: `dest` holds `nb` values per the caller.
+            let dest = slice::from_raw_parts_mut(dest, nb as usize);
+            ext.get_file_record(file, record, dest).map(|()| nb)
+        })
+    }
+}
+
+/// rsmodbus extension (server): the FIFO queue function code 18 reads at pointer
+/// address `addr` (0 to 65535): a copy of the `count` values at `values` (count 0
+/// to 65535; `values` may be NULL when `count` is 0). A read of a queue of more
+/// than 31 values gets ILLEGAL DATA VALUE, as the protocol says. Returns 0; EINVAL
+/// for a bad argument.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `values` valid for `count` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_fifo_queue(
+    ctx: *mut Modbus,
+    addr: c_int,
+    values: *const u16,
+    count: c_int,
+) -> c_int {
+    if count < 0 || (count > 0 && values.is_null()) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: `count` readable values per the caller.
+    let values = if count > 0 { unsafe { slice::from_raw_parts(values, count as usize) } } else { &[] };
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| configure(g, |e| e.set_fifo_queue(addr, values).map(|()| 0))) }
+}
+
+/// rsmodbus extension (server): what function code 11 (report slave id) answers:
+/// the byte `slave_id` (0 to 255), the run indicator (0xFF when `run_status` is
+/// not 0, else 0x00) and the `length` bytes at `data` (0 to 249). A `slave_id` of
+/// -1 restores libmodbus's answer ("LMB" and the version). Returns 0; EINVAL for a
+/// bad argument.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `data` valid for `length` bytes (or NULL
+/// when `length` is 0).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_report_slave_id(
+    ctx: *mut Modbus,
+    slave_id: c_int,
+    run_status: c_int,
+    data: *const u8,
+    length: c_int,
+) -> c_int {
+    if !(-1..=0xFF).contains(&slave_id) || length < 0 || (length > 0 && data.is_null()) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: `length` readable bytes per the caller.
+    let data = if length > 0 { unsafe { slice::from_raw_parts(data, length as usize) } } else { &[] };
+    let answer = (slave_id >= 0).then_some((slave_id as u8, run_status != 0, data));
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| configure(g, |e| e.set_report_slave_id(answer).map(|()| 0))) }
 }
 
 #[cfg(test)]
@@ -733,6 +1037,189 @@ mod tests {
             } else {
                 assert_eq!(errno(), 12345);
             }
+        }
+    }
+
+    // ------------------------------------------------------------ beyond libmodbus
+
+    #[test]
+    fn extended_requests_are_framed_whole_only_once_configured() {
+        let (ours, peer) = socket_pair();
+        let ctx = tcp(ours);
+        let mut buf = [0u8; 260];
+        let diag = [0, 1, 0, 0, 0, 6, 0xFF, 0x08, 0, 0, 0x12, 0x34];
+        // SAFETY: live handle, a 260-byte buffer.
+        unsafe {
+            // Unconfigured: libmodbus's framing (up to the function code) and answer.
+            write_all(peer, &diag);
+            assert_eq!(modbus_receive(ctx.0, buf.as_mut_ptr()), 8);
+            assert_eq!(modbus_reply(ctx.0, buf.as_ptr(), 8, ptr::null_mut()), 9);
+            assert_eq!(read_some(peer), [0, 1, 0, 0, 0, 3, 0xFF, 0x88, 1]);
+            // Configured: the whole request, echoed.
+            assert_eq!(modbus_enable_diagnostics(ctx.0, 1), 0);
+            write_all(peer, &diag);
+            assert_eq!(modbus_receive(ctx.0, buf.as_mut_ptr()), 12);
+            assert_eq!(modbus_reply(ctx.0, buf.as_ptr(), 12, ptr::null_mut()), 12);
+            assert_eq!(read_some(peer), diag);
+            // -1 as req_length: the extent comes from the request (MBAP length here).
+            assert_eq!(modbus_reply(ctx.0, buf.as_ptr(), -1, ptr::null_mut()), 12);
+            assert_eq!(read_some(peer), diag);
+            // A req_length shorter than the request: an odd byte of data, ILLEGAL DATA VALUE.
+            assert_eq!(modbus_reply(ctx.0, buf.as_ptr(), 11, ptr::null_mut()), 9);
+            assert_eq!(read_some(peer), [0, 1, 0, 0, 0, 3, 0xFF, 0x88, 3]);
+            // Off again: back to libmodbus.
+            assert_eq!(modbus_enable_diagnostics(ctx.0, 0), 0);
+            write_all(peer, &diag);
+            assert_eq!(modbus_receive(ctx.0, buf.as_mut_ptr()), 8);
+            let g = (*ctx.0).ctx.lock();
+            assert!(g.server_ext.is_none() && !g.serves_extended);
+        }
+        close(peer);
+        close(ours);
+    }
+
+    #[test]
+    fn diagnostics_follow_receive_and_reply() {
+        let (ours, peer) = socket_pair();
+        let ctx = rtu(ours, 17);
+        let mut buf = [0u8; 256];
+        let m = modbus_mapping_new(0, 0, 4, 0);
+        // SAFETY: live handle, a 256-byte buffer, a live mapping.
+        unsafe {
+            assert_eq!(modbus_enable_diagnostics(ctx.0, 1), 0);
+            let mut exchange = |frame: &[u8]| {
+                write_all(peer, frame);
+                let rc = modbus_receive(ctx.0, buf.as_mut_ptr());
+                let sent = if rc > 0 { modbus_reply(ctx.0, buf.as_ptr(), rc, m) } else { rc };
+                (rc, sent, read_some(peer))
+            };
+            let read = with_crc(vec![17, 3, 0, 0, 0, 1]);
+            assert_eq!(exchange(&read).1, 7);
+            // Another slave's request and its answer: bus messages only.
+            assert_eq!(exchange(&with_crc(vec![5, 3, 0, 0, 0, 1])).0, 0);
+            assert_eq!(exchange(&with_crc(vec![5, 3, 2, 0, 0])).0, 0);
+            // A CRC error.
+            let mut bad = read.clone();
+            bad[6] ^= 0xFF;
+            assert_eq!(exchange(&bad).0, -1);
+            // An exception (address 9) and a broadcast write.
+            assert_eq!(exchange(&with_crc(vec![17, 3, 0, 9, 0, 1])).2, with_crc(vec![17, 0x83, 2]));
+            assert_eq!(exchange(&with_crc(vec![0, 6, 0, 1, 0, 7])).1, 0);
+            let mut v = 0u16;
+            let want = [(0x0B, 6), (0x0C, 1), (0x0D, 1), (0x0E, 3), (0x0F, 1), (0x10, 0), (0x11, 0), (0x12, 0)];
+            for (sub, value) in want {
+                assert_eq!(modbus_get_diagnostics(ctx.0, sub, &mut v), 0);
+                assert_eq!(v, value, "sub-function 0x{sub:X}");
+            }
+            let (mut events, mut messages) = (0u16, 0u16);
+            let mut log = [0u8; 64];
+            assert_eq!(modbus_get_event_log(ctx.0, &mut events, &mut messages, log.as_mut_ptr(), 64), 7);
+            assert_eq!((events, messages), (2, 6));
+            assert_eq!(log[..7], [0x40, 0xC0, 0x41, 0x80, 0x82, 0x40, 0x80]);
+            assert_eq!(modbus_get_event_log(ctx.0, ptr::null_mut(), ptr::null_mut(), ptr::null_mut(), 0), 7);
+            assert_eq!(modbus_get_event_log(ctx.0, ptr::null_mut(), ptr::null_mut(), log.as_mut_ptr(), 2), 7);
+            // Listen-only mode from the wire, then modbus_reply_exception is silent too.
+            assert_eq!(exchange(&with_crc(vec![17, 8, 0, 4, 0, 0])).1, 0);
+            assert_eq!(modbus_get_diagnostics(ctx.0, 4, &mut v), 0);
+            assert_eq!(v, 1);
+            assert_eq!(exchange(&read).2, Vec::<u8>::new());
+            assert_eq!(modbus_reply_exception(ctx.0, read.as_ptr(), 6), 0);
+            assert!(read_some(peer).is_empty());
+            // Restart: no answer, out of listen-only mode.
+            let (_, sent, answer) = exchange(&with_crc(vec![17, 8, 0, 1, 0xFF, 0]));
+            assert_eq!((sent, answer), (0, vec![]));
+            assert_eq!(modbus_get_event_log(ctx.0, ptr::null_mut(), ptr::null_mut(), log.as_mut_ptr(), 64), 1);
+            assert_eq!(log[0], 0);
+            assert_eq!(exchange(&read).1, 7);
+            // modbus_reply_exception counts busy and NAK.
+            assert_eq!(modbus_reply_exception(ctx.0, read.as_ptr(), 6), 5);
+            assert_eq!(modbus_reply_exception(ctx.0, read.as_ptr(), 7), 5);
+            let _ = read_some(peer);
+            for (sub, value) in [(0x0D, 2), (0x10, 1), (0x11, 1)] {
+                modbus_get_diagnostics(ctx.0, sub, &mut v);
+                assert_eq!(v, value);
+            }
+            assert_eq!(modbus_set_diagnostic_register(ctx.0, 0x1234), 0);
+            modbus_get_diagnostics(ctx.0, 2, &mut v);
+            assert_eq!(v, 0x1234);
+            // Argument errors.
+            for sub in [-1, 0, 1, 5, 0x13, 0x14, 0x10000] {
+                assert_eq!(modbus_get_diagnostics(ctx.0, sub, &mut v), -1, "{sub}");
+                assert_eq!(errno(), libc::EINVAL);
+            }
+            assert_eq!(modbus_get_diagnostics(ctx.0, 0x0B, ptr::null_mut()), -1);
+            assert_eq!(modbus_get_event_log(ctx.0, ptr::null_mut(), ptr::null_mut(), ptr::null_mut(), 1), -1);
+            assert_eq!(modbus_get_event_log(ctx.0, ptr::null_mut(), ptr::null_mut(), log.as_mut_ptr(), -1), -1);
+            assert_eq!(modbus_enable_diagnostics(ctx.0, 0), 0);
+            assert_eq!(modbus_get_diagnostics(ctx.0, 0x0B, &mut v), -1);
+            assert_eq!(modbus_get_event_log(ctx.0, ptr::null_mut(), ptr::null_mut(), ptr::null_mut(), 0), -1);
+            assert_eq!(modbus_set_diagnostic_register(ctx.0, 1), -1);
+            assert_eq!(modbus_enable_diagnostics(ptr::null_mut(), 1), -1);
+            modbus_mapping_free(m);
+        }
+        close(peer);
+        close(ours);
+    }
+
+    #[test]
+    fn configuration_exports() {
+        let ctx = tcp(-1);
+        let mut regs = [0u16; 4];
+        // SAFETY: live handle; pointers to live locals.
+        unsafe {
+            let g = |c: &Ctx| {
+                let g = (*c.0).ctx.lock();
+                (g.server_ext.is_some(), g.serves_extended)
+            };
+            assert_eq!(modbus_set_exception_status(ctx.0, 0x6D), 0);
+            assert_eq!(g(&ctx), (true, false));
+            for bad in [-2, 256] {
+                assert_eq!(modbus_set_exception_status(ctx.0, bad), -1);
+                assert_eq!(errno(), libc::EINVAL);
+            }
+            assert_eq!(modbus_set_exception_status(ctx.0, -1), 0);
+            assert_eq!(g(&ctx), (false, false));
+            // Report slave id.
+            assert_eq!(modbus_set_report_slave_id(ctx.0, 0x55, 1, b"abc".as_ptr(), 3), 0);
+            assert_eq!(modbus_set_report_slave_id(ctx.0, 256, 1, ptr::null(), 0), -1);
+            assert_eq!(modbus_set_report_slave_id(ctx.0, 1, 1, ptr::null(), 1), -1);
+            assert_eq!(modbus_set_report_slave_id(ctx.0, 1, 1, [0u8; 250].as_ptr(), 250), -1);
+            assert_eq!(modbus_set_report_slave_id(ctx.0, -1, 0, ptr::null(), 0), 0);
+            assert_eq!(g(&ctx), (false, false));
+            // Device identification: C strings and byte runs.
+            assert_eq!(modbus_set_device_identification(ctx.0, 0, c"ACME".as_ptr(), -1), 0);
+            assert_eq!(g(&ctx), (true, true));
+            assert_eq!(modbus_set_device_identification(ctx.0, 0x80, b"\0\x01".as_ptr().cast(), 2), 0);
+            assert_eq!(modbus_set_device_identification(ctx.0, 0x07, c"x".as_ptr(), -1), -1);
+            assert_eq!(modbus_set_device_identification(ctx.0, 0, c"x".as_ptr(), -2), -1);
+            assert_eq!(modbus_set_device_identification(ctx.0, 1, [b'x'; 245].as_ptr().cast(), 245), -1);
+            assert_eq!(modbus_set_conformity_level(ctx.0, 0x84), -1);
+            assert_eq!(modbus_set_conformity_level(ctx.0, 0x82), 0);
+            assert_eq!(modbus_set_conformity_level(ctx.0, 0), 0);
+            assert_eq!(modbus_set_device_identification(ctx.0, 0, ptr::null(), 0), 0);
+            assert_eq!(modbus_set_device_identification(ctx.0, 0x80, ptr::null(), 0), 0);
+            assert_eq!(g(&ctx), (false, false));
+            // Files.
+            assert_eq!(modbus_set_file_record(ctx.0, 1, 10, 2, [7u16, 8].as_ptr()), 2);
+            assert_eq!(g(&ctx), (true, true));
+            assert_eq!(modbus_get_file_record(ctx.0, 1, 9, 4, regs.as_mut_ptr()), -1);
+            assert_eq!(modbus_get_file_record(ctx.0, 1, 9, 3, regs.as_mut_ptr()), 3);
+            assert_eq!(regs[..3], [0, 7, 8]);
+            assert_eq!(modbus_set_file_record(ctx.0, 1, 0, 0, ptr::null()), -1);
+            assert_eq!(modbus_set_file_record(ctx.0, 0, 0, 1, ptr::null()), -1);
+            assert_eq!(modbus_set_file_record(ctx.0, 1, 9999, 2, ptr::null()), -1);
+            assert_eq!(modbus_get_file_record(ctx.0, 1, 0, 1, ptr::null_mut()), -1);
+            assert_eq!(modbus_get_file_record(ctx.0, 2, 0, 1, regs.as_mut_ptr()), -1);
+            // FIFO queues.
+            assert_eq!(modbus_set_fifo_queue(ctx.0, 3, ptr::null(), 0), 0);
+            assert_eq!(modbus_set_fifo_queue(ctx.0, 3, ptr::null(), 1), -1);
+            assert_eq!(modbus_set_fifo_queue(ctx.0, 3, regs.as_ptr(), -1), -1);
+            assert_eq!(modbus_set_fifo_queue(ctx.0, 0x10000, regs.as_ptr(), 1), -1);
+            // NULL contexts.
+            assert_eq!(modbus_set_fifo_queue(ptr::null_mut(), 0, ptr::null(), 0), -1);
+            assert_eq!(modbus_set_exception_status(ptr::null_mut(), 0), -1);
+            assert_eq!(modbus_get_file_record(ptr::null_mut(), 1, 0, 1, regs.as_mut_ptr()), -1);
+            assert_eq!(errno(), libc::EINVAL);
         }
     }
 }

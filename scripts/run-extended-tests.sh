@@ -1,0 +1,228 @@
+#!/usr/bin/env bash
+# run-extended-tests.sh: rsmodbus' client calls for the function codes beyond
+# libmodbus (07, 08 and every diagnostics sub-function, 0B, 0C, 11, 14, 15, 18, 2B/0E)
+# against rsmodbus' server side of them (c-tests/extended/ext-test.c), including
+# listen-only mode, exact counters after known traffic and the event log contents.
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+#
+# Transports: TCP, RTU over TCP, RTU over a pty pair, ASCII over a pty pair (socat).
+# Server modes: fully configured; FIFO-only and unconfigured (the rest keeps
+# libmodbus' answers). Every program is built with -Wall -Wextra -Werror against our
+# headers, reports the libmodbus.so.5 it mapped (/proc/self/maps), and the runner
+# requires it to be ours. The fully configured TCP and RTU runs are repeated under
+# valgrind memcheck when it is installed. Every process started here is stopped by
+# its PID.
+#
+# usage: scripts/run-extended-tests.sh [--no-cargo] [--no-valgrind] [--only REGEX]
+# Output goes to target/ext-tests (logs/ per run). The last line is
+# "N passed, M failed"; the exit status is non-zero if M > 0.
+set -u
+set -o pipefail
+
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+SRC=$ROOT/c-tests/extended
+OUT=${EXTTEST_OUT:-$ROOT/target/ext-tests}
+LOGS=$OUT/logs
+LIBDIR=$ROOT/target/release
+
+RUN_CARGO=1
+VALGRIND=1
+ONLY=""
+while [ $# -gt 0 ]; do
+    case "$1" in
+    --no-cargo) RUN_CARGO=0 ;;
+    --no-valgrind) VALGRIND=0 ;;
+    --only) shift; ONLY=$1 ;;
+    -h | --help) sed -n '2,/^set -u/p' "$0" | sed '$d'; exit 0 ;;
+    *) echo "unknown option $1" >&2; exit 2 ;;
+    esac
+    shift
+done
+
+PASS=0
+FAIL=0
+declare -a FAILED=()
+result() { # result NAME PASS|FAIL [detail]
+    if [ "$2" = PASS ]; then
+        PASS=$((PASS + 1))
+    else
+        FAIL=$((FAIL + 1))
+        FAILED+=("$1${3:+: $3}")
+    fi
+    printf '%-4s %s%s\n' "$2" "$1" "${3:+  ($3)}"
+}
+section() { printf '\n=== %s ===\n' "$*"; }
+selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
+
+# ------------------------------------------------------------ processes we start
+declare -a PIDS=()
+forget_pid() {
+    local keep=() p
+    for p in "${PIDS[@]}"; do [ "$p" = "$1" ] || keep+=("$p"); done
+    PIDS=("${keep[@]}")
+}
+stop_pid() { # stop_pid PID: TERM, then KILL after 3 s, then reap
+    local pid=$1 i
+    [ -n "$pid" ] || return 0
+    if kill -0 "$pid" 2>/dev/null; then
+        kill "$pid" 2>/dev/null
+        for i in $(seq 1 30); do
+            kill -0 "$pid" 2>/dev/null || break
+            sleep 0.1
+        done
+        kill -9 "$pid" 2>/dev/null
+    fi
+    wait "$pid" 2>/dev/null
+    forget_pid "$pid"
+}
+cleanup() {
+    local p
+    for p in "${PIDS[@]}"; do stop_pid "$p"; done
+}
+trap cleanup EXIT
+trap 'echo "interrupted"; exit 130' INT TERM
+
+# ------------------------------------------------------------ build
+section "build"
+if [ $RUN_CARGO = 1 ]; then
+    if (cd "$ROOT" && cargo build --release 2>&1 | tail -n 2); then
+        result "cargo build --release" PASS
+    else
+        result "cargo build --release" FAIL
+    fi
+fi
+if [ -f "$LIBDIR/libmodbus.so" ] && [ ! -e "$LIBDIR/libmodbus.so.5" ]; then
+    ln -s libmodbus.so "$LIBDIR/libmodbus.so.5"
+fi
+OURS_LIB=$(readlink -f "$LIBDIR/libmodbus.so.5" 2>/dev/null || true)
+if [ -z "$OURS_LIB" ] || [ ! -f "$OURS_LIB" ]; then
+    result "our libmodbus.so.5" FAIL "missing in $LIBDIR"
+    echo "$PASS passed, $FAIL failed"
+    exit 1
+fi
+echo "ours: $OURS_LIB"
+rm -rf "$OUT"
+mkdir -p "$OUT" "$LOGS"
+BIN=$OUT/ext-test
+# Our headers: the server configuration calls are rsmodbus extensions.
+if gcc -Wall -Wextra -Werror -O1 -g -I"$ROOT/include" -o "$BIN" "$SRC/ext-test.c" "$ROOT/c-tests/common/libinfo.c" \
+    -L"$LIBDIR" -lmodbus -ldl >"$LOGS/build.log" 2>&1; then
+    result "build c-tests/extended/ext-test.c (-Wall -Wextra -Werror)" PASS
+else
+    result "build c-tests/extended/ext-test.c" FAIL "see $LOGS/build.log"
+    sed 's/^/    | /' "$LOGS/build.log" | head -n 20
+    echo "$PASS passed, $FAIL failed"
+    exit 1
+fi
+
+# ------------------------------------------------------------ pty pairs
+SOCAT_PID=
+PTY_DIR=
+start_pty_pair() { # start_pty_pair DIR: socat links DIR/server and DIR/client
+    PTY_DIR=$1
+    mkdir -p "$PTY_DIR"
+    socat -d -d "pty,raw,echo=0,link=$PTY_DIR/server" "pty,raw,echo=0,link=$PTY_DIR/client" \
+        >"$PTY_DIR/socat.log" 2>&1 &
+    SOCAT_PID=$!
+    PIDS+=("$SOCAT_PID")
+    local i
+    for i in $(seq 1 50); do
+        [ -e "$PTY_DIR/server" ] && [ -e "$PTY_DIR/client" ] && return 0
+        sleep 0.1
+    done
+    return 1
+}
+
+# ------------------------------------------------------------ runs
+# run_case NAME VALGRIND(0|1) MODE TRANSPORT
+run_case() {
+    local name=$1 vg=$2 mode=$3 t=$4 d=$LOGS/$1 args=() pre=() rc lib n p f pid
+    selected "$name" || return 0
+    mkdir -p "$d"
+    if [ "$t" = rtu ] || [ "$t" = ascii ]; then
+        if ! command -v socat >/dev/null; then
+            result "$name" FAIL "socat is not installed"
+            return
+        fi
+        if ! start_pty_pair "$d/pty"; then
+            result "$name: pty pair" FAIL "socat did not create the links (see $d/pty/socat.log)"
+            stop_pid "$SOCAT_PID"
+            return
+        fi
+        args=("$d/pty/server" "$d/pty/client")
+    fi
+    if [ "$vg" = 1 ]; then
+        pre=(valgrind -q --error-exitcode=99 --leak-check=full --errors-for-leak-kinds=definite
+            --show-leak-kinds=definite --log-file="$d/valgrind.%p.log")
+    fi
+    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 300 "${pre[@]}" "$BIN" "$mode" "$t" "${args[@]}" \
+        >"$d/out.log" 2>"$d/err.log" &
+    pid=$!
+    PIDS+=("$pid")
+    wait "$pid"
+    rc=$?
+    forget_pid "$pid"
+    [ -n "$SOCAT_PID" ] && stop_pid "$SOCAT_PID"
+    SOCAT_PID=
+
+    # The library the program mapped must be ours.
+    lib=$(sed -n 's/^LIBINFO: pid [0-9]* libmodbus.so.5 = \([^ ]*\) .*/\1/p' "$d/out.log" | head -n 1)
+    if [ -n "$lib" ] && [ "$(readlink -f "$lib")" = "$OURS_LIB" ] && grep -q '^LIBINFO: .*(rsmodbus ' "$d/out.log"; then
+        result "$name: loaded our libmodbus.so.5 ($lib)" PASS
+    else
+        result "$name: loaded our libmodbus.so.5" FAIL "LIBINFO says '${lib:-nothing}'"
+    fi
+    # The program's own checks.
+    n=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$d/out.log" | tail -n 1)
+    p=$(echo "$n" | awk '{print $1}')
+    f=$(echo "$n" | awk '{print $3}')
+    grep '^FAIL - ' "$d/out.log" | cut -c1-300 | sed 's/^/    | /'
+    if [ -z "$n" ]; then
+        result "$name" FAIL "no summary line (exit $rc; see $d)"
+        tail -n 5 "$d/err.log" | sed 's/^/    | /'
+        return
+    fi
+    PASS=$((PASS + p))
+    FAIL=$((FAIL + f))
+    [ "$f" = 0 ] || FAILED+=("$name: $f checks (see $d/out.log)")
+    if [ "$rc" = 0 ] && [ "$f" = 0 ]; then
+        result "$name: $p checks, exit 0" PASS
+    else
+        result "$name: $p passed, $f failed, exit $rc" FAIL "see $d"
+    fi
+    if [ "$vg" = 1 ]; then
+        if cat "$d"/valgrind.*.log 2>/dev/null | grep -q .; then
+            result "$name: valgrind memcheck clean" FAIL "see $d/valgrind.*.log"
+            cat "$d"/valgrind.*.log | head -n 30 | sed 's/^/    | /'
+        else
+            result "$name: valgrind memcheck clean (client and server processes)" PASS
+        fi
+    fi
+}
+
+section "our client against our server, fully configured"
+run_case full-tcp 0 full tcp
+run_case full-rtutcp 0 full rtutcp
+run_case full-rtu 0 full rtu
+run_case full-ascii 0 full ascii
+
+section "partly configured and unconfigured servers keep libmodbus' answers"
+run_case fifo-only-tcp 0 fifo-only tcp
+run_case fifo-only-rtu 0 fifo-only rtu
+run_case plain-tcp 0 plain tcp
+
+if [ $VALGRIND = 1 ] && command -v valgrind >/dev/null; then
+    section "under valgrind memcheck"
+    run_case valgrind-full-tcp 1 full tcp
+    run_case valgrind-full-rtu 1 full rtu
+fi
+
+section "summary"
+if [ ${#FAILED[@]} -gt 0 ]; then
+    echo "failed:"
+    printf '  %s\n' "${FAILED[@]}"
+fi
+echo "logs: $LOGS"
+echo "$PASS passed, $FAIL failed"
+[ $FAIL = 0 ]
