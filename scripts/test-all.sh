@@ -52,6 +52,9 @@ ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/check-examples.sh ] && run examples scripts/check-examples.sh
 [ -x scripts/check-man.sh ] && run man scripts/check-man.sh
 [ -x scripts/check-package.sh ] && run package scripts/check-package.sh
+[ -x scripts/run-interop-tests.sh ] && run interop scripts/run-interop-tests.sh --no-cargo
+[ -x scripts/run-thread-tests.sh ] && run threads scripts/run-thread-tests.sh --no-cargo
+[ -x scripts/run-extended-tests.sh ] && run c-extended scripts/run-extended-tests.sh
 run demo scripts/demo.sh
 
 echo

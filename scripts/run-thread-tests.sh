@@ -1,0 +1,233 @@
+#!/usr/bin/env bash
+# run-thread-tests.sh: many threads sharing one rsmodbus context.
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+#
+#  1. c-tests/threads/threads.c: 16 threads share ONE context and run 10,000
+#     transactions each (160,000 per context), every result checked (see threads.c;
+#     libmodbus function codes and two new ones, 08/00 and 14),
+#     against our_server (c-tests/interop) loading our library: a TCP context, an RTU
+#     context on a pty pair, an RTU-over-TCP context and an ASCII context on a pty pair.
+#     A watchdog fails a run in which nothing completes for 30 s (deadlock, lost answer).
+#  2. The same program under ThreadSanitizer, with the LIBRARY instrumented too: the
+#     Rust crate is built into target/tsan with -Zsanitizer=thread (RUSTC_BOOTSTRAP=1 on
+#     the stable toolchain, the std library left uninstrumented) and the C program with
+#     gcc -fsanitize=thread (gcc's libtsan; c-tests/threads/tsan-shims.c supplies three
+#     entry points newer LLVM emits). First a self-test: a race the program makes on
+#     purpose on a buffer it hands to modbus_write_registers must be reported with a
+#     frame inside libmodbus.so (so the library's memory accesses are seen); then TCP and
+#     RTU, 16 x 10,000 each, must end with no report at all.
+#  3. A measurement, not a test: the single-threaded cost of the context mutex
+#     (c-tests/threads/mutex_cost.c, ours against Debian's lock-free libmodbus).
+#
+# What TSan does and does not prove here: it sees every access of the C program and of
+# our crate and of parking_lot (instrumented, its atomics give the happens-before edges),
+# and the libc calls it intercepts; it does not see inside Rust's std (uninstrumented;
+# the library uses it for allocation and I/O wrappers only), and it only judges the
+# interleavings that happened in this run. helgrind/DRD are not used: they know
+# pthread primitives only, and parking_lot locks with atomics and futex calls, so every
+# access made under the lock would be reported. parking_lot's deadlock detection needs a
+# checker thread inside the library (and its feature flag); the watchdog covers hangs.
+#
+# usage: scripts/run-thread-tests.sh [--no-cargo] [--no-tsan] [--long] [--ntx N]
+#   --long   100,000 transactions per thread (1.6 M per context), TSan runs included
+# Logs: target/threads/logs. Last line "N passed, M failed"; non-zero exit on failure.
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$ROOT" || exit 2
+OUT=$ROOT/target/threads
+BIN=$OUT/bin
+LOGS=$OUT/logs
+OURS=$ROOT/target/release
+TSAN_TARGET=$ROOT/target/tsan
+TSAN_LIB_DIR=$TSAN_TARGET/x86_64-unknown-linux-gnu/release
+NTHREADS=16
+NTX=10000
+
+RUN_CARGO=1
+TSAN=1
+while [ $# -gt 0 ]; do
+    case "$1" in
+    --no-cargo) RUN_CARGO=0 ;;
+    --no-tsan) TSAN=0 ;;
+    --long) NTX=100000 ;;
+    --ntx) shift; NTX=$1 ;;
+    -h | --help) sed -n '2,/^set -uo/p' "$0" | sed '$d'; exit 0 ;;
+    *) echo "unknown option $1" >&2; exit 2 ;;
+    esac
+    shift
+done
+
+mkdir -p "$BIN" "$LOGS"
+rm -f "$LOGS"/*.log
+WORK=$OUT/run
+mkdir -p "$WORK"
+# shellcheck source=scripts/testlib.sh
+. "$ROOT/scripts/testlib.sh"
+
+for tool in gcc socat python3; do
+    command -v "$tool" >/dev/null || { echo "missing $tool (scripts/install-deps.sh)"; exit 2; }
+done
+if [ "$RUN_CARGO" -eq 1 ]; then
+    cargo build --release >"$LOGS/cargo.log" 2>&1 || { tail -n 30 "$LOGS/cargo.log"; echo "cargo build failed"; exit 2; }
+fi
+[ -f "$OURS/libmodbus.so" ] || { echo "no $OURS/libmodbus.so"; exit 2; }
+[ -e "$OURS/libmodbus.so.5" ] || ln -sf libmodbus.so "$OURS/libmodbus.so.5"
+
+CFLAGS=(-std=c11 -D_GNU_SOURCE -Wall -Wextra -Werror -g -I"$ROOT/include")
+IO=$ROOT/c-tests/interop
+TH=$ROOT/c-tests/threads
+build() { # NAME gcc-args...
+    local name=$1
+    shift
+    if gcc "$@" >"$LOGS/build-$name.log" 2>&1; then
+        ok "build $name (-Wall -Wextra -Werror)"
+        return 0
+    fi
+    bad "build $name" "$(head -n 20 "$LOGS/build-$name.log")"
+    return 1
+}
+build our_server "${CFLAGS[@]}" -O2 -o "$BIN/our_server" "$IO/our_server.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
+build threads "${CFLAGS[@]}" -O2 -pthread -o "$BIN/threads" "$TH/threads.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
+build mutex_cost "${CFLAGS[@]}" -O2 -o "$BIN/mutex_cost" "$TH/mutex_cost.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
+
+# check_loaded NAME LOG DIR: the program mapped DIR/libmodbus.so.5 (rsmodbus).
+check_loaded() {
+    local line path
+    line=$(grep -m1 '^LOADED ' "$2")
+    path=${line#LOADED }
+    path=${path%% (*}
+    if [ -n "$path" ] && [ "$(readlink -f "$path")" = "$(readlink -f "$3/libmodbus.so.5")" ] &&
+        [[ $line == *"(rsmodbus "* ]]; then
+        ok "$1: loaded $path"
+    else
+        bad "$1: wrong library" "${line:-no LOADED line}" "expected $3/libmodbus.so.5"
+    fi
+}
+
+# start_server NAME TRANSPORT: our_server (our library, no trace); sets WHERE (client side)
+start_server() {
+    local name=$1 transport=$2 where
+    case "$transport" in
+    tcp | rtutcp)
+        where=$(free_port)
+        WHERE=$where
+        ;;
+    *)
+        pty_pair "pty-$name" "$WORK/$name-a" "$WORK/$name-b" || return 1
+        where=$WORK/$name-b
+        WHERE=$WORK/$name-a
+        ;;
+    esac
+    LD_LIBRARY_PATH=$OURS INTEROP_QUIET=1 start "srv-$name" "$BIN/our_server" "$transport" "$where" 60 --configure
+    wait_ready "srv-$name" READY 20
+}
+stop_server() {
+    stop "srv-$1"
+    stop "pty-$1"
+}
+
+# run_threads NAME TRANSPORT BINARY LIBDIR [env...]
+run_threads() {
+    local name=$1 transport=$2 binary=$3 libdir=$4 log=$LOGS/$1.log rc
+    shift 4
+    echo "=== $name: $NTHREADS threads x $NTX transactions, one $transport context"
+    if ! start_server "$name" "$transport"; then
+        bad "$name: server did not start" "$(tail -n 10 "$WORK/srv-$name.log" 2>/dev/null)"
+        stop_server "$name"
+        return
+    fi
+    env LD_LIBRARY_PATH="$libdir" "$@" timeout 900 "$binary" "$transport" "$WHERE" "$NTHREADS" "$NTX" >"$log" 2>&1
+    rc=$?
+    stop_server "$name"
+    check_loaded "$name" "$log" "$libdir"
+    grep -E '^[a-z]+: [0-9]+ threads' "$log" | sed 's/^/     /'
+    grep -E '^FAIL' "$log" | head -n 20 | sed 's/^/     /'
+    if [ "$rc" -eq 0 ] && grep -q '^ok   - all transactions correct' "$log" &&
+        grep -q '^ok   - all threads were running at the same time' "$log"; then
+        ok "$name: all $((NTHREADS * NTX)) transactions correct"
+    else
+        bad "$name: exit $rc" "$(grep -E '^(FAIL|WARNING|SUMMARY)' "$log" | head -n 10)"
+    fi
+    if grep -q 'ThreadSanitizer' "$log"; then
+        bad "$name: ThreadSanitizer reports" "$(grep -E '^(WARNING|SUMMARY)' "$log" | head -n 10)" "(see $log)"
+    elif [ "$binary" = "$BIN/threads-tsan" ]; then
+        ok "$name: no ThreadSanitizer report"
+    fi
+}
+
+# ---------------------------------------------------------------- 1. plain
+for transport in tcp rtu rtutcp ascii; do
+    run_threads "threads-$transport" "$transport" "$BIN/threads" "$OURS"
+done
+
+# ---------------------------------------------------------------- 2. TSan
+if [ "$TSAN" -eq 1 ]; then
+    echo "=== ThreadSanitizer build of the library (target/tsan)"
+    if RUSTC_BOOTSTRAP=1 RUSTFLAGS="-Zsanitizer=thread -Cunsafe-allow-abi-mismatch=sanitizer" \
+        cargo build --release --lib --target x86_64-unknown-linux-gnu --target-dir "$TSAN_TARGET" \
+        >"$LOGS/cargo-tsan.log" 2>&1; then
+        ok "cargo build -Zsanitizer=thread"
+        ln -sf libmodbus.so "$TSAN_LIB_DIR/libmodbus.so.5"
+        if build threads-tsan "${CFLAGS[@]}" -O1 -pthread -fsanitize=thread -rdynamic \
+            -o "$BIN/threads-tsan" "$TH/threads.c" "$TH/tsan-shims.c" "$IO/interop.c" \
+            -L"$TSAN_LIB_DIR" -lmodbus -ldl; then
+            export TSAN_OPTIONS="halt_on_error=0 exitcode=66"
+            echo "=== tsan-selftest: a deliberate race must be reported inside libmodbus.so"
+            if start_server tsan-selftest tcp; then
+                LD_LIBRARY_PATH=$TSAN_LIB_DIR timeout 120 "$BIN/threads-tsan" tcp "$WHERE" 1 1 --race-selftest \
+                    >"$LOGS/tsan-selftest.log" 2>&1
+                check_loaded tsan-selftest "$LOGS/tsan-selftest.log" "$TSAN_LIB_DIR"
+                if grep -q 'WARNING: ThreadSanitizer: data race' "$LOGS/tsan-selftest.log" &&
+                    grep -qE '\(libmodbus\.so[.0-9]*\+0x' "$LOGS/tsan-selftest.log"; then
+                    ok "tsan-selftest: race reported with frames in libmodbus.so"
+                else
+                    bad "tsan-selftest: the deliberate race was not reported inside libmodbus.so" \
+                        "(the library's accesses are not instrumented; see $LOGS/tsan-selftest.log)"
+                fi
+            else
+                bad "tsan-selftest: server did not start"
+            fi
+            stop_server tsan-selftest
+            for transport in tcp rtu; do
+                run_threads "tsan-$transport" "$transport" "$BIN/threads-tsan" "$TSAN_LIB_DIR"
+            done
+        fi
+    else
+        bad "cargo build -Zsanitizer=thread" "$(tail -n 15 "$LOGS/cargo-tsan.log")" "(--no-tsan skips)"
+    fi
+fi
+
+# ---------------------------------------------------------------- 3. measurement
+echo "=== measurement: single-threaded cost of the context mutex (not a test)"
+if start_server mutex-cost tcp; then
+    LD_LIBRARY_PATH=$OURS "$BIN/mutex_cost" "$WHERE" 20000 >"$LOGS/mutex-cost-ours.log" 2>&1
+    check_loaded mutex-cost "$LOGS/mutex-cost-ours.log" "$OURS"
+    ours_line=$(grep '^RESULT' "$LOGS/mutex-cost-ours.log")
+    deb_line=""
+    if [ -e /usr/lib/x86_64-linux-gnu/libmodbus.so.5 ]; then
+        env -u LD_LIBRARY_PATH "$BIN/mutex_cost" "$WHERE" 20000 >"$LOGS/mutex-cost-debian.log" 2>&1
+        deb_line=$(grep '^RESULT' "$LOGS/mutex-cost-debian.log")
+    fi
+    echo "     $ours_line"
+    [ -n "$deb_line" ] || deb_line="(Debian libmodbus5 not installed: no comparison)"
+    echo "     $deb_line"
+    if [ -n "$ours_line" ] && [[ $deb_line == RESULT* ]]; then
+        python3 - "$ours_line" "$deb_line" <<'EOF'
+import sys
+def parse(line):
+    return {k: v for k, v in (f.split("=") for f in line.split()[1:])}
+o, d = parse(sys.argv[1]), parse(sys.argv[2])
+extra = float(o["call_ns"]) - float(d["call_ns"])
+txn = float(o["txn_us"]) * 1000
+print("     lock + call shim: %+.1f ns per call (ours %s ns, Debian %s ns); "
+      "a loopback TCP transaction takes %s us (Debian's library: %s us): "
+      "the lock is %.3f%% of a transaction" % (extra, o["call_ns"], d["call_ns"],
+      o["txn_us"], d["txn_us"], 100 * max(extra, 0) / txn))
+EOF
+    fi
+fi
+stop_server mutex-cost
+
+echo
+summary
