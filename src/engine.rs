@@ -351,7 +351,8 @@ fn keep_unread(ctx: &mut Context, rest: &[u8]) {
 /// timeout (1 s by default on ASCII contexts: the gap the protocol allows).
 fn receive_ascii(ctx: &mut Context, buf: &mut AduBuf, kind: MsgKind) -> Result<Received> {
     let mut budget = first_timeout(ctx, kind);
-    let mut decoder = ascii::Decoder::new();
+    let delimiter = ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
+    let mut decoder = ascii::Decoder::with_delimiter(delimiter);
     let mut trace = String::new();
     loop {
         if ctx.rx.available().is_empty() {

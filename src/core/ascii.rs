@@ -66,6 +66,9 @@ enum State {
 pub struct Decoder {
     state: State,
     len: usize,
+    /// The character after CR that ends a frame: LF unless a server was told
+    /// otherwise (diagnostics sub-function 03, Change ASCII Input Delimiter).
+    delimiter: u8,
 }
 
 impl Default for Decoder {
@@ -76,7 +79,12 @@ impl Default for Decoder {
 
 impl Decoder {
     pub const fn new() -> Self {
-        Decoder { state: State::Idle, len: 0 }
+        Decoder { state: State::Idle, len: 0, delimiter: b'\n' }
+    }
+
+    /// A decoder whose frames end with CR and `delimiter`.
+    pub const fn with_delimiter(delimiter: u8) -> Self {
+        Decoder { state: State::Idle, len: 0, delimiter }
     }
 
     /// True once the start character was seen.
@@ -123,7 +131,7 @@ impl Decoder {
                 self.state = State::High;
                 Ok(Step::NeedMore)
             }
-            State::Cr if c == b'\n' => {
+            State::Cr if c == self.delimiter => {
                 self.state = State::Idle;
                 Ok(Step::Complete(self.len))
             }
@@ -180,6 +188,18 @@ mod tests {
     fn noise_before_start_is_skipped_and_restart_resets() {
         assert_eq!(decode_all(b"xx\r\n:01:010300000001FB\r\n").unwrap().len(), 7);
         assert_eq!(decode_all(b":010300000001fb\r\n").unwrap()[6], 0xFB);
+    }
+
+    #[test]
+    fn changed_input_delimiter() {
+        let mut d = Decoder::with_delimiter(b'!');
+        let mut out = [0u8; MAX_DECODED];
+        let text = b":010300000001FB\r!";
+        let steps: Vec<Step> = text.iter().map(|&c| d.feed(c, &mut out).unwrap()).collect();
+        assert_eq!(steps.last(), Some(&Step::Complete(7)));
+        let mut d = Decoder::with_delimiter(b'!');
+        let r: Result<Vec<Step>> = b":010300000001FB\r\n".iter().map(|&c| d.feed(c, &mut out)).collect();
+        assert_eq!(r.err(), Some(Error::BAD_DATA));
     }
 
     #[test]
