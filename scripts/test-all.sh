@@ -10,6 +10,7 @@ mkdir -p "$logdir"
 passed=0
 failed=0
 failures=()
+timings=()
 
 # run NAME CMD...: runs one stage; adds its "N passed, M failed" line when it prints
 # one (cargo's "test result:" lines too), else counts the stage itself.
@@ -18,8 +19,10 @@ run() {
     shift
     echo "=== $name: $*"
     local log="$logdir/$name.log"
+    local started=$SECONDS
     "$@" 2>&1 | tee "$log"
     local rc=${PIPESTATUS[0]}
+    timings+=("$(printf '%-12s %4ss' "$name" $((SECONDS - started)))")
     local p f
     p=$(grep -E '^([A-Za-z-]+: )?[0-9]+ passed, [0-9]+ failed' "$log" | tail -n 1 | sed -E 's/^([A-Za-z-]+: )?([0-9]+) passed, ([0-9]+) failed.*/\2/')
     f=$(grep -E '^([A-Za-z-]+: )?[0-9]+ passed, [0-9]+ failed' "$log" | tail -n 1 | sed -E 's/^([A-Za-z-]+: )?([0-9]+) passed, ([0-9]+) failed.*/\3/')
@@ -58,6 +61,9 @@ ln -sf libmodbus.so target/release/libmodbus.so.5
 run demo scripts/demo.sh
 
 echo
+echo "stage times:"
+printf '  %s\n' "${timings[@]}"
+echo "total: ${SECONDS}s"
 if [ ${#failures[@]} -gt 0 ]; then echo "failed stages: ${failures[*]}"; fi
 echo "$passed passed, $failed failed"
 [ "$failed" -eq 0 ]
