@@ -412,11 +412,14 @@ fn receive_ascii(ctx: &mut Context, buf: &mut AduBuf, kind: MsgKind) -> Result<R
                     trace.push('\n');
                     flush_trace(ctx, &mut trace);
                 }
-                if len < 2 {
+                let received = check_integrity(ctx, &buf[..len])?;
+                if received == Received::Frame(len) && !ascii_frame_is_whole(ctx, kind, &buf[..len]) {
+                    // The characters ended before the content did (a byte count or a
+                    // layout asks for more): refuse it like an RTU frame cut short.
                     error_print(ctx, Error::BAD_DATA, Some("frame too short"));
                     return Err(Error::BAD_DATA);
                 }
-                return check_integrity(ctx, &buf[..len]);
+                return Ok(received);
             }
             Some(Err(e)) => {
                 flush_trace(ctx, &mut trace);
@@ -433,6 +436,31 @@ fn first_timeout(ctx: &Context, kind: MsgKind) -> Option<libc::timespec> {
     match kind {
         MsgKind::Confirmation => Some(ctx.response_timeout.timespec()),
         MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then(|| ctx.indication_timeout.timespec()),
+    }
+}
+
+/// An ASCII frame ends at its delimiter whatever its content says; the checks after
+/// receiving rely on the content's own lengths, as RTU and TCP frames are read by
+/// them. A frame is whole when it holds at least what the binary length rules ask
+/// for (the frame's own length stands in for the lengths a PDU does not carry).
+fn ascii_frame_is_whole(ctx: &Context, kind: MsgKind, frame: &[u8]) -> bool {
+    if frame.len() < 3 {
+        return false;
+    }
+    let mut asm = Assembler::new(Framing::Ascii, kind)
+        .extended_requests(ctx.serves_extended)
+        .expecting(Some(frame.len() - Framing::Ascii.checksum_length()));
+    loop {
+        let want = asm.wanted();
+        let upto = asm.len() + want;
+        if upto > frame.len() {
+            return false;
+        }
+        match asm.received(&frame[..upto], want) {
+            Ok(Progress::NeedMore(_)) => continue,
+            Ok(Progress::Complete(_)) => return true,
+            Err(_) => return false,
+        }
     }
 }
 
@@ -821,6 +849,37 @@ mod tests {
         transport::write(peer, b":020300000001FA\r\n:000300000001FC\r\n").unwrap();
         assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Ignored(7)));
         assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(7)));
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    #[test]
+    fn ascii_frames_shorter_than_their_content_are_refused() {
+        let (ours, peer) = socket_pair();
+        let mut ctx = Context::new_ascii(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
+        ctx.s = ours;
+        ctx.slave = 0xEF;
+        let m = Mutex::new(ctx);
+        let mut g = m.lock();
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        // Fuzz finding F4: [EF][11] decodes with a good LRC but has no function code
+        // (11 is the LRC): it must be refused, not reach the response checks.
+        transport::write(peer, b":EF11\r\n").unwrap();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_DATA));
+        // F3: report slave id claiming 255 bytes with 11 in the frame.
+        let mut body = vec![0xEF, 0x11, 0xFF, 0xB4, 0xFF, b'L', b'M', b'B', b'3', b'.', b'1', b'.', b'1', b'2'];
+        body.push(ascii::lrc(&body));
+        let mut text = [0u8; ascii::MAX_ENCODED];
+        let n = ascii::encode(&body, &mut text);
+        transport::write(peer, &text[..n]).unwrap();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_DATA));
+        // The same answer with its true byte count is fine.
+        body[2] = 11;
+        body.pop();
+        body.push(ascii::lrc(&body));
+        let n = ascii::encode(&body, &mut text);
+        transport::write(peer, &text[..n]).unwrap();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Ok(Received::Frame(15)));
         transport::close(peer);
         transport::close(ours);
     }

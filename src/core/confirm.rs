@@ -81,6 +81,18 @@ pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> R
         }
     }
 
+    // Every response has a function code and at least one byte after it. Frames
+    // reach this point as long as their content says (the assembler reads them so,
+    // and ASCII frames are checked against it); this guard keeps a frame that
+    // escaped both from being read past its end.
+    if rsp.len() < h + 2 + framing.checksum_length() {
+        diag.err(format_args!(
+            "Message length not corresponding to the computed length ({} != {})\n",
+            rsp.len(),
+            expected_length(framing, req).unwrap_or(h + 2 + framing.checksum_length())
+        ));
+        return Err(Rejection::Mismatch(Error::BAD_DATA));
+    }
     let function = rsp[h];
     let expected = expected_length(framing, req);
 
@@ -193,10 +205,10 @@ fn check_extended(h: usize, req: &[u8], rsp: &[u8]) -> Result<i32, (i32, i32)> {
         }
         // Byte count, FIFO count, values; at most 31 values.
         fc::READ_FIFO_QUEUE => {
-            let bytes = ((pdu[1] as i32) << 8) | pdu[2] as i32;
             if len < 5 {
-                return Err((2, bytes));
+                return Err((2, len - 1));
             }
+            let bytes = ((pdu[1] as i32) << 8) | pdu[2] as i32;
             let count = ((pdu[3] as i32) << 8) | pdu[4] as i32;
             if bytes != 2 + 2 * count || count > 31 {
                 return Err((2 + 2 * count, bytes));
@@ -361,6 +373,18 @@ mod tests {
         assert_eq!(check(t, &req, &rsp, &mut d), Ok(1));
         let rsp = tcp_rsp(0x0102, &[0x2B, 0x0E, 2, 1, 0, 0, 1, 0, 1, b'A']);
         assert!(check(t, &req, &rsp, &mut d).is_err());
+    }
+
+    #[test]
+    fn frames_shorter_than_any_answer_are_refused_not_read() {
+        // Fuzz finding F4 (ASCII): two decoded bytes, the second being the LRC.
+        let mut d = Recorded::default();
+        let req = [0xEF, 0x11, 0x00];
+        assert!(check(Framing::Ascii, &req, &[0xEF, 0x11], &mut d).is_err());
+        let req = [0xF8, 0x08, 0x00, 0x00, 0x00];
+        assert!(check(Framing::Ascii, &req, &[0xF8, 0x08], &mut d).is_err());
+        let req = tcp_req(READ3);
+        assert!(check(Framing::Tcp, &req, &req[..8], &mut d).is_err());
     }
 
     #[test]

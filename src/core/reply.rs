@@ -142,13 +142,16 @@ pub fn request_extent(framing: Framing, extended: bool, bound: usize, mut byte_a
         return cap;
     }
     let function = byte_at(h);
-    if extended && function == fc::DIAGNOSTICS && bound != usize::MAX {
+    if extended && function == fc::DIAGNOSTICS {
         // Nothing in a diagnostics PDU tells its length ("return query data" may
         // carry any number of words). An ASCII frame is delimited by its characters,
         // so the received length is the request's; an RTU request ends where its
         // CRC matches, one word at a time (as `modbus_receive` frames it).
+        // (A negative `req_length` gives no received length: ASCII then falls back
+        // to the one-word layout, while the RTU search is bounded by the ADU.)
         match framing {
-            Framing::Ascii => return cap,
+            Framing::Ascii if bound != usize::MAX => return cap,
+            Framing::Ascii => {}
             Framing::Rtu => {
                 let mut msg = [0u8; MAX_ADU_LENGTH];
                 let first = h + 1 + 4 + framing.checksum_length();
@@ -1365,7 +1368,7 @@ mod tests {
         assert_eq!(ext(R, true, &padded, padded.len()), 12);
         assert_eq!(ext(R, true, &three_words, 11), 11, "no match: the caller's length");
         assert_eq!(ext(R, true, &three_words, 7), 7);
-        assert_eq!(ext(R, true, &three_words, big), 8, "no length given: one word");
+        assert_eq!(ext(R, true, &three_words, big), 12, "no length given: the CRC search, as modbus_receive frames it");
         // ASCII diagnostics: the received length when the caller gives it.
         let mut ascii = vec![1, 0x08, 0, 0, 1, 2, 3, 4];
         ascii.push(crate::core::ascii::lrc(&ascii));
