@@ -12,6 +12,8 @@ pub mod diagnostics;
 pub mod frame;
 pub mod reply;
 pub mod request;
+#[cfg(test)]
+mod seed_vectors;
 
 use core::fmt;
 
