@@ -136,7 +136,13 @@ pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> R
             (be16(req, h + 3), be16(rsp, h + 3), req[h + 1..h + 3] == rsp[h + 1..h + 3])
         }
         fc::WRITE_SINGLE_COIL | fc::WRITE_SINGLE_REGISTER => (1, 1, req[h + 1..h + 5] == rsp[h + 1..h + 5]),
-        fc::REPORT_SLAVE_ID => (rsp[h + 1] as i32, rsp[h + 1] as i32, true),
+        // The byte count must describe the frame (an ASCII frame ends at its
+        // delimiter whatever the count says).
+        fc::REPORT_SLAVE_ID => {
+            let count = rsp[h + 1] as i32;
+            let whole = rsp.len() == h + 2 + count as usize + framing.checksum_length();
+            (count, if whole { count } else { rsp.len() as i32 - (h + 2 + framing.checksum_length()) as i32 }, true)
+        }
         fc::DIAGNOSTICS
         | fc::GET_COMM_EVENT_LOG
         | fc::READ_FILE_RECORD
@@ -181,7 +187,7 @@ fn check_extended(h: usize, req: &[u8], rsp: &[u8]) -> Result<i32, (i32, i32)> {
         // Status, event count, message count, then the events.
         fc::GET_COMM_EVENT_LOG => {
             let count = pdu[1] as i32;
-            if !(6..=6 + 64).contains(&count) {
+            if !(6..=6 + 64).contains(&count) || len != 2 + count {
                 return Err((6, count));
             }
             Ok(count - 6)
@@ -210,7 +216,7 @@ fn check_extended(h: usize, req: &[u8], rsp: &[u8]) -> Result<i32, (i32, i32)> {
             }
             let bytes = ((pdu[1] as i32) << 8) | pdu[2] as i32;
             let count = ((pdu[3] as i32) << 8) | pdu[4] as i32;
-            if bytes != 2 + 2 * count || count > 31 {
+            if bytes != 2 + 2 * count || count > 31 || len != 3 + bytes {
                 return Err((2 + 2 * count, bytes));
             }
             Ok(count)
@@ -219,6 +225,17 @@ fn check_extended(h: usize, req: &[u8], rsp: &[u8]) -> Result<i32, (i32, i32)> {
         _ => {
             if len < 7 || pdu[1] != req_pdu[1] || pdu[2] != req_pdu[2] {
                 return Err((req_pdu[2] as i32, if len > 2 { pdu[2] as i32 } else { -1 }));
+            }
+            // The objects must fill the frame exactly.
+            let mut pos = 7usize;
+            for _ in 0..pdu[6] {
+                if pos + 2 > pdu.len() {
+                    return Err((pdu[6] as i32, -1));
+                }
+                pos += 2 + pdu[pos + 1] as usize;
+            }
+            if pos != pdu.len() {
+                return Err((pdu[6] as i32, -1));
             }
             Ok(pdu[6] as i32)
         }
@@ -385,6 +402,18 @@ mod tests {
         assert!(check(Framing::Ascii, &req, &[0xF8, 0x08], &mut d).is_err());
         let req = tcp_req(READ3);
         assert!(check(Framing::Tcp, &req, &req[..8], &mut d).is_err());
+    }
+
+    #[test]
+    fn counts_must_describe_the_frame() {
+        // Fuzz finding F3 (ASCII): byte count 0xFF with 11 bytes in the frame.
+        let req = [0x11, 0x11, 0xDE];
+        let mut rsp = vec![0x11, 0x11, 0xFF, 0xB4, 0xFF, b'L', b'M', b'B', b'3', b'.', b'1', b'.', b'1', b'2'];
+        rsp.push(crate::core::ascii::lrc(&rsp));
+        let refused = check(Framing::Ascii, &req, &rsp, &mut Recorded::default());
+        assert_eq!(refused, Err(Rejection::Mismatch(Error::BAD_DATA)));
+        rsp[2] = 11;
+        assert_eq!(check(Framing::Ascii, &req, &rsp, &mut Recorded::default()), Ok(11));
     }
 
     #[test]
