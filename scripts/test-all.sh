@@ -58,6 +58,9 @@ ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/run-interop-tests.sh ] && run interop scripts/run-interop-tests.sh --no-cargo
 [ -x scripts/run-thread-tests.sh ] && run threads scripts/run-thread-tests.sh --no-cargo
 [ -x scripts/run-extended-tests.sh ] && run c-extended scripts/run-extended-tests.sh
+[ -x scripts/run-fault-tests.sh ] && run faults scripts/run-fault-tests.sh
+[ -x scripts/run-soak.sh ] && run soak scripts/run-soak.sh
+[ -x scripts/fuzz.sh ] && run fuzz-smoke scripts/fuzz.sh --smoke 3
 run demo scripts/demo.sh
 
 echo

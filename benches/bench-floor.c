@@ -1,0 +1,183 @@
+/*
+ * bench-floor: the bare floor of a Modbus benchmark case. A request/response
+ * ping-pong of the case's exact ADU sizes with one send (write) and one recv (read)
+ * per side per transaction (a read is repeated only if the kernel delivers a message
+ * in pieces, which loopback TCP does not), no framing logic, no timeouts.
+ *
+ *   bench-floor server tcp PORT | server pty DEVICE
+ *   bench-floor client tcp PORT CASE SECONDS | client pty DEVICE CASE SECONDS
+ *
+ * The server learns the sizes from a 2-byte hello (request size, response size).
+ * Prints "READY <port>" (server) and "RESULT case=... tx=N secs=S tps=T" (client).
+ *
+ * SPDX-License-Identifier: MIT OR Apache-2.0
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double) ts.tv_sec + (double) ts.tv_nsec / 1e9;
+}
+
+/* Reads exactly n bytes (one read unless the kernel splits the message). */
+static int read_full(int fd, unsigned char *b, int n, int tcp)
+{
+    int got = 0;
+    while (got < n) {
+        ssize_t r = tcp ? recv(fd, b + got, (size_t) (n - got), 0) : read(fd, b + got, (size_t) (n - got));
+        if (r <= 0) {
+            if (r < 0 && errno == EINTR) {
+                continue;
+            }
+            return -1;
+        }
+        got += (int) r;
+    }
+    return 0;
+}
+
+static int write_full(int fd, const unsigned char *b, int n, int tcp)
+{
+    ssize_t w = tcp ? send(fd, b, (size_t) n, MSG_NOSIGNAL) : write(fd, b, (size_t) n);
+    return w == n ? 0 : -1;
+}
+
+static int open_pty(const char *dev)
+{
+    struct termios t;
+    int fd = open(dev, O_RDWR | O_NOCTTY);
+    if (fd < 0 || tcgetattr(fd, &t) != 0) {
+        return -1;
+    }
+    cfmakeraw(&t);
+    tcsetattr(fd, TCSANOW, &t);
+    tcflush(fd, TCIOFLUSH);
+    return fd;
+}
+
+/* Case sizes (request, response) for TCP (MBAP) and RTU (CRC). */
+static void sizes(const char *c, int tcp, int *req, int *rsp)
+{
+    int h = tcp ? 7 : 1, cs = tcp ? 0 : 2;
+    if (strcmp(c, "r125") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 250 + cs; }
+    else if (strcmp(c, "c2000") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 250 + cs; }
+    else if (strcmp(c, "w123") == 0) { *req = h + 6 + 246 + cs; *rsp = h + 5 + cs; }
+    else if (strcmp(c, "wr121") == 0) { *req = h + 10 + 242 + cs; *rsp = h + 2 + 250 + cs; }
+    else if (strcmp(c, "r1") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 2 + cs; }
+    else { fprintf(stderr, "unknown case %s\n", c); exit(2); }
+}
+
+int main(int argc, char **argv)
+{
+    unsigned char buf[512];
+    int tcp, fd;
+
+    signal(SIGPIPE, SIG_IGN);
+    if (argc < 4) {
+        fprintf(stderr, "usage: see the comment at the top of bench-floor.c\n");
+        return 2;
+    }
+    tcp = strcmp(argv[2], "tcp") == 0;
+    memset(buf, 0x5A, sizeof(buf));
+    if (strcmp(argv[1], "server") == 0) {
+        int req, rsp, one = 1;
+        if (tcp) {
+            struct sockaddr_in sa;
+            socklen_t sl = sizeof(sa);
+            int ls = socket(AF_INET, SOCK_STREAM, 0);
+            setsockopt(ls, SOL_SOCKET, SO_REUSEADDR, &one, sizeof(one));
+            memset(&sa, 0, sizeof(sa));
+            sa.sin_family = AF_INET;
+            sa.sin_port = htons((uint16_t) atoi(argv[3]));
+            sa.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+            if (bind(ls, (struct sockaddr *) &sa, sizeof(sa)) != 0 || listen(ls, 4) != 0 ||
+                getsockname(ls, (struct sockaddr *) &sa, &sl) != 0) {
+                perror("bench-floor: listen");
+                return 1;
+            }
+            printf("READY %d\n", ntohs(sa.sin_port));
+            fflush(stdout);
+            fd = accept(ls, NULL, NULL);
+            close(ls);
+            setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+        } else {
+            fd = open_pty(argv[3]);
+            printf("READY %s\n", argv[3]);
+            fflush(stdout);
+        }
+        if (fd < 0 || read_full(fd, buf, 2, tcp) != 0) {
+            return 1;
+        }
+        req = buf[0];
+        rsp = buf[1];
+        while (read_full(fd, buf, req + 4, tcp) == 0 && write_full(fd, buf, rsp + 4, tcp) == 0) {
+        }
+        return 0;
+    } else {
+        int req, rsp, one = 1;
+        long tx = 0;
+        double t0, t1, secs;
+        if (argc < 6) {
+            return 2;
+        }
+        sizes(argv[4], tcp, &req, &rsp);
+        secs = atof(argv[5]);
+        if (tcp) {
+            struct sockaddr_in sa;
+            fd = socket(AF_INET, SOCK_STREAM, 0);
+            memset(&sa, 0, sizeof(sa));
+            sa.sin_family = AF_INET;
+            sa.sin_port = htons((uint16_t) atoi(argv[3]));
+            sa.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+            if (connect(fd, (struct sockaddr *) &sa, sizeof(sa)) != 0) {
+                perror("bench-floor: connect");
+                return 1;
+            }
+            setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+        } else {
+            fd = open_pty(argv[3]);
+        }
+        /* Sizes are sent minus 4 so that 259 fits a byte. */
+        buf[0] = (unsigned char) (req - 4);
+        buf[1] = (unsigned char) (rsp - 4);
+        if (fd < 0 || write_full(fd, buf, 2, tcp) != 0) {
+            return 1;
+        }
+        memset(buf, 0x5A, sizeof(buf));
+        for (int i = 0; i < 100; i++) {
+            if (write_full(fd, buf, req, tcp) != 0 || read_full(fd, buf, rsp, tcp) != 0) {
+                return 1;
+            }
+        }
+        t0 = now();
+        t1 = t0;
+        while (t1 - t0 < secs) {
+            if (write_full(fd, buf, req, tcp) != 0 || read_full(fd, buf, rsp, tcp) != 0) {
+                fprintf(stderr, "bench-floor: transaction failed\n");
+                return 1;
+            }
+            tx++;
+            if ((tx & 31) == 0) {
+                t1 = now();
+            }
+        }
+        t1 = now();
+        printf("RESULT case=%s tx=%ld secs=%.4f tps=%.1f errors=0\n", argv[4], tx, t1 - t0, (double) tx / (t1 - t0));
+        close(fd);
+        return 0;
+    }
+}

@@ -1,0 +1,436 @@
+#!/usr/bin/env python3
+"""rsmodbus benchmark runner (called by scripts/bench.sh; see benches/README.md).
+
+Runs the same C client and server binaries with Debian's libmodbus.so.5 and with
+rsmodbus (chosen by LD_LIBRARY_PATH), alternating within one run, and prints Markdown
+tables: transactions/s and ratios for every case, transport and pairing, the bare
+floor, and per-transaction system calls, user-space instructions and heap
+allocations. It is a benchmark, not a test: it fails only if a program fails.
+
+SPDX-License-Identifier: MIT OR Apache-2.0
+"""
+import os
+import platform
+import re
+import shutil
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+BUILD = os.path.join(ROOT, "target", "bench")
+# scripts/bench.sh copies the library here so that a rebuild during the run cannot
+# change (or truncate) the measured one.
+OURS_DIR = os.environ.get("BENCH_OURS_DIR", os.path.join(ROOT, "target", "release"))
+QUICK = os.environ.get("BENCH_QUICK", "0") == "1"
+CASES = os.environ.get("BENCH_CASES", "r125 c2000 w123 wr121 r1").split()
+TRANSPORTS = os.environ.get("BENCH_TRANSPORTS", "tcp rtu").split()
+ROUNDS = int(os.environ.get("BENCH_ROUNDS", "1" if QUICK else "5"))
+SECONDS = float(os.environ.get("BENCH_SECONDS", "0.3" if QUICK else "1.5"))
+METRIC_CASES = os.environ.get("BENCH_METRIC_CASES", "r125" if QUICK else " ".join(CASES)).split()
+METRICS = os.environ.get("BENCH_METRICS", "strace callgrind allocs").split()
+THROUGHPUT = os.environ.get("BENCH_THROUGHPUT", "1") == "1"
+PIN = os.environ.get("BENCH_PIN", "")  # e.g. "1": every process of a measurement on that CPU set
+CASE_TITLES = {
+    "r125": "read 125 registers",
+    "c2000": "read 2000 coils",
+    "w123": "write 123 registers",
+    "wr121": "write 121 + read 125 (FC 23)",
+    "r1": "read 1 register",
+}
+
+procs = []
+STALLS = []  # transactions slower than 50 ms in a timed run
+
+
+def log(*a):
+    print(*a, file=sys.stderr, flush=True)
+
+
+def env_for(lib):
+    e = dict(os.environ)
+    e.pop("LD_LIBRARY_PATH", None)
+    e.pop("LD_PRELOAD", None)
+    if lib == "ours":
+        e["LD_LIBRARY_PATH"] = OURS_DIR
+    e["EXPECT_LIB"] = lib  # libinfo.c exits 97 if another libmodbus.so.5 is loaded
+    return e
+
+
+def start(cmd, env, stdout=subprocess.PIPE):
+    if PIN:
+        cmd = ["taskset", "-c", PIN] + cmd
+    p = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    procs.append(p)
+    return p
+
+
+def stop(p):
+    if p.poll() is None:
+        try:
+            os.killpg(p.pid, signal.SIGTERM)  # its own session: the process and its children
+        except ProcessLookupError:
+            pass
+        try:
+            p.wait(5)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    if p in procs:
+        procs.remove(p)
+
+
+def check_libinfo(text, lib, what):
+    m = re.search(r"LIBINFO: pid \d+ libmodbus\.so\.5 = (\S+) \((.*?)\)", text)
+    if not m:
+        raise RuntimeError(f"{what}: no LIBINFO line")
+    ours = m.group(2).startswith("rsmodbus")
+    if ours != (lib == "ours"):
+        raise RuntimeError(f"{what}: expected {lib} but loaded {m.group(1)}")
+
+
+def wait_ready(p, what, lib=None, timeout=30):
+    """Reads the server's stdout up to its READY line; returns the word after it."""
+    deadline = time.time() + timeout
+    seen = ""
+    while time.time() < deadline:
+        line = p.stdout.readline()
+        if not line:
+            raise RuntimeError(f"{what} exited before READY: {seen} {p.stderr.read()}")
+        seen += line
+        if line.startswith("READY "):
+            if lib is not None:
+                check_libinfo(seen, lib, what)
+            return line.split()[1]
+    raise RuntimeError(f"{what}: no READY in {timeout}s")
+
+
+class Line:
+    """A serial line for one measurement: a socat pty pair (as in the issue's numbers)."""
+
+    def __init__(self):
+        self.dir = tempfile.mkdtemp(prefix="mbbench-")
+        self.a = os.path.join(self.dir, "ttyA")
+        self.b = os.path.join(self.dir, "ttyB")
+        self.p = start(["socat", "pty,raw,echo=0,link=" + self.a, "pty,raw,echo=0,link=" + self.b],
+                       dict(os.environ), stdout=subprocess.DEVNULL)
+        for _ in range(200):
+            if os.path.exists(self.a) and os.path.exists(self.b):
+                return
+            time.sleep(0.01)
+        raise RuntimeError("socat pty pair did not appear")
+
+    def close(self):
+        stop(self.p)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def bin_(name):
+    return os.path.join(BUILD, name)
+
+
+def run_client(cmd, env, what, lib=None, timeout=120):
+    p = start(cmd, env)
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        stop(p)
+        raise RuntimeError(f"{what}: timed out")
+    procs.remove(p)
+    if p.returncode != 0:
+        raise RuntimeError(f"{what}: exit {p.returncode}: {err.strip()} {out.strip()}")
+    if lib is not None:
+        check_libinfo(out, lib, what)
+    m = re.search(r"RESULT .*tps=([0-9.]+)", out)
+    return float(m.group(1)) if m else None, out, err
+
+
+def throughput(transport, case, server_lib, client_lib, seconds):
+    """One alternating measurement: transactions/s, or the floor when libs are None."""
+    line = Line() if transport == "rtu" else None
+    try:
+        floor = server_lib is None
+        if floor:
+            scmd = [bin_("bench-floor"), "server", "tcp" if transport == "tcp" else "pty",
+                    "0" if transport == "tcp" else line.a]
+            srv = start(scmd, dict(os.environ))
+            addr = wait_ready(srv, "floor server")
+            ccmd = [bin_("bench-floor"), "client", "tcp" if transport == "tcp" else "pty",
+                    addr if transport == "tcp" else line.b, case, str(seconds)]
+            tps, _, _ = run_client(ccmd, dict(os.environ), "floor client")
+        else:
+            scmd = [bin_("mb-server"), transport, "0" if transport == "tcp" else line.a]
+            srv = start(scmd, env_for(server_lib))
+            addr = wait_ready(srv, "server", server_lib)
+            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case, "-t", str(seconds)]
+            tps, out, _ = run_client(ccmd, env_for(client_lib), "client", client_lib)
+            m = re.search(r"max_ms=([0-9.]+)", out)
+            if m and float(m.group(1)) > 50:
+                STALLS.append(f"{transport} {case} client={client_lib} server={server_lib}: "
+                              f"slowest transaction {float(m.group(1)):.0f} ms")
+                log("STALL: " + STALLS[-1])
+        stop(srv)
+        return tps
+    finally:
+        if line:
+            line.close()
+
+
+# ---- per-transaction costs ------------------------------------------------------------
+
+def tool_prefix(metric, out):
+    if metric == "strace":
+        return ["strace", "-f", "-c", "-U", "name,calls", "-o", out]
+    if metric == "callgrind":
+        return ["valgrind", "--tool=callgrind", "--callgrind-out-file=" + out, "--dump-instr=no", "--quiet"]
+    return []
+
+
+def parse_metric(metric, out):
+    if metric == "strace":
+        calls = {}
+        with open(out) as f:
+            for line in f:
+                parts = line.split()
+                if len(parts) == 2 and parts[1].isdigit():
+                    calls[parts[0]] = int(parts[1])
+        return calls
+    if metric == "callgrind":
+        return callgrind_costs(out)
+    with open(out) as f:
+        text = f.read()
+    m = re.findall(r"allocs=(\d+)", text)
+    return {"total": int(m[-1])} if m else {"total": 0}
+
+
+def callgrind_costs(path):
+    """Whole-process Ir and self Ir of the libmodbus object, from a callgrind file."""
+    total = 0
+    per_obj = {}
+    names = {}
+    obj = "?"
+    skip_next = False
+    with open(path) as f:
+        for line in f:
+            if line.startswith("summary:") or line.startswith("totals:"):
+                total = int(line.split()[1])
+                continue
+            if line.startswith("ob="):
+                v = line[3:].strip()
+                m = re.match(r"\((\d+)\)(?:\s+(.*))?", v)
+                if m:
+                    if m.group(2):
+                        names[m.group(1)] = m.group(2)
+                    obj = names.get(m.group(1), "?")
+                else:
+                    obj = v
+                continue
+            if line.startswith("calls="):
+                skip_next = True
+                continue
+            if line[:1].isdigit() or line[:1] in "+-*":
+                if skip_next:
+                    skip_next = False
+                    continue
+                parts = line.split()
+                if len(parts) >= 2:
+                    per_obj[obj] = per_obj.get(obj, 0) + int(parts[1])
+                continue
+            if line.startswith("cob="):
+                # Names are compressed: an object may be named first in a cob= line.
+                m = re.match(r"\((\d+)\)\s+(.*)", line[4:].strip())
+                if m:
+                    names[m.group(1)] = m.group(2)
+                continue
+            if line.startswith(("cfi=", "cfl=", "cfn=")):
+                continue
+    lib = sum(v for k, v in per_obj.items() if "libmodbus.so" in os.path.basename(k))
+    return {"total": total, "lib": lib}
+
+
+def cost_run(metric, side, transport, case, lib, n, warm=20):
+    """Runs `side` (client or server) with `lib` under the metric's tool for n
+    transactions against a Debian peer; returns the parsed counts."""
+    tmp = tempfile.mkdtemp(prefix="mbcost-")
+    out = os.path.join(tmp, "out")
+    line = Line() if transport == "rtu" else None
+    try:
+        prefix = tool_prefix(metric, out)
+        def measured_env():
+            e = env_for(lib)
+            if metric == "allocs":
+                e["LD_PRELOAD"] = bin_("alloc-count.so")
+                e["ALLOC_COUNT_OUT"] = out
+            return e
+        if side == "client":
+            srv = start([bin_("mb-server"), transport, "0" if transport == "tcp" else line.a], env_for("debian"))
+            addr = wait_ready(srv, "server", "debian")
+            ccmd = prefix + [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case,
+                             "-n", str(n), "-w", str(warm)]
+            run_client(ccmd, measured_env(), f"{metric} client", timeout=600)
+            stop(srv)
+        else:
+            scmd = prefix + [bin_("mb-server"), transport, "0" if transport == "tcp" else line.a, str(n + warm)]
+            srv = start(scmd, measured_env())
+            addr = wait_ready(srv, f"{metric} server", timeout=120)
+            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case,
+                    "-n", str(n), "-w", str(warm)]
+            run_client(ccmd, env_for("debian"), "client", "debian", timeout=600)
+            try:
+                srv.wait(600)  # it exits by itself after n + warm replies
+            except subprocess.TimeoutExpired:
+                pass
+            stop(srv)
+        return parse_metric(metric, out)
+    finally:
+        if line:
+            line.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+METRIC_N = {"strace": 1000, "callgrind": 300, "allocs": 1000}
+
+
+def per_tx(metric, side, transport, case, lib):
+    n = METRIC_N[metric] // (2 if QUICK else 1)
+    a = cost_run(metric, side, transport, case, lib, n)
+    b = cost_run(metric, side, transport, case, lib, 2 * n)
+    keys = set(a) | set(b)
+    return {k: (b.get(k, 0) - a.get(k, 0)) / n for k in keys}
+
+
+# ---- report ---------------------------------------------------------------------------
+
+def machine():
+    cpu = "?"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    rustc = subprocess.run(["rustc", "--version"], capture_output=True, text=True).stdout.strip()
+    deb = subprocess.run(["dpkg-query", "-W", "-f=${Version}", "libmodbus5"], capture_output=True, text=True).stdout
+    load = open("/proc/loadavg").read().split()[:3]
+    return (f"{os.cpu_count()} CPUs ({cpu}), Linux {platform.release()}, {rustc}, Debian libmodbus5 {deb}; "
+            f"load average at start {' '.join(load)}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+
+
+def fmt(x, digits=0):
+    if x is None:
+        return "-"
+    return f"{x:,.{digits}f}"
+
+
+def main():
+    if not os.path.exists(os.path.join(OURS_DIR, "libmodbus.so.5")):
+        raise SystemExit(f"{OURS_DIR}/libmodbus.so.5 missing: run scripts/bench.sh")
+    started = time.time()
+    lines = []
+    mode = "quick" if QUICK else "full"
+    lines.append(f"## rsmodbus vs libmodbus: benchmark ({mode} mode)\n")
+    lines.append(f"Machine: {machine()}.  ")
+    if PIN:
+        lines.append(f"All processes pinned to CPU(s) {PIN} (taskset).  ")
+    lines.append(f"Method: each figure is the median of {ROUNDS} alternating run(s) of {SECONDS} s per pairing "
+                 f"(order rotated every round); client and server are the same binaries, only "
+                 f"LD_LIBRARY_PATH differs. RTU runs over a socat pty pair. Ratios are ours/Debian within this run.\n")
+
+    results = {}
+    combos = [("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), (None, None)]
+    for transport in TRANSPORTS if THROUGHPUT else []:
+        for case in CASES:
+            samples = {c: [] for c in combos}
+            for r in range(ROUNDS):
+                order = combos[r % len(combos):] + combos[:r % len(combos)]
+                for c in order:
+                    client_lib, server_lib = c
+                    samples[c].append(throughput(transport, case, server_lib, client_lib, SECONDS))
+            med = {c: statistics.median(v) for c, v in samples.items()}
+            results[(transport, case)] = med
+            log(f"{transport} {case}: " + ", ".join(f"{c[0]}/{c[1]}={med[c]:.0f}" for c in combos))
+
+    if results:
+        lines.append("### Transactions per second\n")
+        lines.append("Pairings are client/server. \"client\" = our client against Debian's server; "
+                     "\"server\" = Debian's client against our server; \"both\" = ours against ours.\n")
+        lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio | client ratio | server ratio | "
+                     "bare floor tx/s | ours/floor | Debian/floor |")
+        lines.append("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+        for (transport, case), med in results.items():
+            dd = med[("debian", "debian")]
+            oo = med[("ours", "ours")]
+            od = med[("ours", "debian")]
+            do = med[("debian", "ours")]
+            fl = med[(None, None)]
+            lines.append(f"| {transport.upper()} | {CASE_TITLES[case]} | {fmt(dd)} | {fmt(oo)} | {oo / dd:.2f}x | "
+                         f"{od / dd:.2f}x | {do / dd:.2f}x | {fmt(fl)} | {oo / fl:.0%} | {dd / fl:.0%} |")
+
+    if STALLS:
+        lines.append("\nStalls (a single transaction slower than 50 ms):\n")
+        lines.extend(f"- {s}" for s in STALLS)
+    if METRICS:
+        lines.append("\n### Cost per transaction (steady state)\n")
+        lines.append("Each side is measured against a Debian peer, for N and 2N transactions after the same "
+                     "warm-up; the figure is (count(2N) - count(N)) / N, so start-up and teardown cancel out. "
+                     "System calls: `strace -f -c` of the measured process. Instructions: `valgrind "
+                     "--tool=callgrind`, total Ir of the whole process (program + libmodbus + libc), with the "
+                     "libmodbus.so object's own share in brackets. Allocations: an LD_PRELOAD counter of "
+                     "malloc/calloc/realloc/memalign calls.\n")
+        header = "| transport | case | side |"
+        sep = "|---|---|---|"
+        if "strace" in METRICS:
+            header += " syscalls/tx Debian | syscalls/tx ours | ours: calls |"
+            sep += "---:|---:|---|"
+        if "callgrind" in METRICS:
+            header += " Ir/tx Debian | Ir/tx ours |"
+            sep += "---:|---:|"
+        if "allocs" in METRICS:
+            header += " allocs/tx Debian | allocs/tx ours |"
+            sep += "---:|---:|"
+        lines.append(header)
+        lines.append(sep)
+        for transport in TRANSPORTS:
+            for case in METRIC_CASES:
+                for side in ("client", "server"):
+                    row = f"| {transport.upper()} | {CASE_TITLES[case]} | {side} |"
+                    if "strace" in METRICS:
+                        d = per_tx("strace", side, transport, case, "debian")
+                        o = per_tx("strace", side, transport, case, "ours")
+                        dt = sum(d.values()) - d.get("total", 0)
+                        ot = sum(o.values()) - o.get("total", 0)
+                        detail = ", ".join(f"{k} {v:.1f}" for k, v in sorted(o.items(), key=lambda kv: -kv[1])
+                                           if k != "total" and v >= 0.05)
+                        dd_detail = ", ".join(f"{k} {v:.1f}" for k, v in sorted(d.items(), key=lambda kv: -kv[1])
+                                              if k != "total" and v >= 0.05)
+                        log(f"syscalls {transport} {case} {side}: debian {dd_detail} | ours {detail}")
+                        row += f" {dt:.1f} | {ot:.1f} | {detail} |"
+                    if "callgrind" in METRICS:
+                        d = per_tx("callgrind", side, transport, case, "debian")
+                        o = per_tx("callgrind", side, transport, case, "ours")
+                        row += f" {fmt(d['total'])} ({fmt(d['lib'])}) | {fmt(o['total'])} ({fmt(o['lib'])}) |"
+                    if "allocs" in METRICS:
+                        d = per_tx("allocs", side, transport, case, "debian")
+                        o = per_tx("allocs", side, transport, case, "ours")
+                        row += f" {d['total']:.2f} | {o['total']:.2f} |"
+                    lines.append(row)
+                    log(row)
+    lines.append(f"\n({time.time() - started:.0f} s; `scripts/bench.sh`{' with BENCH_QUICK=1' if QUICK else ''})")
+    text = "\n".join(lines) + "\n"
+    os.makedirs(BUILD, exist_ok=True)
+    with open(os.path.join(BUILD, "results.md"), "w") as f:
+        f.write(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    finally:
+        for p in list(procs):
+            stop(p)

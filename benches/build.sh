@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Builds the C programs of benches/ into DIR (default target/bench), against Debian's
+# <modbus.h> and libmodbus.so (the library actually loaded is chosen at run time by
+# LD_LIBRARY_PATH). Used by scripts/bench.sh, run-fault-tests.sh and run-soak.sh.
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+set -euo pipefail
+cd "$(dirname "$0")/.."
+out=${1:-target/bench}
+mkdir -p "$out"
+CC=${CC:-gcc}
+CFLAGS=(-std=gnu11 -O2 -g -Wall -Wextra -Werror)
+MB=(-I/usr/include/modbus)
+LIBINFO=c-tests/common/libinfo.c
+$CC "${CFLAGS[@]}" "${MB[@]}" benches/mb-server.c $LIBINFO -o "$out/mb-server" -lmodbus -ldl
+$CC "${CFLAGS[@]}" "${MB[@]}" benches/bench-client.c $LIBINFO -o "$out/bench-client" -lmodbus -ldl
+$CC "${CFLAGS[@]}" benches/bench-floor.c -o "$out/bench-floor"
+$CC "${CFLAGS[@]}" -fPIC -shared benches/alloc-count.c -o "$out/alloc-count.so"

@@ -1,0 +1,256 @@
+#!/usr/bin/env python3
+"""Soak and memcheck tests of rsmodbus (called by scripts/run-soak.sh).
+
+1. Soak: SOAK_TX verified transactions (default 20,000; 1,000,000 with SOAK_FULL=1),
+   our client against our server, over TCP loopback and over a socat pty pair (RTU).
+   Resident memory (VmRSS) and open descriptors (/proc/PID/fd) of both processes are
+   sampled while it runs: descriptors must not change, and resident memory must stay
+   flat after warm-up (growth from the 20% mark to the end at most SOAK_RSS_SLACK_KB).
+2. valgrind memcheck (--leak-check=full --errors-for-leak-kinds=definite
+   --error-exitcode=99) of our client and of our server over TCP and RTU
+   (MEMCHECK_TX transactions), and of context/mapping life cycles with failed connects.
+3. The life cycles with the descriptor count checked, Debian's libmodbus and ours.
+Ends with "N passed, M failed".
+
+SPDX-License-Identifier: MIT OR Apache-2.0
+"""
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+BUILD = os.path.join(ROOT, "target", "soak")
+OURS_DIR = os.path.join(ROOT, "target", "release")
+FULL = os.environ.get("SOAK_FULL", "0") == "1"
+SOAK_TX = int(os.environ.get("SOAK_TX", "1000000" if FULL else "20000"))
+MEMCHECK_TX = int(os.environ.get("MEMCHECK_TX", "2000"))
+RSS_SLACK_KB = int(os.environ.get("SOAK_RSS_SLACK_KB", "64"))
+VALGRIND = ["valgrind", "--leak-check=full", "--errors-for-leak-kinds=definite", "--show-leak-kinds=definite",
+            "--error-exitcode=99", "--quiet"]
+
+procs = []
+results = []
+
+
+def start(cmd, env, stdout=subprocess.PIPE):
+    p = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    procs.append(p)
+    return p
+
+
+def stop(p):
+    if p.poll() is None:
+        try:
+            os.killpg(p.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            p.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    if p in procs:
+        procs.remove(p)
+
+
+def env_for(lib):
+    e = dict(os.environ)
+    e.pop("LD_LIBRARY_PATH", None)
+    if lib == "ours":
+        e["LD_LIBRARY_PATH"] = OURS_DIR
+    e["EXPECT_LIB"] = lib
+    return e
+
+
+def ready(p, what, timeout=60):
+    deadline = time.time() + timeout
+    seen = ""
+    while time.time() < deadline:
+        line = p.stdout.readline()
+        if not line:
+            break
+        seen += line
+        if line.startswith("READY "):
+            return line.split()[1]
+    raise RuntimeError(f"{what} not ready: {seen}")
+
+
+def report(name, ok, detail):
+    results.append(ok)
+    print(f"{'PASS' if ok else 'FAIL'} {name}: {detail}", flush=True)
+
+
+class Line:
+    def __init__(self):
+        self.dir = tempfile.mkdtemp(prefix="mbsoak-")
+        self.a = os.path.join(self.dir, "ttyA")
+        self.b = os.path.join(self.dir, "ttyB")
+        self.p = start(["socat", "pty,raw,echo=0,link=" + self.a, "pty,raw,echo=0,link=" + self.b],
+                       dict(os.environ), stdout=subprocess.DEVNULL)
+        for _ in range(300):
+            if os.path.exists(self.a) and os.path.exists(self.b):
+                return
+            time.sleep(0.01)
+        raise RuntimeError("socat pty pair did not appear")
+
+    def close(self):
+        stop(self.p)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def sample(pid):
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            rss = int(re.search(r"VmRSS:\s+(\d+)", f.read()).group(1))
+        fds = len(os.listdir(f"/proc/{pid}/fd"))
+        return rss, fds
+    except (OSError, AttributeError):
+        return None
+
+
+def requests_for(count):
+    """Requests soak-client sends for `count` iterations (kinds 1 and 3 send two)."""
+    return sum(2 if i % 7 in (1, 3) else 1 for i in range(count))
+
+
+def soak(transport):
+    line = Line() if transport == "rtu" else None
+    name = f"soak {transport.upper()} {SOAK_TX} transactions (ours/ours)"
+    try:
+        srv = start([os.path.join(BUILD, "mb-server"), transport, "0" if transport == "tcp" else line.a],
+                    env_for("ours"))
+        addr = ready(srv, "server")
+        cli = start([os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
+                     str(SOAK_TX)], env_for("ours"))
+        samples = []  # (progress, client rss, client fds, server rss, server fds)
+        progress = 0
+        t0 = time.time()
+        os.set_blocking(cli.stdout.fileno(), False)
+        buf = ""
+        while cli.poll() is None:
+            try:
+                chunk = cli.stdout.read()
+            except (BlockingIOError, TypeError):
+                chunk = None
+            if chunk:
+                buf += chunk
+                m = re.findall(r"PROGRESS (\d+)", buf)
+                if m:
+                    progress = int(m[-1])
+            c, s = sample(cli.pid), sample(srv.pid)
+            if c and s:
+                samples.append((progress, c[0], c[1], s[0], s[1]))
+            time.sleep(0.1)
+            if time.time() - t0 > 3600:
+                stop(cli)
+                break
+        rest = cli.stdout.read() or ""
+        out = buf + rest
+        err = cli.stderr.read()
+        elapsed = time.time() - t0
+        stop(srv)
+        if cli.returncode != 0 or "DONE" not in out:
+            report(name, False, f"client exit {cli.returncode}: {err.strip()[:300]}")
+            return
+        samples = [x for x in samples if x[0] > 0] or samples
+        if len(samples) < 2:
+            report(name, False, "too few samples")
+            return
+        warm = [x for x in samples if x[0] >= SOAK_TX * 0.2] or samples[-1:]
+        base = warm[0]
+        end = samples[-1]
+        c_growth = max(x[1] for x in warm) - base[1]
+        s_growth = max(x[3] for x in warm) - base[3]
+        fds_c = {x[2] for x in samples}
+        fds_s = {x[4] for x in samples}
+        ok = c_growth <= RSS_SLACK_KB and s_growth <= RSS_SLACK_KB and len(fds_c) == 1 and len(fds_s) == 1
+        report(name, ok,
+               f"{SOAK_TX / elapsed:,.0f} tx/s, {len(samples)} samples; client VmRSS {samples[0][1]} -> "
+               f"{base[1]} (20%) -> {end[1]} kB (growth after warm-up {c_growth} kB), fds {sorted(fds_c)}; "
+               f"server VmRSS {samples[0][3]} -> {base[3]} -> {end[3]} kB (growth {s_growth} kB), "
+               f"fds {sorted(fds_s)}")
+    finally:
+        if line:
+            line.close()
+
+
+def memcheck_pair(transport, side):
+    """Our client or server under memcheck, the peer ours without valgrind."""
+    line = Line() if transport == "rtu" else None
+    name = f"memcheck {side} {transport.upper()} {MEMCHECK_TX} transactions"
+    try:
+        senv = env_for("ours")
+        sprefix = VALGRIND if side == "server" else []
+        cprefix = VALGRIND if side == "client" else []
+        if transport == "tcp":
+            senv["MB_EXIT_ON_CLOSE"] = "1"
+            scmd = sprefix + [os.path.join(BUILD, "mb-server"), "tcp", "0"]
+        else:
+            scmd = sprefix + [os.path.join(BUILD, "mb-server"), "rtu", line.a, str(requests_for(MEMCHECK_TX))]
+        srv = start(scmd, senv)
+        addr = ready(srv, "server", timeout=120)
+        cli = start(cprefix + [os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
+                               str(MEMCHECK_TX)], env_for("ours"))
+        try:
+            cout, cerr = cli.communicate(timeout=900)
+        except subprocess.TimeoutExpired:
+            stop(cli)
+            report(name, False, "client timed out")
+            return
+        procs.remove(cli)
+        try:
+            sout, serr = srv.communicate(timeout=120)
+            procs.remove(srv)
+        except subprocess.TimeoutExpired:
+            stop(srv)
+            report(name, False, "server did not exit")
+            return
+        measured = (cli.returncode, cerr) if side == "client" else (srv.returncode, serr)
+        ok = cli.returncode == 0 and srv.returncode == 0 and "DONE" in cout
+        detail = f"client exit {cli.returncode}, server exit {srv.returncode}"
+        if not ok:
+            detail += ": " + measured[1].strip()[-1500:]
+        report(name, ok, detail + (" (valgrind: no errors, no definite leaks)" if ok else ""))
+    finally:
+        if line:
+            line.close()
+
+
+def lifecycle(lib, under_valgrind, cycles):
+    name = f"lifecycle {cycles} cycles ({lib}{', memcheck' if under_valgrind else ''})"
+    cmd = (VALGRIND if under_valgrind else []) + [os.path.join(BUILD, "lifecycle"), str(cycles)]
+    p = start(cmd, env_for(lib))
+    out, err = p.communicate(timeout=600)
+    procs.remove(p)
+    m = re.search(r"FDS before=(\d+) after=(\d+)", out)
+    ok = p.returncode == 0 and m is not None and m.group(1) == m.group(2)
+    report(name, ok, (m.group(0) if m else "no FDS line") + ("" if ok else f"; exit {p.returncode}: {err.strip()[-1500:]}"))
+
+
+def main():
+    for transport in ("tcp", "rtu"):
+        soak(transport)
+    for transport in ("tcp", "rtu"):
+        for side in ("client", "server"):
+            memcheck_pair(transport, side)
+    lifecycle("ours", True, 30)
+    lifecycle("ours", False, 300)
+    lifecycle("debian", False, 300)
+    passed = sum(results)
+    print(f"\n{passed} passed, {len(results) - passed} failed")
+    return 0 if passed == len(results) else 1
+
+
+if __name__ == "__main__":
+    code = 1
+    try:
+        code = main()
+    finally:
+        for p in list(procs):
+            stop(p)
+    sys.exit(code)

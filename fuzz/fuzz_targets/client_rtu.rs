@@ -1,0 +1,4 @@
+//! libFuzzer target `client_rtu`: see `rsmodbus_fuzz::client_rtu` for the input layout and the
+//! properties checked.
+#![no_main]
+libfuzzer_sys::fuzz_target!(|data: &[u8]| rsmodbus_fuzz::client_rtu(data));

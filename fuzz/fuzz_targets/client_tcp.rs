@@ -1,0 +1,4 @@
+//! libFuzzer target `client_tcp`: see `rsmodbus_fuzz::client_tcp` for the input layout and the
+//! properties checked.
+#![no_main]
+libfuzzer_sys::fuzz_target!(|data: &[u8]| rsmodbus_fuzz::client_tcp(data));

@@ -1,0 +1,432 @@
+//! Fuzzing through the exported C ABI: the same calls a C program makes, over a
+//! socket pair whose peer has already written the fuzz bytes and shut its write side
+//! (so every read ends in data or EOF, never a wait). Buffers handed to the library
+//! are exactly the size the API promises plus a canary, checked after every call.
+
+use std::ffi::c_int;
+
+use modbus::core::frame::{Framing, MAX_ADU_LENGTH};
+use modbus::ffi::Modbus;
+use modbus::ffi::client::*;
+use modbus::ffi::context::*;
+use modbus::ffi::extensions::*;
+use modbus::ffi::rtu::{modbus_new_ascii, modbus_new_rtu};
+use modbus::ffi::server::*;
+use modbus::ffi::tcp::modbus_new_tcp;
+use modbus::transport::errno;
+
+use crate::{ClientCall, Cursor, correct_response, mutate, size_of, slave_of, start_of, wire};
+
+/// Framing from the low two bits of a selector: TCP, RTU, ASCII (3 = TCP).
+fn framing_of(b: u8) -> Framing {
+    match b & 3 {
+        1 => Framing::Rtu,
+        2 => Framing::Ascii,
+        _ => Framing::Tcp,
+    }
+}
+
+const CANARY: u8 = 0xA5;
+
+/// A socket pair: `ours` goes to the library, `peer` holds the fuzz bytes.
+struct Pair {
+    ours: c_int,
+    peer: c_int,
+}
+
+impl Pair {
+    /// Writes `bytes` into the peer side and shuts it for writing. Bytes that do not
+    /// fit the socket buffer are dropped (inputs are small).
+    fn with_bytes(bytes: &[u8]) -> Pair {
+        let mut fds = [0 as c_int; 2];
+        // SAFETY: fds has room for two descriptors.
+        let rc =
+            unsafe { libc::socketpair(libc::AF_UNIX, libc::SOCK_STREAM | libc::SOCK_CLOEXEC, 0, fds.as_mut_ptr()) };
+        assert_eq!(rc, 0, "socketpair failed: {}", errno());
+        let pair = Pair { ours: fds[0], peer: fds[1] };
+        let mut off = 0;
+        while off < bytes.len() {
+            // SAFETY: writing from a live slice.
+            let n = unsafe {
+                libc::send(
+                    pair.peer,
+                    bytes[off..].as_ptr().cast(),
+                    bytes.len() - off,
+                    libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL,
+                )
+            };
+            if n <= 0 {
+                break;
+            }
+            off += n as usize;
+        }
+        // SAFETY: plain shutdown of our own socket.
+        unsafe { libc::shutdown(pair.peer, libc::SHUT_WR) };
+        pair
+    }
+}
+
+impl Drop for Pair {
+    fn drop(&mut self) {
+        // SAFETY: closing our own descriptor (ours is closed by modbus_close already:
+        // closing it again gives EBADF, harmless; -1 is skipped).
+        unsafe { libc::close(self.peer) };
+    }
+}
+
+/// A context on the pair's library side with timeouts short enough that the
+/// server's sleep-before-flush does not slow the fuzzer.
+fn context(framing: Framing, fd: c_int) -> *mut Modbus {
+    // SAFETY: valid C strings; the returned context is checked.
+    let ctx = unsafe {
+        match framing {
+            Framing::Tcp => modbus_new_tcp(c"127.0.0.1".as_ptr(), 1502),
+            Framing::Rtu => modbus_new_rtu(c"/dev/null".as_ptr(), 9600, b'N' as _, 8, 1),
+            Framing::Ascii => modbus_new_ascii(c"/dev/null".as_ptr(), 9600, b'E' as _, 7, 1),
+        }
+    };
+    assert!(!ctx.is_null());
+    // SAFETY: live context.
+    unsafe {
+        assert_eq!(modbus_set_socket(ctx, fd), 0);
+        assert_eq!(modbus_set_response_timeout(ctx, 0, 1), 0);
+        assert_eq!(modbus_set_byte_timeout(ctx, 0, 1000), 0);
+        assert_eq!(modbus_set_indication_timeout(ctx, 0, 1000), 0);
+    }
+    ctx
+}
+
+fn free_context(ctx: *mut Modbus) {
+    // SAFETY: live context, freed once.
+    unsafe {
+        modbus_close(ctx);
+        modbus_free(ctx);
+    }
+}
+
+/// A buffer of `n` items followed by a canary.
+struct Guarded<T: Copy> {
+    v: Vec<T>,
+    n: usize,
+    canary: T,
+}
+
+impl<T: Copy + PartialEq + std::fmt::Debug> Guarded<T> {
+    fn new(n: usize, fill: T, canary: T) -> Self {
+        let mut v = vec![fill; n];
+        v.extend(std::iter::repeat_n(canary, 8));
+        Guarded { v, n, canary }
+    }
+    fn ptr(&mut self) -> *mut T {
+        self.v.as_mut_ptr()
+    }
+    fn check(&self, what: &str) {
+        for (i, x) in self.v[self.n..].iter().enumerate() {
+            assert_eq!(*x, self.canary, "{what} wrote past its {} items (canary {i})", self.n);
+        }
+    }
+}
+
+/// errno values a client call may fail with here.
+fn client_errno_ok(e: i32) -> bool {
+    use modbus::error::*;
+    e == libc::ECONNRESET || e == libc::ETIMEDOUT || e == libc::EINVAL || (MODBUS_ENOBASE..=EMBBADSLAVE).contains(&e)
+}
+
+/// Client side. Input: `[framing + mode][selector][addr 2][nb 2][value 2][unit]`
+/// `[calls]`, then response bytes (mode bit 2 clear) or edit operations on the
+/// correct response to the first call (bit 2 set). Bits 0-1 of the first byte: TCP,
+/// RTU, ASCII; bit 3: addresses in the first 256.
+/// Up to 3 calls read the same stream, so stale bytes meet later requests.
+pub fn ffi_client(data: &[u8]) {
+    let mut c = Cursor::new(data);
+    let mode = c.u8();
+    let framing = framing_of(mode);
+    let call = ClientCall::from(&mut c, mode & 8 != 0);
+    let unit = c.u8();
+    let calls = 1 + (c.u8() % 3) as usize;
+    let stream = if mode & 4 != 0 {
+        // The first request this context sends has TID 1.
+        let req = call.request();
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let n = req.encode(framing, unit, 1, &mut buf);
+        let n = framing.seal(&mut buf, n);
+        let mut rsp = correct_response(framing, &buf[..n]);
+        mutate(framing, &mut rsp, c.rest());
+        wire(framing, &rsp)
+    } else {
+        c.rest().to_vec()
+    };
+    let pair = Pair::with_bytes(&stream);
+    let ctx = context(framing, pair.ours);
+    // SAFETY: live context.
+    unsafe { modbus_set_slave(ctx, unit as c_int) };
+    for _ in 0..calls {
+        let (rc, e) = one_client_call(ctx, &call);
+        if rc < 0 {
+            assert!(client_errno_ok(e), "client call fc {:#x} failed with errno {e}", call.function);
+        }
+    }
+    free_context(ctx);
+}
+
+/// Makes the C call for `call`; returns its result and errno. Checks canaries and
+/// the documented return values.
+fn one_client_call(ctx: *mut Modbus, call: &ClientCall) -> (c_int, i32) {
+    let nb = call.nb.max(0) as usize;
+    modbus::transport::set_errno(0);
+    // SAFETY: every buffer holds at least what the call is told.
+    let rc = unsafe {
+        match call.function {
+            0x01 | 0x02 => {
+                let mut dest = Guarded::new(nb, 0xEEu8, CANARY);
+                let f = if call.function == 1 { modbus_read_bits } else { modbus_read_input_bits };
+                let rc = f(ctx, call.addr, call.nb, dest.ptr());
+                dest.check("read bits");
+                if rc >= 0 {
+                    assert_eq!(rc, call.nb);
+                    assert!(dest.v[..nb].iter().all(|&b| b <= 1), "read bits stored a value other than 0/1");
+                }
+                rc
+            }
+            0x03 | 0x04 => {
+                let mut dest = Guarded::new(nb, 0xEEEEu16, 0xA5A5);
+                let f = if call.function == 3 { modbus_read_registers } else { modbus_read_input_registers };
+                let rc = f(ctx, call.addr, call.nb, dest.ptr());
+                dest.check("read registers");
+                if rc >= 0 {
+                    assert_eq!(rc, call.nb);
+                }
+                rc
+            }
+            0x05 => {
+                let rc = modbus_write_bit(ctx, call.addr, (call.value & 1) as c_int);
+                assert!(rc == -1 || rc == 1);
+                rc
+            }
+            0x06 => {
+                let rc = modbus_write_register(ctx, call.addr, call.value);
+                assert!(rc == -1 || rc == 1);
+                rc
+            }
+            0x0F => {
+                let rc = modbus_write_bits(ctx, call.addr, call.nb, call.bits.as_ptr());
+                assert!(rc == -1 || rc == call.nb, "write bits returned {rc}");
+                rc
+            }
+            0x10 => {
+                let rc = modbus_write_registers(ctx, call.addr, call.nb, call.regs.as_ptr());
+                assert!(rc == -1 || rc == call.nb, "write registers returned {rc}");
+                rc
+            }
+            0x11 => {
+                let max_dest = 1 + (call.value % 20) as usize;
+                let mut dest = Guarded::new(max_dest, 0u8, CANARY);
+                let rc = modbus_report_slave_id(ctx, max_dest as c_int, dest.ptr());
+                dest.check("report slave id");
+                rc
+            }
+            0x16 => {
+                let rc = modbus_mask_write_register(ctx, call.addr, call.value, !call.value);
+                assert!(rc == -1 || rc == 1);
+                rc
+            }
+            0x07 => {
+                let mut st = Guarded::new(1, 0u8, CANARY);
+                let rc = modbus_read_exception_status(ctx, st.ptr());
+                st.check("read exception status");
+                assert!(rc == -1 || rc == 1);
+                rc
+            }
+            0x08 => {
+                let max_dest = (call.value >> 8) as usize % 130;
+                let mut dest = Guarded::new(max_dest, 0xEEEEu16, 0xA5A5);
+                let data = if call.nb > 0 { call.regs.as_ptr() } else { std::ptr::null() };
+                let rc =
+                    modbus_diagnostics(ctx, (call.value % 24) as c_int, data, call.nb, dest.ptr(), max_dest as c_int);
+                dest.check("diagnostics");
+                rc
+            }
+            0x0B => {
+                let (mut st, mut ev) = (Guarded::new(1, 0u16, 0xA5A5), Guarded::new(1, 0u16, 0xA5A5));
+                let rc = modbus_get_comm_event_counter(ctx, st.ptr(), ev.ptr());
+                st.check("event counter status");
+                ev.check("event counter count");
+                rc
+            }
+            0x0C => {
+                let max_events = (call.value as usize) % 80;
+                let mut ev = Guarded::new(max_events, 0u8, CANARY);
+                let (mut a, mut b, mut c) =
+                    (Guarded::new(1, 0u16, 0xA5A5), Guarded::new(1, 0u16, 0xA5A5), Guarded::new(1, 0u16, 0xA5A5));
+                let rc = modbus_get_comm_event_log(ctx, a.ptr(), b.ptr(), c.ptr(), ev.ptr(), max_events as c_int);
+                ev.check("event log events");
+                a.check("event log status");
+                b.check("event log count");
+                c.check("event log messages");
+                rc
+            }
+            0x14 => {
+                let mut dest = Guarded::new(nb, 0xEEEEu16, 0xA5A5);
+                let rc = modbus_read_file_record(ctx, call.addr, (call.value % 10000) as c_int, call.nb, dest.ptr());
+                dest.check("read file record");
+                assert!(rc == -1 || rc == call.nb, "read file record returned {rc}");
+                rc
+            }
+            0x15 => {
+                let rc = modbus_write_file_record(
+                    ctx,
+                    call.addr,
+                    (call.value % 10000) as c_int,
+                    call.nb,
+                    call.regs.as_ptr(),
+                );
+                assert!(rc == -1 || rc == call.nb, "write file record returned {rc}");
+                rc
+            }
+            0x18 => {
+                let mut dest = Guarded::new(31, 0xEEEEu16, 0xA5A5);
+                let rc = modbus_read_fifo_queue(ctx, call.addr, dest.ptr());
+                dest.check("read fifo queue");
+                assert!(rc <= 31, "read fifo queue returned {rc}");
+                rc
+            }
+            0x2B => {
+                let max_objects = (call.value >> 8) as usize % 6;
+                let mut objects: Vec<modbus_device_id_object_t> = (0..max_objects + 2)
+                    .map(|i| {
+                        if i < max_objects {
+                            modbus_device_id_object_t { id: 0xEE, length: 0xEE, value: [0x11; 256] }
+                        } else {
+                            modbus_device_id_object_t { id: 0xA5, length: 0xA5, value: [0x5A; 256] }
+                        }
+                    })
+                    .collect();
+                let mut conformity = Guarded::new(1, 0 as c_int, 0x5A5A5A5A);
+                let rc = modbus_read_device_identification(
+                    ctx,
+                    1 + (call.value % 4) as c_int,
+                    (call.value & 0xFF) as c_int,
+                    objects.as_mut_ptr(),
+                    max_objects as c_int,
+                    conformity.ptr(),
+                );
+                conformity.check("device id conformity");
+                for o in &objects[max_objects..] {
+                    assert!(
+                        o.id == 0xA5 && o.length == 0xA5 && o.value.iter().all(|&c| c == 0x5A),
+                        "device id wrote past max_objects"
+                    );
+                }
+                assert!(rc <= max_objects as c_int, "read device identification returned {rc}");
+                rc
+            }
+            _ => {
+                let read_nb = call.read_nb.max(0) as usize;
+                let mut dest = Guarded::new(read_nb, 0xEEEEu16, 0xA5A5);
+                let src = if call.nb > 0 { call.regs.as_ptr() } else { std::ptr::null() };
+                let rc = modbus_write_and_read_registers(
+                    ctx,
+                    call.addr,
+                    call.nb,
+                    src,
+                    (call.addr + 7) % 256,
+                    call.read_nb,
+                    dest.ptr(),
+                );
+                dest.check("write and read registers");
+                if rc >= 0 {
+                    assert_eq!(rc, call.read_nb);
+                }
+                rc
+            }
+        }
+    };
+    (rc, errno())
+}
+
+/// Server side through the C ABI. Input: `[framing + flags][start bits][start input
+/// bits][start regs][start input regs][bits size][regs size][slave][req_length mode]`
+/// then the byte stream. Flags: bits 0-1 TCP/RTU/ASCII, bit 2 quirk REPLY_TO_BROADCAST. The
+/// request buffer is exactly the framing's maximum ADU, as the API requires.
+pub fn ffi_server(data: &[u8]) {
+    let mut c = Cursor::new(data);
+    let flags = c.u8();
+    let framing = framing_of(flags);
+    let starts = [c.u8(), c.u8(), c.u8(), c.u8()].map(start_of);
+    let bits = size_of(c.u8());
+    let regs = size_of(c.u8());
+    let slave = slave_of(c.u8());
+    let mode = c.u8();
+    let pair = Pair::with_bytes(c.rest());
+    let ctx = context(framing, pair.ours);
+    let mapping = modbus_mapping_new_start_address(
+        starts[0] as u32,
+        bits as u32,
+        starts[1] as u32,
+        (bits / 2) as u32,
+        starts[2] as u32,
+        regs as u32,
+        starts[3] as u32,
+        (regs / 2) as u32,
+    );
+    assert!(!mapping.is_null());
+    // SAFETY: live context.
+    unsafe {
+        if framing.is_serial() {
+            modbus_set_slave(ctx, slave);
+        }
+        if flags & 4 != 0 {
+            modbus_enable_quirks(ctx, modbus::core::reply::QUIRK_REPLY_TO_BROADCAST);
+        }
+    }
+    // The documented buffer size: MODBUS_TCP_MAX_ADU_LENGTH or MODBUS_RTU_MAX_ADU_LENGTH.
+    let cap = if framing == Framing::Tcp { 260 } else { 256 };
+    let mut req = Guarded::new(cap, 0u8, CANARY);
+    for _ in 0..48 {
+        modbus::transport::set_errno(0);
+        // SAFETY: `req` holds the framing's maximum ADU.
+        let rc = unsafe { modbus_receive(ctx, req.ptr()) };
+        let e = errno();
+        req.check("modbus_receive");
+        if rc < 0 {
+            use modbus::error::*;
+            assert!(
+                [libc::ECONNRESET, libc::ETIMEDOUT, EMBBADDATA, EMBBADCRC].contains(&e),
+                "modbus_receive failed with errno {e}"
+            );
+            if e == libc::ECONNRESET || e == libc::ETIMEDOUT {
+                break;
+            }
+            if e != EMBBADCRC {
+                continue;
+            }
+        }
+        if rc == 0 {
+            continue;
+        }
+        let req_length = match mode {
+            0..=127 => rc,
+            128 => -1,
+            129 => i32::MIN,
+            130 => i32::MAX,
+            m => rc + (m as i32 - 192),
+        };
+        modbus::transport::set_errno(0);
+        // SAFETY: `req` holds the ADU just received; the mapping is live.
+        let sent = unsafe { modbus_reply(ctx, req.ptr(), req_length, mapping) };
+        let e = errno();
+        if sent < 0 {
+            assert!(
+                e == libc::ENOPROTOOPT || e == libc::EPIPE || e == libc::ECONNRESET || e == libc::EBADF,
+                "modbus_reply failed with errno {e}"
+            );
+        } else {
+            assert!(sent as usize <= cap, "modbus_reply sent {sent} bytes");
+        }
+    }
+    // SAFETY: the mapping was allocated above and is freed once.
+    unsafe { modbus_mapping_free(mapping) };
+    free_context(ctx);
+    drop(pair);
+}

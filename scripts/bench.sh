@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The benchmark suite: Debian's libmodbus.so.5 vs rsmodbus, same C programs, one run.
+#
+#   scripts/bench.sh                 full mode (about 15 minutes)
+#   BENCH_QUICK=1 scripts/bench.sh   short mode (about 1-2 minutes)
+#
+# Prints Markdown tables (also written to target/bench/results.md): transactions/s
+# of every case over TCP loopback and an RTU pty pair, for our client, our server and
+# both against Debian's, the bare floor, and system calls, instructions and heap
+# allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_ROUNDS,
+# BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN
+# (see benches/README.md).
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/install-deps.sh >/dev/null
+for tool in strace socat valgrind python3 gcc; do
+    command -v "$tool" >/dev/null || { apt-get install -y -qq "$tool" >/dev/null; }
+done
+cargo build --release -q
+[ -e target/release/libmodbus.so.5 ] || ln -sf libmodbus.so target/release/libmodbus.so.5
+benches/build.sh target/bench
+# Measure a copy: a rebuild of target/release during the run must not change it.
+mkdir -p target/bench/ours
+cp target/release/libmodbus.so target/bench/ours/libmodbus.so.5
+BENCH_OURS_DIR=$PWD/target/bench/ours exec python3 benches/bench.py
