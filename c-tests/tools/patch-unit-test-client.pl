@@ -64,6 +64,13 @@ patch('tcp-pi-null-null', 1,
       qr/(ctx = modbus_new_tcp_pi\(NULL, NULL\);\s*\n\s*)ASSERT_TRUE\(ctx == NULL && errno == EINVAL, ""\);/,
       sub { "$1ALLOW_DIFF(\"tcp-pi-null-null\", ctx == NULL && errno == EINVAL, ctx != NULL, \"\");" });
 
+# 4. Not a difference: the "adapted byte timeout" check gives 7 ms to bytes sent 5 ms
+#    apart, no margin on a shared 2-core machine (Debian's own library failed it there).
+#    50 ms keeps the check's meaning (a byte timeout longer than the gaps).
+patch('byte-timeout-margin', 1,
+      qr/modbus_set_byte_timeout\(ctx, 0, 7000\);/,
+      sub { "modbus_set_byte_timeout(ctx, 0, 50000);" });
+
 open(my $out, '>', $file) or die "$file: $!\n";
 print $out $src;
 close($out);
