@@ -154,6 +154,30 @@ pub struct Context {
     /// [`crate::server_ext`]); `None` until a server configuration call, so an
     /// unconfigured context is exactly libmodbus and pays nothing for it.
     pub server_ext: Option<Box<crate::server_ext::ServerExt>>,
+    /// Frame buffers lent to one transaction at a time (see [`SpareFrames`]).
+    pub spare: SpareFrames,
+    /// `s` is a serial line this context opened (with `O_NONBLOCK`): a read on it
+    /// never blocks. False for a descriptor the application handed over.
+    pub line_nonblocking: bool,
+}
+
+/// Frame buffers a context lends to each transaction and takes back: a transaction
+/// then neither allocates nor zeroes 260 bytes per frame (it only ever reads what it
+/// wrote). Allocated on first use, freed with the context.
+#[derive(Debug, Default)]
+pub struct SpareFrames([Option<Box<[u8; MAX_ADU_LENGTH]>>; 2]);
+
+impl SpareFrames {
+    pub fn take(&mut self) -> Box<[u8; MAX_ADU_LENGTH]> {
+        let slot = self.0.iter_mut().find(|slot| slot.is_some());
+        slot.and_then(Option::take).unwrap_or_else(|| Box::new([0; MAX_ADU_LENGTH]))
+    }
+
+    pub fn give(&mut self, frame: Box<[u8; MAX_ADU_LENGTH]>) {
+        if let Some(slot) = self.0.iter_mut().find(|slot| slot.is_none()) {
+            *slot = Some(frame);
+        }
+    }
 }
 
 impl Context {
@@ -175,6 +199,8 @@ impl Context {
             serves_extended: false,
             diagnostics_sent: None,
             server_ext: None,
+            spare: SpareFrames::default(),
+            line_nonblocking: false,
         }
     }
 

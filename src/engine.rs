@@ -6,7 +6,9 @@ use parking_lot::MutexGuard;
 
 use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP};
 use crate::core::confirm::{self, Rejection};
-use crate::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
+use crate::core::frame::{
+    Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, complete_length, rtu_integrity,
+};
 use crate::core::request::{Request, next_tid};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result, strerror_modbus};
@@ -230,7 +232,7 @@ fn recover_after_read(ctx: &mut Context, e: Error) {
 /// - a TCP server peeks at what has arrived and, when it holds the whole request,
 ///   takes exactly that request in one read; it never takes bytes past the request,
 ///   so the application's own poll loop still sees pipelined requests.
-pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result<Received> {
+pub fn receive_msg(g: &mut Guard<'_>, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
     let ctx: &mut Context = g;
     let mut diag = ctx.diag();
     match kind {
@@ -244,10 +246,9 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
     if ctx.framing == Framing::Ascii {
         return receive_ascii(ctx, buf, kind);
     }
-    let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
+    debug_assert!(buf.len() >= ctx.framing.max_adu_length());
     if ctx.is_socket() && kind == MsgKind::Indication && ctx.rx.available().is_empty() {
-        let blocking = ctx.indication_timeout.is_zero();
-        if let Some(len) = take_whole_indication(ctx.framing, ctx.serves_extended, ctx.s, buf, blocking) {
+        if let Some(len) = take_whole_indication(ctx, buf) {
             if ctx.debug {
                 let mut trace = String::with_capacity(len * 4 + 1);
                 push_trace(&mut trace, &buf[..len]);
@@ -257,13 +258,33 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
             return check_integrity(ctx, &buf[..len]);
         }
     }
+    receive_steps(ctx, buf, kind)
+}
+
+/// The general receive loop of RTU and TCP (see [`receive_msg`]).
+#[inline(never)]
+fn receive_steps(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
+    let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
     let mut budget = first_timeout(ctx, kind);
     let expecting = if kind == MsgKind::Confirmation { ctx.diagnostics_sent.take() } else { None };
     let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended).expecting(expecting);
+    let extended = kind == MsgKind::Confirmation || ctx.serves_extended;
     let mut trace = String::new();
     // Bytes in `buf`: those the assembler took, then (reading ahead) any after them.
     let mut filled = 0;
     loop {
+        if asm.is_empty() && filled > 0 {
+            // The usual case: one read brought the whole message.
+            if let Some(len) = complete_length(ctx.framing, kind, extended, &buf[..filled]) {
+                keep_unread(ctx, &buf[len..filled]);
+                if ctx.debug {
+                    push_trace(&mut trace, &buf[..len]);
+                    trace.push('\n');
+                    flush_trace(ctx, &mut trace);
+                }
+                return check_integrity(ctx, &buf[..len]);
+            }
+        }
         while asm.len() < filled {
             let start = asm.len();
             let n = asm.wanted().min(filled - start);
@@ -297,6 +318,19 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut AduBuf, kind: MsgKind) -> Result
             ctx.rx.consume(n);
             filled += n;
             continue;
+        }
+        if filled > 0 {
+            // Within a message the rest has usually arrived with its start: read it
+            // without waiting when the read cannot block, and wait only if it is
+            // not there yet.
+            let room = if read_ahead { &mut buf[filled..] } else { &mut buf[filled..filled + want] };
+            if let Some(n) = read_if_queued(ctx, room) {
+                filled += n;
+                if !ctx.byte_timeout.is_zero() {
+                    budget = Some(ctx.byte_timeout.timespec());
+                }
+                continue;
+            }
         }
         if let Err(e) = wait_readable(ctx, budget.as_mut()) {
             if e == Error::TIMED_OUT && asm.searching_crc() {
@@ -349,7 +383,7 @@ fn keep_unread(ctx: &mut Context, rest: &[u8]) {
 /// CR LF, so nothing past it is consumed as part of it) and decoded into `buf`. The
 /// first wait uses the response or indication timeout, the later ones the byte
 /// timeout (1 s by default on ASCII contexts: the gap the protocol allows).
-fn receive_ascii(ctx: &mut Context, buf: &mut AduBuf, kind: MsgKind) -> Result<Received> {
+fn receive_ascii(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
     let mut budget = first_timeout(ctx, kind);
     let delimiter = ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
     let mut decoder = ascii::Decoder::with_delimiter(delimiter);
@@ -478,6 +512,20 @@ fn wait_readable(ctx: &Context, mut budget: Option<&mut libc::timespec>) -> Resu
     }
 }
 
+/// A read that never blocks: bytes already queued on the line, or `None` (nothing
+/// there, an error, or a descriptor a read could block on) for the waiting path to
+/// handle as usual.
+fn read_if_queued(ctx: &Context, room: &mut [u8]) -> Option<usize> {
+    let got = if ctx.is_socket() {
+        transport::recv(ctx.s, room, libc::MSG_DONTWAIT)
+    } else if ctx.line_nonblocking {
+        transport::read(ctx.s, room)
+    } else {
+        return None;
+    };
+    got.ok().filter(|&n| n > 0)
+}
+
 /// One read from the line: `recv` on a socket, `read` on a serial line.
 fn read_line(socket: bool, fd: i32, buf: &mut [u8]) -> Result<usize> {
     if socket { transport::recv(fd, buf, 0) } else { transport::read(fd, buf) }
@@ -487,28 +535,36 @@ fn read_line(socket: bool, fd: i32, buf: &mut [u8]) -> Result<usize> {
 /// timeout is infinite) and, when they hold a whole request, take exactly that
 /// request. `None` when the slow path must run (nothing queued yet, a partial
 /// request, an oversized one, or an error it will report).
-fn take_whole_indication(framing: Framing, extended: bool, fd: i32, buf: &mut AduBuf, blocking: bool) -> Option<usize> {
-    let flags = libc::MSG_PEEK | if blocking { 0 } else { libc::MSG_DONTWAIT };
-    // Peek into scratch space: the caller's buffer only ever receives the request.
-    let mut peeked: AduBuf = [0; MAX_ADU_LENGTH];
-    let queued = match transport::recv(fd, &mut peeked, flags) {
+fn take_whole_indication(ctx: &mut Context, buf: &mut [u8]) -> Option<usize> {
+    let flags = libc::MSG_PEEK | if ctx.indication_timeout.is_zero() { 0 } else { libc::MSG_DONTWAIT };
+    // Peek into the (empty) read-ahead buffer: the caller's buffer only ever receives
+    // the request.
+    let peeked = &mut ctx.rx.buf;
+    let queued = match transport::recv(ctx.s, peeked, flags) {
         Ok(n) if n > 0 => n,
         _ => return None,
     };
-    let mut asm = Assembler::new(framing, MsgKind::Indication).extended_requests(extended);
-    let len = loop {
-        let next = asm.len() + asm.wanted();
-        if next > queued {
-            return None;
-        }
-        match asm.received(&peeked[..next], asm.wanted()) {
-            Ok(Progress::NeedMore(_)) => continue,
-            Ok(Progress::Complete(len)) => break len,
-            Err(_) => return None,
+    let peeked = &peeked[..queued];
+    let len = match complete_length(ctx.framing, MsgKind::Indication, ctx.serves_extended, peeked) {
+        Some(len) => len,
+        None => {
+            // An extended function code: its length comes piece by piece.
+            let mut asm = Assembler::new(ctx.framing, MsgKind::Indication).extended_requests(ctx.serves_extended);
+            loop {
+                let next = asm.len() + asm.wanted();
+                if next > queued {
+                    return None;
+                }
+                match asm.received(&peeked[..next], asm.wanted()) {
+                    Ok(Progress::NeedMore(_)) => continue,
+                    Ok(Progress::Complete(len)) => break len,
+                    Err(_) => return None,
+                }
+            }
         }
     };
     // The request is queued whole, so this read returns all of it and nothing more.
-    match transport::recv(fd, &mut buf[..len], 0) {
+    match transport::recv(ctx.s, buf.get_mut(..len)?, 0) {
         Ok(n) if n == len => Some(len),
         _ => None,
     }
@@ -531,10 +587,16 @@ fn flush_trace(ctx: &Context, trace: &mut String) {
 }
 
 /// End of the receive loop: RTU frames must have a good CRC and be ours.
+#[inline]
 fn check_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
     if ctx.framing == Framing::Tcp {
         return Ok(Received::Frame(frame.len()));
     }
+    check_serial_integrity(ctx, frame)
+}
+
+#[inline(never)]
+fn check_serial_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
     let mut diag = ctx.diag();
     if ctx.framing == Framing::Ascii {
         if let Err((received, computed)) = ascii::check_lrc(frame) {
@@ -593,10 +655,16 @@ pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Resul
         g.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
     }
-    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
-    let n = build_request(g, req, &mut out);
+    let mut out = g.spare.take();
+    let result = exchange_with(g, req, &mut out, rsp);
+    g.spare.give(out);
+    result
+}
+
+fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &mut AduBuf) -> Result<Confirmed> {
+    let n = build_request(g, req, out);
     note_diagnostics(g, &out[..n]);
-    let sent = send_msg(g, &mut out, n)?;
+    let sent = send_msg(g, out, n)?;
     let received = receive_msg(g, rsp, MsgKind::Confirmation)?;
     let req_adu = &out[..sent];
     let (len, rsp_adu) = match received {

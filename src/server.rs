@@ -12,7 +12,7 @@
 use crate::context::Context;
 use crate::core::Diag;
 use crate::core::diagnostics::Delivery;
-use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
+use crate::core::frame::{Framing, MsgKind};
 use crate::core::reply::{Mapping, Outcome, Server, exception_response};
 use crate::engine::{self, AduBuf, Guard, Received};
 use crate::error::{Error, Result, exception};
@@ -21,7 +21,7 @@ use crate::server_ext::BusEvent;
 /// `modbus_receive`: waits for one request and returns its length, or 0 for a frame
 /// libmodbus filters out (RTU: addressed to another slave, or the answer of that
 /// slave which follows it on a shared bus).
-pub fn receive(g: &mut Guard<'_>, buf: &mut AduBuf) -> Result<usize> {
+pub fn receive(g: &mut Guard<'_>, buf: &mut [u8]) -> Result<usize> {
     if g.framing == Framing::Tcp {
         let r = engine::receive_msg(g, buf, MsgKind::Indication);
         count_bus(g, &r);
@@ -100,16 +100,22 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
     let server = Server { framing: g.framing, quirks: g.quirks };
     let mut sink = g.diag();
-    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
-    let Some(ext) = g.server_ext.as_deref_mut() else {
-        let outcome = server.reply(req, req_length, mapping, &mut sink, &mut out);
-        return perform(g, outcome, &mut out).0;
+    let mut out = g.spare.take();
+    let result = match g.server_ext.as_deref_mut() {
+        None => {
+            let outcome = server.reply(req, req_length, mapping, &mut sink, &mut out);
+            perform(g, outcome, &mut out).0
+        }
+        Some(ext) => {
+            let answer = ext.reply(server, req, req_length, mapping, &mut sink, &mut out);
+            let (result, delivery) = perform(g, answer.outcome, &mut out);
+            if let Some(ext) = g.server_ext.as_deref_mut() {
+                ext.complete(&answer, delivery);
+            }
+            result
+        }
     };
-    let answer = ext.reply(server, req, req_length, mapping, &mut sink, &mut out);
-    let (result, delivery) = perform(g, answer.outcome, &mut out);
-    if let Some(ext) = g.server_ext.as_deref_mut() {
-        ext.complete(&answer, delivery);
-    }
+    g.spare.give(out);
     result
 }
 
@@ -127,9 +133,10 @@ pub fn reply_exception(g: &mut Guard<'_>, req: &[u8], code: u32) -> Result<usize
             return Ok(0);
         }
     }
-    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
+    let mut out = g.spare.take();
     let len = exception_response(framing, req, code as u8, &mut out);
-    let r = engine::send_msg(g, &mut out, len);
+    let r = engine::send_msg(g, &mut out[..], len);
+    g.spare.give(out);
     if let Some(ext) = g.server_ext.as_deref_mut() {
         ext.exception_done(code as u8, if r.is_ok() { Delivery::Sent } else { Delivery::SendFailed });
     }

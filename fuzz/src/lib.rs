@@ -373,12 +373,12 @@ pub fn server(framing: Framing, data: &[u8]) {
 
         // What the C shim hands to the core: never more than the request describes.
         let bound = if req_length < 0 { usize::MAX } else { req_length as usize };
-        let extent = request_extent(framing, extended, bound, |i| {
+        let extent = request_extent(framing, extended, bound, |n| {
             // ASCII frames are delimited, not length-parsed: the content may describe
             // more bytes than arrived, which then come from the (zeroed) buffer.
-            assert!(i < len || framing == Framing::Ascii, "request_extent read byte {i} of a {len}-byte request");
-            assert!(i < bound, "request_extent read byte {i} past req_length {bound}");
-            full[i]
+            assert!(n <= len || framing == Framing::Ascii, "request_extent read {n} bytes of a {len}-byte request");
+            assert!(n <= bound, "request_extent read {n} bytes past req_length {bound}");
+            &full[..n]
         });
         assert!(extent <= bound && extent <= framing.max_adu_length());
         if framing != Framing::Ascii {

@@ -10,9 +10,33 @@ pub fn set_bits_from_byte(dest: &mut [u8], value: u8) {
 
 /// Unpacks `dest.len()` bits, LSB first, from `packed`.
 pub fn set_bits_from_bytes(dest: &mut [u8], packed: &[u8]) {
-    for (i, d) in dest.iter_mut().enumerate() {
-        *d = (packed[i / 8] >> (i % 8)) & 1;
+    let mut chunks = dest.chunks_exact_mut(8);
+    let mut bytes = packed.iter();
+    // Eight bits at a time: a byte's bits spread to one 0/1 byte each.
+    for (chunk, &byte) in (&mut chunks).zip(&mut bytes) {
+        chunk.copy_from_slice(&SPREAD_BITS[byte as usize].to_le_bytes());
     }
+    let rest = chunks.into_remainder();
+    if let Some(&byte) = bytes.next() {
+        set_bits_from_byte(rest, byte);
+    }
+}
+
+/// `SPREAD_BITS[b]` holds bit i of `b` in its byte i (little-endian).
+static SPREAD_BITS: [u64; 256] = spread_bits();
+
+const fn spread_bits() -> [u64; 256] {
+    let mut table = [0u64; 256];
+    let mut b = 0;
+    while b < 256 {
+        let mut i = 0;
+        while i < 8 {
+            table[b] |= (((b >> i) & 1) as u64) << (8 * i);
+            i += 1;
+        }
+        b += 1;
+    }
+    table
 }
 
 /// ORs `src[i] << i` together (at most 8 values; they are assumed to be 0 or 1).

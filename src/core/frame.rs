@@ -218,6 +218,24 @@ pub fn extended_length(kind: MsgKind, h: usize, msg: &[u8], known_total: Option<
     }
 }
 
+/// The length of the message at the start of `bytes` when `bytes` already holds all
+/// of it and it is framed by libmodbus's three steps (function code, meta bytes, data
+/// and checksum): what an [`Assembler`] fed with `bytes` would complete at, computed in
+/// one go. `None` when the assembler must run: the message is not whole yet, its
+/// function code is an extended one ([`is_extended`], when `extended`), or it announces
+/// more than the framing's maximum ADU (an error the assembler reports).
+pub fn complete_length(framing: Framing, kind: MsgKind, extended: bool, bytes: &[u8]) -> Option<usize> {
+    let h = framing.header_length();
+    let function = *bytes.get(h)?;
+    if extended && is_extended(kind, function) {
+        return None;
+    }
+    let meta_end = h + 1 + meta_length(kind, function);
+    let head = bytes.get(..meta_end)?;
+    let total = meta_end + data_length(kind, h, head) + framing.checksum_length();
+    (total <= framing.max_adu_length() && total <= bytes.len()).then_some(total)
+}
+
 /// The three steps of reading one message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Step {
@@ -443,6 +461,68 @@ mod tests {
             match a.received(&msg[..pos], n)? {
                 Progress::NeedMore(_) => continue,
                 Progress::Complete(len) => return Ok(len),
+            }
+        }
+    }
+
+    /// `complete_length` is the assembler in one go: for pseudo-random byte strings of
+    /// every function code, it gives the assembler's length or declines (`None`) where
+    /// the assembler would need more bytes, fail, or run its extended step.
+    #[test]
+    fn complete_length_agrees_with_the_assembler() {
+        let mut seed = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let mut whole = 0;
+        for round in 0..60_000 {
+            let framing = [Framing::Rtu, Framing::Tcp, Framing::Ascii][round % 3];
+            let kind = if round % 2 == 0 { MsgKind::Indication } else { MsgKind::Confirmation };
+            let extended = round % 5 != 0 || kind == MsgKind::Confirmation;
+            let len = (next() % 270) as usize;
+            let mut bytes: Vec<u8> = (0..len).map(|_| next() as u8).collect();
+            let h = framing.header_length();
+            if len > h {
+                bytes[h] = (next() % 0x30) as u8; // mostly known function codes
+            }
+            if len > h + 5 && next() % 2 == 0 {
+                bytes[h + 5] = (next() % 40) as u8; // byte counts that fit
+                bytes[h + 1] = (next() % 40) as u8;
+            }
+            let fast = complete_length(framing, kind, extended, &bytes);
+            let asm = Assembler::new(framing, kind).extended_requests(extended);
+            let uses_extended = len > h && extended && is_extended(kind, bytes[h]);
+            let slow = (len > 0).then(|| feed_available(asm, &bytes)).flatten();
+            match fast {
+                Some(n) => {
+                    whole += 1;
+                    assert_eq!(slow, Some(Ok(n)), "{framing:?} {kind:?} {bytes:02x?}");
+                }
+                None => assert!(
+                    uses_extended || !matches!(slow, Some(Ok(_))),
+                    "declined a whole message: {framing:?} {kind:?} {bytes:02x?} -> {slow:?}"
+                ),
+            }
+        }
+        assert!(whole > 10_000, "too few whole messages generated: {whole}");
+    }
+
+    /// Feeds what `bytes` has; `None` when the message needs more.
+    fn feed_available(mut a: Assembler, bytes: &[u8]) -> Option<Result<usize>> {
+        let mut pos = 0;
+        loop {
+            let n = a.wanted().min(bytes.len() - pos);
+            if n == 0 {
+                return None;
+            }
+            pos += n;
+            match a.received(&bytes[..pos], n) {
+                Ok(Progress::NeedMore(_)) => continue,
+                Ok(Progress::Complete(len)) => return Some(Ok(len)),
+                Err(e) => return Some(Err(e)),
             }
         }
     }

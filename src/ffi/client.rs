@@ -16,24 +16,30 @@ use crate::ffi::{Modbus, with_ctx};
 fn read_bits(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut u8) -> Result<c_int> {
     let what = if function == fc::READ_COILS { "bits" } else { "discrete inputs" };
     check_read_count(nb, MAX_READ_BITS, what, &mut g.diag())?;
-    let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-    let done = engine::exchange(g, &Request::ReadBits { function, addr, nb }, &mut rsp)?;
-    let h = g.framing.header_length();
-    let packed = &rsp[h + 2..h + 2 + done.count as usize];
-    // SAFETY: the caller provides `nb` writable bytes at `dest` (checked non-NULL).
-    let dest = unsafe { slice::from_raw_parts_mut(dest, nb as usize) };
-    crate::core::data::set_bits_from_bytes(dest, packed);
-    Ok(nb)
+    let mut rsp = g.spare.take();
+    let done = engine::exchange(g, &Request::ReadBits { function, addr, nb }, &mut rsp);
+    if let Ok(done) = &done {
+        let h = g.framing.header_length();
+        let packed = &rsp[h + 2..h + 2 + done.count as usize];
+        // SAFETY: the caller provides `nb` writable bytes at `dest` (checked non-NULL).
+        let dest = unsafe { slice::from_raw_parts_mut(dest, nb as usize) };
+        crate::core::data::set_bits_from_bytes(dest, packed);
+    }
+    g.spare.give(rsp);
+    done.map(|_| nb)
 }
 
 /// Sends a read of registers and stores the values (host order) into `dest`.
 fn read_registers(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut u16) -> Result<c_int> {
     let what = if function == fc::READ_HOLDING_REGISTERS { "registers" } else { "input registers" };
     check_read_count(nb, MAX_READ_REGISTERS, what, &mut g.diag())?;
-    let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-    let done = engine::exchange(g, &Request::ReadRegisters { function, addr, nb }, &mut rsp)?;
-    store_registers(g, &rsp, done.count, dest);
-    Ok(done.count)
+    let mut rsp = g.spare.take();
+    let done = engine::exchange(g, &Request::ReadRegisters { function, addr, nb }, &mut rsp);
+    if let Ok(done) = &done {
+        store_registers(g, &rsp, done.count, dest);
+    }
+    g.spare.give(rsp);
+    done.map(|done| done.count)
 }
 
 /// Copies `count` big-endian registers from a read response into `dest`.
@@ -128,8 +134,10 @@ pub unsafe extern "C" fn modbus_write_register(ctx: *mut Modbus, reg_addr: c_int
 }
 
 fn exchange_count(g: &mut Guard<'_>, req: &Request<'_>) -> Result<c_int> {
-    let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-    engine::exchange(g, req, &mut rsp).map(|done| done.count)
+    let mut rsp = g.spare.take();
+    let done = engine::exchange(g, req, &mut rsp);
+    g.spare.give(rsp);
+    done.map(|done| done.count)
 }
 
 /// Writes `nb` coils (FC 0F) from `data` (one byte per coil). Returns the count the
@@ -220,12 +228,15 @@ pub unsafe extern "C" fn modbus_write_and_read_registers(
                 &[]
             };
             let req = Request::WriteAndReadRegisters { write_addr, write_nb, values, read_addr, read_nb };
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let done = engine::exchange(g, &req, &mut rsp)?;
-            if done.count > 0 {
-                store_registers(g, &rsp, done.count, dest);
+            let mut rsp = g.spare.take();
+            let done = engine::exchange(g, &req, &mut rsp);
+            if let Ok(done) = &done {
+                if done.count > 0 {
+                    store_registers(g, &rsp, done.count, dest);
+                }
             }
-            Ok(done.count)
+            g.spare.give(rsp);
+            done.map(|done| done.count)
         })
     }
 }

@@ -107,6 +107,7 @@ pub unsafe extern "C" fn modbus_set_socket(ctx: *mut Modbus, s: c_int) -> c_int 
     unsafe {
         with_ctx(ctx, |g| {
             g.s = s;
+            g.line_nonblocking = false;
             g.rx.clear();
             Ok(0)
         })

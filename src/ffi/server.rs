@@ -11,9 +11,8 @@ use std::ptr;
 use std::slice;
 
 use crate::core::diagnostics::Diagnostics;
-use crate::core::frame::MAX_ADU_LENGTH;
 use crate::core::reply::{Mapping, Table, request_extent};
-use crate::engine::{AduBuf, Guard};
+use crate::engine::Guard;
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail, status, with_ctx};
 use crate::server_ext::ServerExt;
@@ -238,16 +237,10 @@ pub unsafe extern "C" fn modbus_receive(ctx: *mut Modbus, req: *mut u8) -> c_int
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let cap = g.framing.max_adu_length();
-            // SAFETY: the caller's buffer holds the framing's maximum ADU.
-            let caller = slice::from_raw_parts_mut(req, cap);
-            // Bytes the receive does not reach keep their values, as in libmodbus
-            // (which reads into the caller's buffer directly, even on errors).
-            let mut buf: AduBuf = [0; MAX_ADU_LENGTH];
-            buf[..cap].copy_from_slice(caller);
-            let rc = crate::server::receive(g, &mut buf);
-            caller.copy_from_slice(&buf[..cap]);
-            rc.map(|n| n as c_int)
+            // SAFETY: the caller's buffer holds the framing's maximum ADU. The receive
+            // writes only the bytes it reads, as libmodbus does (even on errors).
+            let caller = slice::from_raw_parts_mut(req, g.framing.max_adu_length());
+            crate::server::receive(g, caller).map(|n| n as c_int)
         })
     }
 }
@@ -277,9 +270,9 @@ pub unsafe extern "C" fn modbus_reply(
     unsafe {
         with_ctx(ctx, |g| {
             let bound = if req_length < 0 { usize::MAX } else { req_length as usize };
-            // SAFETY: request_extent only asks for bytes inside the request as its own
-            // header describes it (and below a non-negative req_length).
-            let extent = request_extent(g.framing, g.serves_extended, bound, |i| *req.add(i));
+            // SAFETY: request_extent only asks for prefixes of the request as its own
+            // header describes it (and within a non-negative req_length).
+            let extent = request_extent(g.framing, g.serves_extended, bound, |n| slice::from_raw_parts(req, n));
             // SAFETY: the same bytes, now as one slice.
             let req = slice::from_raw_parts(req, extent);
             let mut mapping = CMapping(mb_mapping);

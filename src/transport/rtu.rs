@@ -120,6 +120,7 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
         return Err(e);
     }
     ctx.s = fd;
+    ctx.line_nonblocking = true;
     Ok(())
 }
 
@@ -134,6 +135,7 @@ pub fn close_line(ctx: &mut Context) {
     }
     close(ctx.s);
     ctx.s = -1;
+    ctx.line_nonblocking = false;
 }
 
 /// Discards both directions of the line (`tcflush(TCIOFLUSH)`).
