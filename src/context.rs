@@ -168,15 +168,18 @@ pub struct Context {
 pub struct SpareFrames([Option<Box<[u8; MAX_ADU_LENGTH]>>; 2]);
 
 impl SpareFrames {
+    #[inline]
     pub fn take(&mut self) -> Box<[u8; MAX_ADU_LENGTH]> {
-        let slot = self.0.iter_mut().find(|slot| slot.is_some());
-        slot.and_then(Option::take).unwrap_or_else(|| Box::new([0; MAX_ADU_LENGTH]))
+        match self.0[0].take() {
+            Some(frame) => frame,
+            None => self.0[1].take().unwrap_or_else(|| Box::new([0; MAX_ADU_LENGTH])),
+        }
     }
 
+    #[inline]
     pub fn give(&mut self, frame: Box<[u8; MAX_ADU_LENGTH]>) {
-        if let Some(slot) = self.0.iter_mut().find(|slot| slot.is_none()) {
-            *slot = Some(frame);
-        }
+        let slot = if self.0[0].is_none() { &mut self.0[0] } else { &mut self.0[1] };
+        *slot = Some(frame);
     }
 }
 

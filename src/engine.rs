@@ -273,7 +273,7 @@ fn receive_steps(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Rec
     // Bytes in `buf`: those the assembler took, then (reading ahead) any after them.
     let mut filled = 0;
     loop {
-        if asm.is_empty() && filled > 0 {
+        if read_ahead && asm.is_empty() && filled > 0 {
             // The usual case: one read brought the whole message.
             if let Some(len) = complete_length(ctx.framing, kind, extended, &buf[..filled]) {
                 keep_unread(ctx, &buf[len..filled]);

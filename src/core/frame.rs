@@ -150,6 +150,20 @@ pub fn data_length(kind: MsgKind, header_length: usize, msg: &[u8]) -> usize {
     }
 }
 
+/// Whether [`data_length`] reads the meta bytes of this function code. When it does
+/// not, the data length is 0 whatever they hold, so the meta bytes and the checksum
+/// can be read as one piece: still never past the end of the message.
+pub const fn data_needs_meta(kind: MsgKind, function: u8) -> bool {
+    match kind {
+        MsgKind::Indication => {
+            matches!(function, fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS | fc::WRITE_AND_READ_REGISTERS)
+        }
+        MsgKind::Confirmation => {
+            matches!(function, 0x00..=fc::READ_INPUT_REGISTERS | fc::REPORT_SLAVE_ID | fc::WRITE_AND_READ_REGISTERS)
+        }
+    }
+}
+
 /// Function codes libmodbus does not frame (it reads only up to the function code
 /// for them, so their requests and responses were truncated: its issues #340, #343,
 /// #493). Their layouts come from the protocol; the helpers below give the length.
@@ -361,34 +375,24 @@ impl Assembler {
         if self.step == Step::Function && self.extended && is_extended(self.kind, buf[h]) {
             self.step = Step::Extended;
         }
-        if self.crc_search {
-            return Ok(self.search_crc(buf));
+        if self.crc_search || self.step == Step::Extended {
+            return self.received_extended(buf);
         }
-        if self.step == Step::Extended {
-            let known = match self.framing {
-                Framing::Tcp => Some(6 + (((buf[4] as usize) << 8) | buf[5] as usize)),
-                _ => self.known_total,
-            };
-            let body = extended_length(self.kind, h, &buf[..self.length], known);
-            if body > self.length {
-                if body + self.framing.checksum_length() > self.framing.max_adu_length() {
-                    return Err(Error::BAD_DATA);
-                }
-                self.wanted = body - self.length;
-                return Ok(Progress::NeedMore(self.wanted));
-            }
-            // The PDU is whole: only the checksum is left.
-            self.step = Step::Data;
-            self.wanted = self.framing.checksum_length();
-            self.crc_search =
-                self.framing == Framing::Rtu && self.kind == MsgKind::Indication && buf[h] == fc::DIAGNOSTICS;
-            if self.wanted > 0 {
-                return Ok(Progress::NeedMore(self.wanted));
-            }
-            return Ok(Progress::Complete(self.length));
-        }
+        self.received_in_steps(buf)
+    }
+
+    /// The three libmodbus steps: function code, meta bytes, data and checksum.
+    #[inline]
+    fn received_in_steps(&mut self, buf: &[u8]) -> Result<Progress> {
+        let h = self.framing.header_length();
         if self.step == Step::Function {
             let meta = meta_length(self.kind, buf[h]);
+            if meta != 0 && !data_needs_meta(self.kind, buf[h]) {
+                // No data: the meta bytes and the checksum end the message.
+                self.step = Step::Data;
+                self.wanted = meta + self.framing.checksum_length();
+                return Ok(Progress::NeedMore(self.wanted));
+            }
             if meta != 0 {
                 self.step = Step::Meta;
                 self.wanted = meta;
@@ -406,6 +410,36 @@ impl Assembler {
             if data > 0 {
                 return Ok(Progress::NeedMore(data));
             }
+        }
+        Ok(Progress::Complete(self.length))
+    }
+
+    /// An extended function code (its length found piece by piece), or an RTU
+    /// diagnostics request searching for its CRC.
+    #[inline(never)]
+    fn received_extended(&mut self, buf: &[u8]) -> Result<Progress> {
+        let h = self.framing.header_length();
+        if self.crc_search {
+            return Ok(self.search_crc(buf));
+        }
+        let known = match self.framing {
+            Framing::Tcp => Some(6 + (((buf[4] as usize) << 8) | buf[5] as usize)),
+            _ => self.known_total,
+        };
+        let body = extended_length(self.kind, h, &buf[..self.length], known);
+        if body > self.length {
+            if body + self.framing.checksum_length() > self.framing.max_adu_length() {
+                return Err(Error::BAD_DATA);
+            }
+            self.wanted = body - self.length;
+            return Ok(Progress::NeedMore(self.wanted));
+        }
+        // The PDU is whole: only the checksum is left.
+        self.step = Step::Data;
+        self.wanted = self.framing.checksum_length();
+        self.crc_search = self.framing == Framing::Rtu && self.kind == MsgKind::Indication && buf[h] == fc::DIAGNOSTICS;
+        if self.wanted > 0 {
+            return Ok(Progress::NeedMore(self.wanted));
         }
         Ok(Progress::Complete(self.length))
     }
@@ -508,6 +542,23 @@ mod tests {
             }
         }
         assert!(whole > 10_000, "too few whole messages generated: {whole}");
+    }
+
+    #[test]
+    fn data_needs_meta_is_exactly_where_data_length_reads_them() {
+        for kind in [MsgKind::Indication, MsgKind::Confirmation] {
+            for function in 0..=255u8 {
+                for h in [1, 7] {
+                    let mut msg = [0u8; 32];
+                    msg[h] = function;
+                    let zero = data_length(kind, h, &msg);
+                    msg[h + 1..].fill(0x5A);
+                    let filled = data_length(kind, h, &msg);
+                    assert_eq!(zero, 0, "{kind:?} {function:#x}");
+                    assert_eq!(filled != 0, data_needs_meta(kind, function), "{kind:?} {function:#x}");
+                }
+            }
+        }
     }
 
     /// Feeds what `bytes` has; `None` when the message needs more.

@@ -249,7 +249,61 @@ pub struct Server {
 impl Server {
     /// Answers `req` (the request as received; see [`request_extent`]) against
     /// `mapping`. `req_length` is the C caller's value, which may be anything.
+    #[inline]
     pub fn reply(
+        &self,
+        req: &[u8],
+        req_length: i32,
+        mapping: &mut dyn Mapping,
+        diag: &mut dyn Diag,
+        out: &mut [u8; MAX_ADU_LENGTH],
+    ) -> Outcome {
+        if let Some(outcome) = self.read_registers_at_once(req, req_length, mapping, out) {
+            return outcome;
+        }
+        self.reply_general(req, req_length, mapping, diag, out)
+    }
+
+    /// The most common request in few instructions: a valid read of holding or input
+    /// registers, not broadcast. `Some` only with the outcome and bytes
+    /// [`Server::reply_general`] gives (a unit test holds them to that); anything else,
+    /// errors included, goes the general way.
+    #[inline]
+    fn read_registers_at_once(
+        &self,
+        req: &[u8],
+        req_length: i32,
+        mapping: &mut dyn Mapping,
+        out: &mut [u8; MAX_ADU_LENGTH],
+    ) -> Option<Outcome> {
+        let framing = self.framing;
+        let h = framing.header_length();
+        let head = req.get(..h + 5)?;
+        let (slave, function) = (head[h - 1], head[h]);
+        let is_read = matches!(function, fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS);
+        let address_covered = req_length < 0 || req_length as i64 >= (h + 3) as i64;
+        let broadcast = framing.is_serial() && slave as i32 == BROADCAST_ADDRESS;
+        if !is_read || !address_covered || broadcast {
+            return None;
+        }
+        let address = u16::from_be_bytes([head[h + 1], head[h + 2]]);
+        let nb = u16::from_be_bytes([head[h + 3], head[h + 4]]) as usize;
+        if !(1..=MAX_READ_REGISTERS as usize).contains(&nb) {
+            return None;
+        }
+        let table = if function == fc::READ_INPUT_REGISTERS { mapping.input_registers() } else { mapping.registers() };
+        let first = table.range(address, nb as i64)?;
+        let n = response_basis(framing, framing.response_tid(req), slave, function, out);
+        out[n] = (2 * nb) as u8;
+        let body = &mut out[n + 1..n + 1 + 2 * nb];
+        for (pair, value) in body.chunks_exact_mut(2).zip(&table.data[first..first + nb]) {
+            pair.copy_from_slice(&value.to_be_bytes());
+        }
+        Some(Outcome::Respond { len: n + 1 + 2 * nb, exception: None, flush_first: false, suppressed: false })
+    }
+
+    #[inline(never)]
+    fn reply_general(
         &self,
         req: &[u8],
         req_length: i32,
@@ -674,6 +728,48 @@ mod tests {
     }
 
     // ---------------------------------------------------------------- FC 01 / 02
+
+    #[test]
+    fn the_register_read_shortcut_answers_like_the_general_path() {
+        let mut seed = 0x5851_F42D_4C95_7F2Du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        let mut taken = 0;
+        for round in 0..50_000 {
+            let framing = [R, T, Framing::Ascii][round % 3];
+            let function = if next() % 2 == 0 { 3 } else { 4 };
+            let unit = [0u8, 1, 17, 255][(next() % 4) as usize];
+            let addr = (next() % 300) as u16;
+            let nb = (next() % 140) as u16;
+            let mut req = adu(framing, unit, &read_pdu(function, addr, nb));
+            if next() % 8 == 0 {
+                req.truncate((next() as usize) % req.len());
+            }
+            let req_length = match next() % 4 {
+                0 => -1,
+                1 => (next() % 20) as i32,
+                _ => req.len() as i32,
+            };
+            let quirks = if next() % 4 == 0 { QUIRK_REPLY_TO_BROADCAST } else { 0 };
+            let server = Server { framing, quirks };
+            let mut fx = if next() % 2 == 0 { Fixture::unit_test() } else { Fixture::zero_based(200) };
+            let mut fast_out = [0u8; MAX_ADU_LENGTH];
+            let Some(fast) = server.read_registers_at_once(&req, req_length, &mut fx.tables(), &mut fast_out) else {
+                continue;
+            };
+            taken += 1;
+            let mut out = [0u8; MAX_ADU_LENGTH];
+            let general = server.reply_general(&req, req_length, &mut fx.tables(), &mut crate::core::Silent, &mut out);
+            assert_eq!(fast, general, "{framing:?} {req:02x?} {req_length}");
+            let Outcome::Respond { len, .. } = general else { unreachable!() };
+            assert_eq!(fast_out[..len], out[..len], "{framing:?} {req:02x?}");
+        }
+        assert!(taken > 5_000, "too few reads taken the short way: {taken}");
+    }
 
     #[test]
     fn pack_bits_matches_the_bit_by_bit_rule() {
