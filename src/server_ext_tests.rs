@@ -986,13 +986,8 @@ fn truncated_and_empty_requests() {
 /// panic, no answer longer than the framing allows, only exceptions 1-3.
 #[test]
 fn random_requests_never_misbehave() {
-    let mut seed: u64 = 0x9E37_79B9_7F4A_7C15;
-    let mut next = || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        seed
-    };
+    let mut rng = crate::core::test_rng::XorShift::new(0x9E37_79B9_7F4A_7C15);
+    let mut next = || rng.next_u64();
     let mut e = files();
     e.enable_diagnostics(true);
     e.set_exception_status(Some(3));

@@ -284,13 +284,8 @@ mod tests {
     #[test]
     fn the_fast_accept_agrees_with_the_full_check() {
         use super::*;
-        let mut seed = 0xD1B5_4A32_D192_ED03u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut rng = crate::core::test_rng::XorShift::new(0xD1B5_4A32_D192_ED03);
+        let mut next = || rng.next_u64();
         let mut accepted = 0;
         for round in 0..100_000 {
             let framing = [Framing::Rtu, Framing::Tcp, Framing::Ascii][round % 3];

@@ -504,13 +504,8 @@ mod tests {
     /// the assembler would need more bytes, fail, or run its extended step.
     #[test]
     fn complete_length_agrees_with_the_assembler() {
-        let mut seed = 0x2545_F491_4F6C_DD1Du64;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut rng = crate::core::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);
+        let mut next = || rng.next_u64();
         let mut whole = 0;
         for round in 0..60_000 {
             let framing = [Framing::Rtu, Framing::Tcp, Framing::Ascii][round % 3];

@@ -14,6 +14,8 @@ pub mod reply;
 pub mod request;
 #[cfg(test)]
 mod seed_vectors;
+#[cfg(test)]
+pub mod test_rng;
 
 use core::fmt;
 

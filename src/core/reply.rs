@@ -731,13 +731,8 @@ mod tests {
 
     #[test]
     fn the_register_read_shortcut_answers_like_the_general_path() {
-        let mut seed = 0x5851_F42D_4C95_7F2Du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut rng = crate::core::test_rng::XorShift::new(0x5851_F42D_4C95_7F2D);
+        let mut next = || rng.next_u64();
         let mut taken = 0;
         for round in 0..50_000 {
             let framing = [R, T, Framing::Ascii][round % 3];
@@ -773,11 +768,9 @@ mod tests {
 
     #[test]
     fn pack_bits_matches_the_bit_by_bit_rule() {
-        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rng = crate::core::test_rng::XorShift::new(0x9E37_79B9_7F4A_7C15);
         for round in 0..20_000 {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
+            let seed = rng.next_u64();
             let len = (seed % 40) as usize;
             // Mostly 0/1 tables, sometimes unmasked values (2 sets the next bit).
             let bits: Vec<u8> = (0..len)
@@ -1515,13 +1508,8 @@ mod tests {
     /// libmodbus uses come out.
     #[test]
     fn random_requests_never_misbehave() {
-        let mut seed: u64 = 0x2545_F491_4F6C_DD1D;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut rng = crate::core::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);
+        let mut next = || rng.next_u64();
         let functions = [0u8, 1, 2, 3, 4, 5, 6, 7, 8, 0x0F, 0x10, 0x11, 0x16, 0x17, 0x2B, 0x83];
         for round in 0..20_000 {
             let framing = if round % 2 == 0 { T } else { R };
