@@ -7,7 +7,8 @@ use parking_lot::MutexGuard;
 use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP};
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{
-    Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, complete_length, rtu_integrity,
+    Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, complete_length, length_after_function,
+    rtu_integrity,
 };
 use crate::core::request::{Request, next_tid};
 use crate::core::{Diag, ascii};
@@ -258,20 +259,64 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut [u8], kind: MsgKind) -> Result<R
             return check_integrity(ctx, &buf[..len]);
         }
     }
-    receive_steps(ctx, buf, kind)
+    receive_otherwise(ctx, buf, kind)
 }
 
-/// The general receive loop of RTU and TCP (see [`receive_msg`]).
+/// Every receive but the socket server's fast path (kept apart so that the latter
+/// stays a short function).
 #[inline(never)]
-fn receive_steps(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
+fn receive_otherwise(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
+    if ctx.line_nonblocking && kind == MsgKind::Indication && !ctx.debug && ctx.rx.available().is_empty() {
+        return receive_serial_request(ctx, buf);
+    }
+    receive_steps(ctx, buf, kind, 0, first_timeout(ctx, kind))
+}
+
+/// Serial server fast path: after the first wait, the slave and function code, then,
+/// when the function code alone tells the rest of the request's length (every
+/// request but FC 0F, 10, 17 and the extended ones), the rest in one read that does
+/// not wait. Each read takes no more than the request, as in the general loop, which
+/// carries on with the bytes read so far whenever a piece is not there yet (or the
+/// wait failed: it waits again, with what is left of the timeout, and reports).
+fn receive_serial_request(ctx: &mut Context, buf: &mut [u8]) -> Result<Received> {
+    let mut budget = first_timeout(ctx, MsgKind::Indication);
+    let h = ctx.framing.header_length();
+    let mut filled = 0;
+    if wait_readable(ctx, budget.as_mut()).is_ok() {
+        filled = transport::read(ctx.s, &mut buf[..h + 1]).unwrap_or(0);
+        let rest = if filled == h + 1 {
+            length_after_function(ctx.framing, MsgKind::Indication, ctx.serves_extended, buf[h])
+        } else {
+            None
+        };
+        if let Some(rest) = rest.filter(|&rest| h + 1 + rest <= buf.len()) {
+            filled += read_if_queued(ctx, &mut buf[h + 1..h + 1 + rest]).unwrap_or(0);
+            if filled == h + 1 + rest {
+                return check_integrity(ctx, &buf[..filled]);
+            }
+        }
+        if filled > 0 && !ctx.byte_timeout.is_zero() {
+            budget = Some(ctx.byte_timeout.timespec());
+        }
+    }
+    receive_steps(ctx, buf, MsgKind::Indication, filled, budget)
+}
+
+/// The general receive loop of RTU and TCP (see [`receive_msg`]); `buf[..filled]`
+/// holds bytes of the message already read, `budget` the time for the next wait.
+fn receive_steps(
+    ctx: &mut Context,
+    buf: &mut [u8],
+    kind: MsgKind,
+    mut filled: usize,
+    mut budget: Option<libc::timespec>,
+) -> Result<Received> {
     let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
-    let mut budget = first_timeout(ctx, kind);
     let expecting = if kind == MsgKind::Confirmation { ctx.diagnostics_sent.take() } else { None };
     let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended).expecting(expecting);
     let extended = kind == MsgKind::Confirmation || ctx.serves_extended;
     let mut trace = String::new();
     // Bytes in `buf`: those the assembler took, then (reading ahead) any after them.
-    let mut filled = 0;
     loop {
         if read_ahead && asm.is_empty() && filled > 0 {
             // The usual case: one read brought the whole message.
@@ -878,6 +923,62 @@ mod tests {
         bad[7] ^= 0xFF;
         transport::write(peer, &bad).unwrap();
         assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::BAD_CRC));
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    /// The serial server's fast path (a line the context opened, O_NONBLOCK): whole
+    /// requests, requests arriving in pieces, back-to-back requests (each receive
+    /// takes one), a request framed by its byte count, and the indication timeout.
+    #[test]
+    fn serial_requests_in_pieces_and_back_to_back() {
+        let (ours, peer) = socket_pair();
+        // SAFETY: fcntl on a descriptor this test owns.
+        unsafe { libc::fcntl(ours, libc::F_SETFL, libc::fcntl(ours, libc::F_GETFL) | libc::O_NONBLOCK) };
+        let mut ctx = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
+        ctx.s = ours;
+        ctx.slave = 0x11;
+        ctx.line_nonblocking = true;
+        ctx.byte_timeout = crate::context::Timeout::new(0, 300_000);
+        let m = Mutex::new(ctx);
+        let mut g = m.lock();
+        let rtu = |body: &[u8]| {
+            let mut f = body.to_vec();
+            f.extend(crate::core::crc::crc16(body).to_le_bytes());
+            f
+        };
+        let read = rtu(&[0x11, 0x03, 0x00, 0x6B, 0x00, 0x03]);
+        let write = rtu(&[0x11, 0x10, 0x00, 0x01, 0x00, 0x02, 0x04, 0x00, 0x0A, 0x01, 0x02]);
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+
+        // Back to back: each receive takes exactly one request.
+        transport::write(peer, &[read.clone(), write.clone(), read.clone()].concat()).unwrap();
+        for expected in [&read, &write, &read] {
+            assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(expected.len())));
+            assert_eq!(&buf[..expected.len()], &expected[..]);
+        }
+
+        // In pieces, with pauses below the byte timeout.
+        for cuts in [[1usize, 2], [2, 5], [3, 7]] {
+            let sender = std::thread::spawn({
+                let frame = read.clone();
+                move || {
+                    let mut at = 0;
+                    for cut in cuts.into_iter().chain([frame.len()]) {
+                        transport::write(peer, &frame[at..cut]).unwrap();
+                        at = cut;
+                        std::thread::sleep(std::time::Duration::from_millis(30));
+                    }
+                }
+            });
+            assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(read.len())));
+            assert_eq!(&buf[..read.len()], &read[..]);
+            sender.join().unwrap();
+        }
+
+        // Nothing arrives: the indication timeout.
+        g.indication_timeout = crate::context::Timeout::new(0, 50_000);
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::TIMED_OUT));
         transport::close(peer);
         transport::close(ours);
     }

@@ -164,6 +164,17 @@ pub const fn data_needs_meta(kind: MsgKind, function: u8) -> bool {
     }
 }
 
+/// The bytes after the function code (meta bytes, data, checksum) when the function
+/// code alone tells how many: every libmodbus-framed message whose data length does
+/// not come from its meta bytes. `None` for the others and, when `extended`, for
+/// the extended function codes.
+pub fn length_after_function(framing: Framing, kind: MsgKind, extended: bool, function: u8) -> Option<usize> {
+    if (extended && is_extended(kind, function)) || data_needs_meta(kind, function) {
+        return None;
+    }
+    Some(meta_length(kind, function) + framing.checksum_length())
+}
+
 /// Function codes libmodbus does not frame (it reads only up to the function code
 /// for them, so their requests and responses were truncated: its issues #340, #343,
 /// #493). Their layouts come from the protocol; the helpers below give the length.
@@ -520,6 +531,14 @@ mod tests {
             if len > h + 5 && next() % 2 == 0 {
                 bytes[h + 5] = (next() % 40) as u8; // byte counts that fit
                 bytes[h + 1] = (next() % 40) as u8;
+            }
+            if len > h {
+                if let Some(rest) = length_after_function(framing, kind, extended, bytes[h]) {
+                    let whole = &bytes[..(h + 1 + rest).min(len)];
+                    let asm = Assembler::new(framing, kind).extended_requests(extended);
+                    let expected = (whole.len() == h + 1 + rest).then_some(Ok(h + 1 + rest));
+                    assert_eq!(feed_available(asm, whole), expected, "{framing:?} {kind:?} {bytes:02x?}");
+                }
             }
             let fast = complete_length(framing, kind, extended, &bytes);
             let asm = Assembler::new(framing, kind).extended_requests(extended);
