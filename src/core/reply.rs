@@ -217,17 +217,23 @@ fn fixed_request_length(framing: Framing, after_header: usize) -> i64 {
 /// Packs bits LSB first the way libmodbus does: table values are OR-ed in unmasked
 /// (a value of 2 sets the next bit too) and each byte keeps the low 8 bits.
 fn pack_bits(bits: &[u8], out: &mut [u8]) -> usize {
-    let mut n = 0;
-    for chunk in bits.chunks(8) {
-        out[n] = match <[u8; 8]>::try_from(chunk).map(u64::from_le_bytes) {
-            // Eight values of 0 or 1 (the usual table): one multiplication gathers
-            // bit 0 of byte i into bit 56 + i, with no carries between them.
-            Ok(eight) if eight & !0x0101_0101_0101_0101 == 0 => (eight.wrapping_mul(0x0102_0408_1020_4080) >> 56) as u8,
-            _ => pack_unmasked(chunk),
+    let whole = bits.len() / 8;
+    let (eights, rest) = bits.split_at(whole * 8);
+    for (byte, eight) in out[..whole].iter_mut().zip(eights.chunks_exact(8)) {
+        let word = u64::from_le_bytes(eight.try_into().unwrap_or_default());
+        // Eight values of 0 or 1 (the usual table): one multiplication gathers bit 0
+        // of byte i into bit 56 + i, with no carries between them.
+        *byte = if word & !0x0101_0101_0101_0101 == 0 {
+            (word.wrapping_mul(0x0102_0408_1020_4080) >> 56) as u8
+        } else {
+            pack_unmasked(eight)
         };
-        n += 1;
     }
-    n
+    if rest.is_empty() {
+        return whole;
+    }
+    out[whole] = pack_unmasked(rest);
+    whole + 1
 }
 
 fn pack_unmasked(chunk: &[u8]) -> u8 {
