@@ -13,7 +13,6 @@ import os
 import platform
 import re
 import shutil
-import signal
 import statistics
 import subprocess
 import sys
@@ -21,6 +20,10 @@ import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "c-tests", "common"))
+import harness  # noqa: E402
+from harness import PtyPair, check_libinfo, start, stop, stop_all, wait_output, wait_ready  # noqa: E402
+
 BUILD = os.path.join(ROOT, "target", "bench")
 # scripts/bench.sh copies the library here so that a rebuild during the run cannot
 # change (or truncate) the measured one.
@@ -34,6 +37,8 @@ METRIC_CASES = os.environ.get("BENCH_METRIC_CASES", "r125" if QUICK else " ".joi
 METRICS = os.environ.get("BENCH_METRICS", "strace callgrind allocs").split()
 THROUGHPUT = os.environ.get("BENCH_THROUGHPUT", "1") == "1"
 PIN = os.environ.get("BENCH_PIN", "")  # e.g. "1": every process of a measurement on that CPU set
+if PIN:
+    harness.COMMAND_PREFIX = ["taskset", "-c", PIN]
 CASE_TITLES = {
     "r125": "read 125 registers",
     "c2000": "read 2000 coils",
@@ -42,7 +47,6 @@ CASE_TITLES = {
     "r1": "read 1 register",
 }
 
-procs = []
 STALLS = []  # transactions slower than 50 ms in a timed run
 
 
@@ -51,81 +55,9 @@ def log(*a):
 
 
 def env_for(lib):
-    e = dict(os.environ)
-    e.pop("LD_LIBRARY_PATH", None)
+    e = harness.env_for(lib, OURS_DIR)
     e.pop("LD_PRELOAD", None)
-    if lib == "ours":
-        e["LD_LIBRARY_PATH"] = OURS_DIR
-    e["EXPECT_LIB"] = lib  # libinfo.c exits 97 if another libmodbus.so.5 is loaded
     return e
-
-
-def start(cmd, env, stdout=subprocess.PIPE):
-    if PIN:
-        cmd = ["taskset", "-c", PIN] + cmd
-    p = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    procs.append(p)
-    return p
-
-
-def stop(p):
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGTERM)  # its own session: the process and its children
-        except ProcessLookupError:
-            pass
-        try:
-            p.wait(5)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait()
-    if p in procs:
-        procs.remove(p)
-
-
-def check_libinfo(text, lib, what):
-    m = re.search(r"LIBINFO: pid \d+ libmodbus\.so\.5 = (\S+) \((.*?)\)", text)
-    if not m:
-        raise RuntimeError(f"{what}: no LIBINFO line")
-    ours = m.group(2).startswith("rsmodbus")
-    if ours != (lib == "ours"):
-        raise RuntimeError(f"{what}: expected {lib} but loaded {m.group(1)}")
-
-
-def wait_ready(p, what, lib=None, timeout=30):
-    """Reads the server's stdout up to its READY line; returns the word after it."""
-    deadline = time.time() + timeout
-    seen = ""
-    while time.time() < deadline:
-        line = p.stdout.readline()
-        if not line:
-            raise RuntimeError(f"{what} exited before READY: {seen} {p.stderr.read()}")
-        seen += line
-        if line.startswith("READY "):
-            if lib is not None:
-                check_libinfo(seen, lib, what)
-            return line.split()[1]
-    raise RuntimeError(f"{what}: no READY in {timeout}s")
-
-
-class Line:
-    """A serial line for one measurement: a socat pty pair (as in the issue's numbers)."""
-
-    def __init__(self):
-        self.dir = tempfile.mkdtemp(prefix="mbbench-")
-        self.a = os.path.join(self.dir, "ttyA")
-        self.b = os.path.join(self.dir, "ttyB")
-        self.p = start(["socat", "pty,raw,echo=0,link=" + self.a, "pty,raw,echo=0,link=" + self.b],
-                       dict(os.environ), stdout=subprocess.DEVNULL)
-        for _ in range(200):
-            if os.path.exists(self.a) and os.path.exists(self.b):
-                return
-            time.sleep(0.01)
-        raise RuntimeError("socat pty pair did not appear")
-
-    def close(self):
-        stop(self.p)
-        shutil.rmtree(self.dir, ignore_errors=True)
 
 
 def bin_(name):
@@ -134,12 +66,10 @@ def bin_(name):
 
 def run_client(cmd, env, what, lib=None, timeout=120):
     p = start(cmd, env)
-    try:
-        out, err = p.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        stop(p)
+    done = wait_output(p, timeout)
+    if done is None:
         raise RuntimeError(f"{what}: timed out")
-    procs.remove(p)
+    out, err = done
     if p.returncode != 0:
         raise RuntimeError(f"{what}: exit {p.returncode}: {err.strip()} {out.strip()}")
     if lib is not None:
@@ -150,21 +80,21 @@ def run_client(cmd, env, what, lib=None, timeout=120):
 
 def throughput(transport, case, server_lib, client_lib, seconds):
     """One alternating measurement: transactions/s, or the floor when libs are None."""
-    line = Line() if transport == "rtu" else None
+    line = PtyPair("mbbench-", 2) if transport == "rtu" else None
     try:
         floor = server_lib is None
         if floor:
             scmd = [bin_("bench-floor"), "server", "tcp" if transport == "tcp" else "pty",
                     "0" if transport == "tcp" else line.a]
             srv = start(scmd, dict(os.environ))
-            addr = wait_ready(srv, "floor server")
+            addr = wait_ready(srv, "floor server", 30)
             ccmd = [bin_("bench-floor"), "client", "tcp" if transport == "tcp" else "pty",
                     addr if transport == "tcp" else line.b, case, str(seconds)]
             tps, _, _ = run_client(ccmd, dict(os.environ), "floor client")
         else:
             scmd = [bin_("mb-server"), transport, "0" if transport == "tcp" else line.a]
             srv = start(scmd, env_for(server_lib))
-            addr = wait_ready(srv, "server", server_lib)
+            addr = wait_ready(srv, "server", 30, server_lib)
             ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case, "-t", str(seconds)]
             tps, out, _ = run_client(ccmd, env_for(client_lib), "client", client_lib)
             m = re.search(r"max_ms=([0-9.]+)", out)
@@ -256,7 +186,7 @@ def cost_run(metric, side, transport, case, lib, n, warm=20):
     transactions against a Debian peer; returns the parsed counts."""
     tmp = tempfile.mkdtemp(prefix="mbcost-")
     out = os.path.join(tmp, "out")
-    line = Line() if transport == "rtu" else None
+    line = PtyPair("mbbench-", 2) if transport == "rtu" else None
     try:
         prefix = tool_prefix(metric, out)
         def measured_env():
@@ -267,7 +197,7 @@ def cost_run(metric, side, transport, case, lib, n, warm=20):
             return e
         if side == "client":
             srv = start([bin_("mb-server"), transport, "0" if transport == "tcp" else line.a], env_for("debian"))
-            addr = wait_ready(srv, "server", "debian")
+            addr = wait_ready(srv, "server", 30, "debian")
             ccmd = prefix + [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case,
                              "-n", str(n), "-w", str(warm)]
             run_client(ccmd, measured_env(), f"{metric} client", timeout=600)
@@ -275,7 +205,7 @@ def cost_run(metric, side, transport, case, lib, n, warm=20):
         else:
             scmd = prefix + [bin_("mb-server"), transport, "0" if transport == "tcp" else line.a, str(n + warm)]
             srv = start(scmd, measured_env())
-            addr = wait_ready(srv, f"{metric} server", timeout=120)
+            addr = wait_ready(srv, f"{metric} server", 120)
             ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case,
                     "-n", str(n), "-w", str(warm)]
             run_client(ccmd, env_for("debian"), "client", "debian", timeout=600)
@@ -432,5 +362,4 @@ if __name__ == "__main__":
     try:
         main()
     finally:
-        for p in list(procs):
-            stop(p)
+        stop_all()

@@ -13,6 +13,8 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "libpath.h"
+
 const char *mbt_libmodbus_path(void);
 int mbt_is_rsmodbus(void);
 int print_loaded_libmodbus(void);
@@ -21,31 +23,7 @@ int print_loaded_libmodbus(void);
 
 const char *mbt_libmodbus_path(void)
 {
-    static char path[4096];
-    char line[4096 + 256];
-    FILE *f = fopen("/proc/self/maps", "r");
-
-    strcpy(path, "(not mapped)");
-    if (f == NULL) {
-        return path;
-    }
-    while (fgets(line, sizeof(line), f) != NULL) {
-        char *p = strchr(line, '/');
-        if (p == NULL) {
-            continue;
-        }
-        p[strcspn(p, "\n")] = '\0';
-        {
-            const char *base = strrchr(p, '/');
-            base = base ? base + 1 : p;
-            if (strncmp(base, "libmodbus.so", 12) == 0) {
-                snprintf(path, sizeof(path), "%s", p);
-                break;
-            }
-        }
-    }
-    fclose(f);
-    return path;
+    return mbt_mapped_libmodbus("(not mapped)");
 }
 
 typedef const char *(*rsmodbus_version_fn)(void);

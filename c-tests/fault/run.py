@@ -23,15 +23,14 @@ SPDX-License-Identifier: MIT OR Apache-2.0
 import os
 import re
 import shutil
-import signal
-import subprocess
 import sys
 import tempfile
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "common"))
+from harness import ROOT, env_for, loaded_lib, start, stop, stop_all, wait_output, wait_ready  # noqa: E402
+
 BUILD = os.path.join(ROOT, "target", "fault")
-OURS_DIR = os.path.join(ROOT, "target", "release")
 HANG_MS = 1000  # response timeout 300 ms + byte timeout 100 ms + generous margin
 
 # (transport, fault) -> {lib: (A, B, C)}; each item "errno" or "ok"; "ok!" = success
@@ -91,51 +90,6 @@ def rank(o):
     return 0 if o == "ok!" else (2 if o == "ok" else 1)
 
 
-procs = []
-
-
-def start(cmd, env, stdout=subprocess.PIPE):
-    p = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    procs.append(p)
-    return p
-
-
-def stop(p):
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-        try:
-            p.wait(5)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait()
-    if p in procs:
-        procs.remove(p)
-
-
-def env_for(lib):
-    e = dict(os.environ)
-    e.pop("LD_LIBRARY_PATH", None)
-    if lib == "ours":
-        e["LD_LIBRARY_PATH"] = OURS_DIR
-    e["EXPECT_LIB"] = lib
-    return e
-
-
-def ready(p, what):
-    line = ""
-    deadline = time.time() + 10
-    while time.time() < deadline:
-        line = p.stdout.readline()
-        if not line:
-            break
-        if line.startswith("READY "):
-            return line.split()[1]
-    raise RuntimeError(f"{what} not ready: {line} {p.stderr.read() if p.poll() is not None else ''}")
-
-
 def fd_count(pid):
     try:
         return len(os.listdir(f"/proc/{pid}/fd"))
@@ -150,31 +104,29 @@ def run_one(transport, fault, lib):
         if transport == "tcp":
             srv = start([os.path.join(BUILD, "mb-server"), "tcp", "0"], env_for(lib))
             started.append(srv)
-            port = ready(srv, "server")
+            port = wait_ready(srv, "server", 10)
             proxy = start([os.path.join(BUILD, "fault-proxy"), "tcp", port, fault, "2", "29", "12"], dict(os.environ))
             started.append(proxy)
-            addr = ready(proxy, "proxy")
+            addr = wait_ready(proxy, "proxy", 10)
         else:
             cl, sl = os.path.join(tmp, "client-tty"), os.path.join(tmp, "server-tty")
             proxy = start([os.path.join(BUILD, "fault-proxy"), "pty", cl, sl, fault, "2", "25", "8"], dict(os.environ))
             started.append(proxy)
-            addr = ready(proxy, "proxy")
+            addr = wait_ready(proxy, "proxy", 10)
             srv = start([os.path.join(BUILD, "mb-server"), "rtu", sl], env_for(lib))
             started.append(srv)
-            ready(srv, "server")
+            wait_ready(srv, "server", 10)
         server_fds = fd_count(srv.pid)
         t0 = time.time()
         c = start([os.path.join(BUILD, "fault-client"), transport, addr], env_for(lib))
-        try:
-            out, err = c.communicate(timeout=15)
-        except subprocess.TimeoutExpired:
-            stop(c)
+        done = wait_output(c, 15)
+        if done is None:
             return {"error": "client hung (15 s)"}
-        procs.remove(c)
+        out, err = done
         elapsed = time.time() - t0
         res = {"rc": c.returncode, "out": out, "err": err, "elapsed": elapsed, "tx": {}}
-        m = re.search(r"LIBINFO: pid \d+ libmodbus\.so\.5 = (\S+) \((.*?)\)", out)
-        res["lib_ok"] = bool(m) and (m.group(2).startswith("rsmodbus") == (lib == "ours"))
+        found = loaded_lib(out)
+        res["lib_ok"] = found is not None and found[0] == lib
         for name, rc, e, ms, data in re.findall(r"TX (\S+) rc=(-?\d+) errno=(\S+) ms=(\d+) data=(\S+)", out):
             res["tx"][name] = {"rc": int(rc), "errno": e, "ms": int(ms), "data": data}
         m = re.search(r"FDS before=(\d+) after=(\d+)", out)
@@ -284,6 +236,5 @@ if __name__ == "__main__":
     try:
         code = main()
     finally:
-        for p in list(procs):
-            stop(p)
+        stop_all()
     sys.exit(code)

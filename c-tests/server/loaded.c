@@ -15,33 +15,12 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "../common/libpath.h"
 #include "loaded.h"
 
 const char *srvtest_loaded_path(void)
 {
-    static char path[4096];
-    char line[4096 + 256];
-    FILE *f = fopen("/proc/self/maps", "r");
-
-    snprintf(path, sizeof(path), "%s", "(libmodbus not mapped)");
-    if (f == NULL) {
-        return path;
-    }
-    while (fgets(line, sizeof(line), f) != NULL) {
-        char *p = strchr(line, '/');
-        const char *base;
-        if (p == NULL) {
-            continue;
-        }
-        p[strcspn(p, "\n")] = '\0';
-        base = strrchr(p, '/') + 1;
-        if (strncmp(base, "libmodbus.so", 12) == 0) {
-            snprintf(path, sizeof(path), "%s", p);
-            break;
-        }
-    }
-    fclose(f);
-    return path;
+    return mbt_mapped_libmodbus("(libmodbus not mapped)");
 }
 
 __attribute__((constructor)) static void srvtest_report_loaded(void)

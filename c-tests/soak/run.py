@@ -16,16 +16,15 @@ SPDX-License-Identifier: MIT OR Apache-2.0
 """
 import os
 import re
-import shutil
-import signal
-import subprocess
 import sys
-import tempfile
 import time
 
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "common"))
+import harness  # noqa: E402
+from harness import ROOT, PtyPair, env_for, procs, start, stop, stop_all, wait_output, wait_ready  # noqa: E402
+
+harness.STOP_GRACE = 10  # seconds from SIGTERM to SIGKILL (the shared default is 5)
 BUILD = os.path.join(ROOT, "target", "soak")
-OURS_DIR = os.path.join(ROOT, "target", "release")
 FULL = os.environ.get("SOAK_FULL", "0") == "1"
 SOAK_TX = int(os.environ.get("SOAK_TX", "1000000" if FULL else "20000"))
 MEMCHECK_TX = int(os.environ.get("MEMCHECK_TX", "2000"))
@@ -33,74 +32,12 @@ RSS_SLACK_KB = int(os.environ.get("SOAK_RSS_SLACK_KB", "64"))
 VALGRIND = ["valgrind", "--leak-check=full", "--errors-for-leak-kinds=definite", "--show-leak-kinds=definite",
             "--error-exitcode=99", "--quiet"]
 
-procs = []
 results = []
-
-
-def start(cmd, env, stdout=subprocess.PIPE):
-    p = subprocess.Popen(cmd, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    procs.append(p)
-    return p
-
-
-def stop(p):
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-        try:
-            p.wait(10)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait()
-    if p in procs:
-        procs.remove(p)
-
-
-def env_for(lib):
-    e = dict(os.environ)
-    e.pop("LD_LIBRARY_PATH", None)
-    if lib == "ours":
-        e["LD_LIBRARY_PATH"] = OURS_DIR
-    e["EXPECT_LIB"] = lib
-    return e
-
-
-def ready(p, what, timeout=60):
-    deadline = time.time() + timeout
-    seen = ""
-    while time.time() < deadline:
-        line = p.stdout.readline()
-        if not line:
-            break
-        seen += line
-        if line.startswith("READY "):
-            return line.split()[1]
-    raise RuntimeError(f"{what} not ready: {seen}")
 
 
 def report(name, ok, detail):
     results.append(ok)
     print(f"{'PASS' if ok else 'FAIL'} {name}: {detail}", flush=True)
-
-
-class Line:
-    def __init__(self):
-        self.dir = tempfile.mkdtemp(prefix="mbsoak-")
-        self.a = os.path.join(self.dir, "ttyA")
-        self.b = os.path.join(self.dir, "ttyB")
-        self.p = start(["socat", "pty,raw,echo=0,link=" + self.a, "pty,raw,echo=0,link=" + self.b],
-                       dict(os.environ), stdout=subprocess.DEVNULL)
-        for _ in range(300):
-            if os.path.exists(self.a) and os.path.exists(self.b):
-                return
-            time.sleep(0.01)
-        raise RuntimeError("socat pty pair did not appear")
-
-    def close(self):
-        stop(self.p)
-        shutil.rmtree(self.dir, ignore_errors=True)
 
 
 def sample(pid):
@@ -119,12 +56,12 @@ def requests_for(count):
 
 
 def soak(transport):
-    line = Line() if transport == "rtu" else None
+    line = PtyPair("mbsoak-", 3) if transport == "rtu" else None
     name = f"soak {transport.upper()} {SOAK_TX} transactions (ours/ours)"
     try:
         srv = start([os.path.join(BUILD, "mb-server"), transport, "0" if transport == "tcp" else line.a],
                     env_for("ours"))
-        addr = ready(srv, "server")
+        addr = wait_ready(srv, "server", 60)
         cli = start([os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
                      str(SOAK_TX)], env_for("ours"))
         samples = []  # (progress, client rss, client fds, server rss, server fds)
@@ -181,7 +118,7 @@ def soak(transport):
 
 def memcheck_pair(transport, side):
     """Our client or server under memcheck, the peer ours without valgrind."""
-    line = Line() if transport == "rtu" else None
+    line = PtyPair("mbsoak-", 3) if transport == "rtu" else None
     name = f"memcheck {side} {transport.upper()} {MEMCHECK_TX} transactions"
     try:
         senv = env_for("ours")
@@ -193,23 +130,19 @@ def memcheck_pair(transport, side):
         else:
             scmd = sprefix + [os.path.join(BUILD, "mb-server"), "rtu", line.a, str(requests_for(MEMCHECK_TX))]
         srv = start(scmd, senv)
-        addr = ready(srv, "server", timeout=120)
+        addr = wait_ready(srv, "server", 120)
         cli = start(cprefix + [os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
                                str(MEMCHECK_TX)], env_for("ours"))
-        try:
-            cout, cerr = cli.communicate(timeout=900)
-        except subprocess.TimeoutExpired:
-            stop(cli)
+        done = wait_output(cli, 900)
+        if done is None:
             report(name, False, "client timed out")
             return
-        procs.remove(cli)
-        try:
-            sout, serr = srv.communicate(timeout=120)
-            procs.remove(srv)
-        except subprocess.TimeoutExpired:
-            stop(srv)
+        cout, cerr = done
+        done = wait_output(srv, 120)
+        if done is None:
             report(name, False, "server did not exit")
             return
+        sout, serr = done
         measured = (cli.returncode, cerr) if side == "client" else (srv.returncode, serr)
         ok = cli.returncode == 0 and srv.returncode == 0 and "DONE" in cout
         detail = f"client exit {cli.returncode}, server exit {srv.returncode}"
@@ -251,6 +184,5 @@ if __name__ == "__main__":
     try:
         code = main()
     finally:
-        for p in list(procs):
-            stop(p)
+        stop_all()
     sys.exit(code)

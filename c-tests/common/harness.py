@@ -1,0 +1,131 @@
+"""Process helpers shared by the Python runners: c-tests/fault/run.py, c-tests/soak/run.py
+and benches/bench.py. They import it after putting this directory on sys.path.
+
+Every process is started in its own session, so that stopping it also ends its children
+(valgrind, strace, taskset); `procs` lists those not stopped yet, for stop_all() at exit.
+
+SPDX-License-Identifier: MIT OR Apache-2.0
+"""
+import os
+import re
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+OURS_DIR = os.path.join(ROOT, "target", "release")
+
+# Runner settings, changed before anything is started.
+COMMAND_PREFIX = []  # put before every command (benches/bench.py: taskset for BENCH_PIN)
+STOP_GRACE = 5  # seconds from SIGTERM to SIGKILL
+
+procs = []
+
+LIBINFO = re.compile(r"LIBINFO: pid \d+ libmodbus\.so\.5 = (\S+) \((.*?)\)")
+
+
+def start(cmd, env, stdout=subprocess.PIPE):
+    """Starts cmd in its own session (stderr piped, text mode) and records it in procs."""
+    p = subprocess.Popen(COMMAND_PREFIX + cmd, env=env, stdout=stdout, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
+    procs.append(p)
+    return p
+
+
+def stop(p):
+    """Ends p's session (SIGTERM, SIGKILL after STOP_GRACE s) unless it has exited; forgets p."""
+    if p.poll() is None:
+        try:
+            os.killpg(p.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            p.wait(STOP_GRACE)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    if p in procs:
+        procs.remove(p)
+
+
+def stop_all():
+    """Stops every process still recorded (a runner's last step, even after an exception)."""
+    for p in list(procs):
+        stop(p)
+
+
+def wait_output(p, timeout):
+    """Waits up to timeout s for p to exit: (stdout, stderr), or None after stopping it."""
+    try:
+        out, err = p.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        stop(p)
+        return None
+    procs.remove(p)
+    return out, err
+
+
+def env_for(lib, ours_dir=OURS_DIR):
+    """The environment that makes a program load `lib` ("ours" from ours_dir, or "debian")."""
+    e = dict(os.environ)
+    e.pop("LD_LIBRARY_PATH", None)
+    if lib == "ours":
+        e["LD_LIBRARY_PATH"] = ours_dir
+    e["EXPECT_LIB"] = lib  # libinfo.c exits 97 if another libmodbus.so.5 is loaded
+    return e
+
+
+def loaded_lib(text):
+    """("ours" or "debian", path) from the LIBINFO line in text, or None if it has none."""
+    m = LIBINFO.search(text)
+    if not m:
+        return None
+    return ("ours" if m.group(2).startswith("rsmodbus") else "debian"), m.group(1)
+
+
+def check_libinfo(text, lib, what):
+    """Raises RuntimeError unless the LIBINFO line in text names `lib` ("ours" or "debian")."""
+    found = loaded_lib(text)
+    if found is None:
+        raise RuntimeError(f"{what}: no LIBINFO line")
+    if found[0] != lib:
+        raise RuntimeError(f"{what}: expected {lib} but loaded {found[1]}")
+
+
+def wait_ready(p, what, timeout, lib=None):
+    """Reads p's stdout up to its READY line and returns the word after READY; with lib, checks LIBINFO too."""
+    deadline = time.time() + timeout
+    seen = ""
+    while time.time() < deadline:
+        line = p.stdout.readline()
+        if not line:
+            raise RuntimeError(f"{what} exited before READY: {seen} {p.stderr.read()}")
+        seen += line
+        if line.startswith("READY "):
+            if lib is not None:
+                check_libinfo(seen, lib, what)
+            return line.split()[1]
+    raise RuntimeError(f"{what}: no READY in {timeout}s")
+
+
+class PtyPair:
+    """A serial line: a socat pty pair linked as .a and .b in a new temporary directory."""
+
+    def __init__(self, tmp_prefix, timeout):
+        self.dir = tempfile.mkdtemp(prefix=tmp_prefix)
+        self.a = os.path.join(self.dir, "ttyA")
+        self.b = os.path.join(self.dir, "ttyB")
+        self.p = start(["socat", "pty,raw,echo=0,link=" + self.a, "pty,raw,echo=0,link=" + self.b],
+                       dict(os.environ), stdout=subprocess.DEVNULL)
+        for _ in range(int(timeout * 100)):
+            if os.path.exists(self.a) and os.path.exists(self.b):
+                return
+            time.sleep(0.01)
+        raise RuntimeError("socat pty pair did not appear")
+
+    def close(self):
+        """Stops socat and removes the directory."""
+        stop(self.p)
+        shutil.rmtree(self.dir, ignore_errors=True)
