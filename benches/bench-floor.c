@@ -7,6 +7,11 @@
  *   bench-floor server tcp PORT | server pty DEVICE
  *   bench-floor client tcp PORT CASE SECONDS | client pty DEVICE CASE SECONDS
  *
+ * With FLOOR_WAIT=1 in the environment it makes the waits a library with libmodbus's
+ * timeout semantics cannot do without: the client polls (with a timeout) before each
+ * read, the server peeks before its exact read on TCP (so that bytes past the request
+ * stay in the kernel) and polls on a pty. Three system calls per side instead of two.
+ *
  * The server learns the sizes from a 2-byte hello (request size, response size).
  * Prints "READY <port>" (server) and "RESULT case=... tx=N secs=S tps=T" (client).
  *
@@ -17,6 +22,7 @@
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <poll.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -31,6 +37,23 @@ static double now(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double) ts.tv_sec + (double) ts.tv_nsec / 1e9;
+}
+
+static int wait_mode; /* FLOOR_WAIT=1 */
+
+/* FLOOR_WAIT: the wait before a read (see the top). */
+static int wait_before_read(int fd, int tcp, int server)
+{
+    if (!wait_mode) {
+        return 0;
+    }
+    if (server && tcp) {
+        unsigned char peek[512];
+        return recv(fd, peek, sizeof(peek), MSG_PEEK) > 0 ? 0 : -1;
+    } else {
+        struct pollfd p = {fd, POLLIN, 0};
+        return poll(&p, 1, 5000) == 1 ? 0 : -1;
+    }
 }
 
 /* Reads exactly n bytes (one read unless the kernel splits the message). */
@@ -92,6 +115,7 @@ int main(int argc, char **argv)
         return 2;
     }
     tcp = strcmp(argv[2], "tcp") == 0;
+    wait_mode = getenv("FLOOR_WAIT") != NULL && strcmp(getenv("FLOOR_WAIT"), "1") == 0;
     memset(buf, 0x5A, sizeof(buf));
     if (strcmp(argv[1], "server") == 0) {
         int req, rsp, one = 1;
@@ -124,7 +148,8 @@ int main(int argc, char **argv)
         }
         req = buf[0];
         rsp = buf[1];
-        while (read_full(fd, buf, req + 4, tcp) == 0 && write_full(fd, buf, rsp + 4, tcp) == 0) {
+        while (wait_before_read(fd, tcp, 1) == 0 && read_full(fd, buf, req + 4, tcp) == 0 &&
+               write_full(fd, buf, rsp + 4, tcp) == 0) {
         }
         return 0;
     } else {
@@ -166,7 +191,8 @@ int main(int argc, char **argv)
         t0 = now();
         t1 = t0;
         while (t1 - t0 < secs) {
-            if (write_full(fd, buf, req, tcp) != 0 || read_full(fd, buf, rsp, tcp) != 0) {
+            if (write_full(fd, buf, req, tcp) != 0 || wait_before_read(fd, tcp, 0) != 0 ||
+                read_full(fd, buf, rsp, tcp) != 0) {
                 fprintf(stderr, "bench-floor: transaction failed\n");
                 return 1;
             }
