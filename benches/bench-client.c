@@ -22,6 +22,8 @@
 
 #include <modbus.h>
 
+#include "../c-tests/common/mbt-connect.h"
+
 int print_loaded_libmodbus(void);
 
 static double now(void)
@@ -80,16 +82,8 @@ int main(int argc, char **argv)
     for (i = 0; i < 256; i++) {
         wregs[i] = (uint16_t) (i * 3);
     }
-    if (strcmp(argv[1], "tcp") == 0) {
-        ctx = modbus_new_tcp("127.0.0.1", atoi(argv[2]));
-    } else {
-        ctx = modbus_new_rtu(argv[2], 115200, 'N', 8, 1);
-        if (ctx != NULL) {
-            modbus_set_slave(ctx, 1);
-        }
-    }
-    if (ctx == NULL || modbus_connect(ctx) != 0) {
-        fprintf(stderr, "bench-client: connect: %s\n", modbus_strerror(errno));
+    ctx = mbt_connect("bench-client", argv[1], argv[2]);
+    if (ctx == NULL) {
         return 1;
     }
     modbus_set_response_timeout(ctx, 2, 0);

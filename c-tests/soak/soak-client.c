@@ -19,6 +19,8 @@
 
 #include <modbus.h>
 
+#include "../common/mbt-connect.h"
+
 int print_loaded_libmodbus(void);
 
 static int fail(long i, const char *what)
@@ -40,16 +42,8 @@ int main(int argc, char **argv)
     }
     count = atol(argv[3]);
     step = count / 50 > 0 ? count / 50 : 1;
-    if (strcmp(argv[1], "tcp") == 0) {
-        ctx = modbus_new_tcp("127.0.0.1", atoi(argv[2]));
-    } else {
-        ctx = modbus_new_rtu(argv[2], 115200, 'N', 8, 1);
-        if (ctx != NULL) {
-            modbus_set_slave(ctx, 1);
-        }
-    }
-    if (ctx == NULL || modbus_connect(ctx) != 0) {
-        fprintf(stderr, "soak-client: connect: %s\n", modbus_strerror(errno));
+    ctx = mbt_connect("soak-client", argv[1], argv[2]);
+    if (ctx == NULL) {
         return 1;
     }
     modbus_set_response_timeout(ctx, 2, 0);
