@@ -295,8 +295,8 @@ fn receive_serial_request(ctx: &mut Context, buf: &mut [u8]) -> Result<Received>
                 return check_integrity(ctx, &buf[..filled]);
             }
         }
-        if filled > 0 && !ctx.byte_timeout.is_zero() {
-            budget = Some(ctx.byte_timeout.timespec());
+        if filled > 0 {
+            rearm_after_bytes(ctx, &mut budget);
         }
     }
     receive_steps(ctx, buf, MsgKind::Indication, filled, budget)
@@ -371,9 +371,7 @@ fn receive_steps(
             let room = if read_ahead { &mut buf[filled..] } else { &mut buf[filled..filled + want] };
             if let Some(n) = read_if_queued(ctx, room) {
                 filled += n;
-                if !ctx.byte_timeout.is_zero() {
-                    budget = Some(ctx.byte_timeout.timespec());
-                }
+                rearm_after_bytes(ctx, &mut budget);
                 continue;
             }
         }
@@ -408,9 +406,7 @@ fn receive_steps(
                 return Err(e);
             }
         }
-        if !ctx.byte_timeout.is_zero() {
-            budget = Some(ctx.byte_timeout.timespec());
-        }
+        rearm_after_bytes(ctx, &mut budget);
     }
 }
 
@@ -482,8 +478,8 @@ fn receive_ascii(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Rec
         ctx.rx.consume(used);
         match outcome {
             None => {
-                if decoder.in_frame() && !ctx.byte_timeout.is_zero() {
-                    budget = Some(ctx.byte_timeout.timespec());
+                if decoder.in_frame() {
+                    rearm_after_bytes(ctx, &mut budget);
                 }
             }
             Some(Ok(len)) => {
@@ -554,6 +550,15 @@ fn wait_readable(ctx: &Context, mut budget: Option<&mut libc::timespec>) -> Resu
             Err(e) if e.0 == libc::EINTR => ctx.diag().err(format_args!("A non blocked signal was caught\n")),
             Err(e) => return Err(e),
         }
+    }
+}
+
+/// After bytes of a message arrived, the next wait gets a fresh byte timeout or, when
+/// that is 0, what is left of the current one.
+#[inline]
+fn rearm_after_bytes(ctx: &Context, budget: &mut Option<libc::timespec>) {
+    if !ctx.byte_timeout.is_zero() {
+        *budget = Some(ctx.byte_timeout.timespec());
     }
 }
 
