@@ -8,9 +8,11 @@
  *   bench-floor client tcp PORT CASE SECONDS | client pty DEVICE CASE SECONDS
  *
  * With FLOOR_WAIT=1 in the environment it makes the waits a library with libmodbus's
- * timeout semantics cannot do without: the client polls (with a timeout) before each
- * read, the server peeks before its exact read on TCP (so that bytes past the request
- * stay in the kernel) and polls on a pty. Three system calls per side instead of two.
+ * semantics cannot do without: on TCP the server peeks before its exact read (so that
+ * bytes past the request stay in the kernel for the application's own poll loop),
+ * while the client needs no wait of its own (its read can block with SO_RCVTIMEO
+ * carrying most of the response timeout); on a pty both sides poll (with a timeout)
+ * before each read, termios having no finer read timeout than tenths of a second.
  *
  * The server learns the sizes from a 2-byte hello (request size, response size).
  * Prints "READY <port>" (server) and "RESULT case=... tx=N secs=S tps=T" (client).
@@ -44,10 +46,10 @@ static int wait_mode; /* FLOOR_WAIT=1 */
 /* FLOOR_WAIT: the wait before a read (see the top). */
 static int wait_before_read(int fd, int tcp, int server)
 {
-    if (!wait_mode) {
+    if (!wait_mode || (tcp && !server)) {
         return 0;
     }
-    if (server && tcp) {
+    if (tcp) {
         unsigned char peek[512];
         return recv(fd, peek, sizeof(peek), MSG_PEEK) > 0 ? 0 : -1;
     } else {

@@ -292,9 +292,10 @@ def main():
         lines.append("### Transactions per second\n")
         lines.append("Pairings are client/server. \"client\" = our client against Debian's server; "
                      "\"server\" = Debian's client against our server; \"both\" = ours against ours.\n")
-        lines.append("\"Waiting floor\": the bare floor plus the waits libmodbus's semantics need (client: poll with "
-                     "a timeout before its read; server: a peek before its exact read on TCP, a poll on a pty); "
-                     "its ratio to Debian/Debian is the most a library keeping those semantics could reach.\n")
+        lines.append("\"Waiting floor\": the bare floor plus the waits libmodbus's semantics need (TCP: the server "
+                     "peeks before its exact read, the client's read waits by itself; pty: both sides poll with a "
+                     "timeout before reading); its ratio to Debian/Debian is the most a library keeping those "
+                     "semantics could reach.\n")
         lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio | client ratio | server ratio | "
                      "bare floor tx/s | ours/floor | Debian/floor | waiting floor tx/s | waiting floor/Debian | "
                      "ours/waiting floor |")

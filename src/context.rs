@@ -159,6 +159,20 @@ pub struct Context {
     /// `s` is a serial line this context opened (with `O_NONBLOCK`): a read on it
     /// never blocks. False for a descriptor the application handed over.
     pub line_nonblocking: bool,
+    /// `s` is a TCP client socket this context connected (see [`ClientSocket`]);
+    /// `None` for any other descriptor.
+    pub client_socket: Option<ClientSocket>,
+}
+
+/// A TCP client socket the context connected itself. Unlike libmodbus's, it is
+/// blocking after the connect, so that the first wait of a confirmation can be the
+/// read itself, bounded by `SO_RCVTIMEO` (one system call instead of a poll and a
+/// read); its sends pass `MSG_DONTWAIT`, so that they never block, as on libmodbus's
+/// non-blocking socket. A descriptor the application hands over is never changed.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ClientSocket {
+    /// The response timeout the socket's `SO_RCVTIMEO` was last derived from.
+    pub rcvtimeo_for: Option<Timeout>,
 }
 
 /// Frame buffers a context lends to each transaction and takes back: a transaction
@@ -204,6 +218,7 @@ impl Context {
             server_ext: None,
             spare: SpareFrames::default(),
             line_nonblocking: false,
+            client_socket: None,
         }
     }
 

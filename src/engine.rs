@@ -2,9 +2,11 @@
 //! the debug trace and LINK recovery, the receive loop with its three timeouts, and
 //! the client's request/confirmation exchange.
 
+use std::time::{Duration, Instant};
+
 use parking_lot::MutexGuard;
 
-use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP};
+use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{
     Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, complete_length, length_after_function,
@@ -123,27 +125,34 @@ fn sleep_us(us: i64) {
     }
 }
 
-/// Writes one sealed ADU to the line (RTU with the RTS sequence when enabled).
+/// Writes one sealed ADU to the line.
+#[inline]
 fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    match g.is_socket() {
-        true => transport::send(g.s, adu),
-        false => {
-            let (rts, rts_delay, onebyte) = match g.rtu() {
-                Some(l) => (l.rts, l.rts_delay as i64, l.onebyte_time as i64),
-                None => (RTU_RTS_NONE, 0, 0),
-            };
-            if rts == RTU_RTS_NONE {
-                return transport::write(g.s, adu);
-            }
-            g.diag().err(format_args!("Sending request using RTS signal\n"));
-            set_rts(g, rts == RTU_RTS_UP);
-            sleep_us(rts_delay);
-            let rc = transport::write(g.s, adu);
-            sleep_us(onebyte * adu.len() as i64 + rts_delay);
-            set_rts(g, rts != RTU_RTS_UP);
-            rc
-        }
+    if g.is_socket() {
+        // A client socket the context made blocking must still never block in a send.
+        transport::send(g.s, adu, if g.client_socket.is_some() { libc::MSG_DONTWAIT } else { 0 })
+    } else {
+        write_serial(g, adu)
     }
+}
+
+/// [`write_adu`] on a serial line (apart, so that a socket's send stays short).
+#[inline(never)]
+fn write_serial(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
+    if g.rtu().is_none_or(|l| l.rts == RTU_RTS_NONE) { transport::write(g.s, adu) } else { write_with_rts(g, adu) }
+}
+
+/// [`write_adu`] on a serial line with the RTS sequence.
+#[inline(never)]
+fn write_with_rts(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
+    let Some(&RtuLink { rts, rts_delay, onebyte_time, .. }) = g.rtu() else { return transport::write(g.s, adu) };
+    g.diag().err(format_args!("Sending request using RTS signal\n"));
+    set_rts(g, rts == RTU_RTS_UP);
+    sleep_us(rts_delay as i64);
+    let rc = transport::write(g.s, adu);
+    sleep_us(onebyte_time as i64 * adu.len() as i64 + rts_delay as i64);
+    set_rts(g, rts != RTU_RTS_UP);
+    rc
 }
 
 /// libmodbus's `send_msg`: seal the ADU of `len` bytes in `buf`, print it, send it,
@@ -151,26 +160,51 @@ fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
 pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> {
     let len = g.framing.seal(buf, len);
     let adu = &buf[..len];
+    if g.debug || g.framing == Framing::Ascii {
+        return send_traced_or_encoded(g, adu);
+    }
+    match write_adu(g, adu) {
+        Ok(n) if n == len => Ok(len),
+        first => send_after_failure(g, adu, len, first),
+    }
+}
+
+/// [`send_msg`] with the debug trace or the ASCII encoding (apart, so that the usual
+/// send stays a short function).
+#[inline(never)]
+fn send_traced_or_encoded(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
     if g.debug {
         use std::fmt::Write as _;
-        let mut line = String::with_capacity(len * 4 + 1);
+        let mut line = String::with_capacity(adu.len() * 4 + 1);
         for b in adu {
             let _ = write!(line, "[{b:02X}]");
         }
         line.push('\n');
         crate::stdio::out(format_args!("{line}"));
     }
-    let mut chars;
-    let (wire, wire_len) = if g.framing == Framing::Ascii {
-        chars = [0u8; ascii::MAX_ENCODED];
+    let mut chars = [0u8; ascii::MAX_ENCODED];
+    let wire = if g.framing == Framing::Ascii {
         let n = ascii::encode(adu, &mut chars);
-        (&chars[..n], n)
+        &chars[..n]
     } else {
-        (adu, len)
+        adu
     };
+    match write_adu(g, wire) {
+        Ok(n) if n == wire.len() => Ok(adu.len()),
+        first => send_after_failure(g, wire, adu.len(), first),
+    }
+}
+
+/// A send whose first write did not take the whole frame: a short write is
+/// EMBBADDATA; an error is printed and, under LINK recovery, the line is reopened
+/// (or flushed) and the write tried again until it goes out. Returns `len`, the
+/// ADU's length, once `wire` is out.
+#[cold]
+#[inline(never)]
+fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: Result<usize>) -> Result<usize> {
     loop {
-        match write_adu(g, wire) {
-            Ok(n) if n == wire_len => return Ok(len),
+        match written {
+            Ok(n) if n == wire.len() => return Ok(len),
             Ok(_) => return Err(Error::BAD_DATA),
             Err(e) => {
                 error_print(g, e, None);
@@ -187,6 +221,7 @@ pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> 
                 }
             }
         }
+        written = write_adu(g, wire);
     }
 }
 
@@ -375,22 +410,32 @@ fn receive_steps(
                 continue;
             }
         }
-        if let Err(e) = wait_readable(ctx, budget.as_mut()) {
-            if e == Error::TIMED_OUT && asm.searching_crc() {
-                // The diagnostics request ended without a matching CRC: a bad frame.
-                if ctx.debug {
-                    trace.push('\n');
-                    flush_trace(ctx, &mut trace);
-                }
-                return check_integrity(ctx, &buf[..asm.len()]);
-            }
-            flush_trace(ctx, &mut trace);
-            error_print(ctx, e, Some("select"));
-            recover_after_wait(ctx, e);
-            return Err(e);
+        let end = if read_ahead { buf.len() } else { filled + want };
+        let mut read = None;
+        if filled == 0 && kind == MsgKind::Confirmation {
+            read = read_within_response_timeout(ctx, &mut buf[..end], &mut budget);
         }
-        let room = if read_ahead { &mut buf[filled..] } else { &mut buf[filled..filled + want] };
-        match read_line(ctx.is_socket(), ctx.s, room) {
+        let read = match read {
+            Some(read) => read,
+            None => {
+                if let Err(e) = wait_readable(ctx, budget.as_mut()) {
+                    if e == Error::TIMED_OUT && asm.searching_crc() {
+                        // The diagnostics request ended without a matching CRC: a bad frame.
+                        if ctx.debug {
+                            trace.push('\n');
+                            flush_trace(ctx, &mut trace);
+                        }
+                        return check_integrity(ctx, &buf[..asm.len()]);
+                    }
+                    flush_trace(ctx, &mut trace);
+                    error_print(ctx, e, Some("select"));
+                    recover_after_wait(ctx, e);
+                    return Err(e);
+                }
+                read_line(ctx.is_socket(), ctx.s, &mut buf[filled..end])
+            }
+        };
+        match read {
             Ok(0) | Err(Error(libc::ECONNRESET)) => {
                 flush_trace(ctx, &mut trace);
                 error_print(ctx, Error::CONN_RESET, Some("read"));
@@ -550,6 +595,51 @@ fn wait_readable(ctx: &Context, mut budget: Option<&mut libc::timespec>) -> Resu
             Err(e) if e.0 == libc::EINTR => ctx.diag().err(format_args!("A non blocked signal was caught\n")),
             Err(e) => return Err(e),
         }
+    }
+}
+
+/// Below this response timeout a confirmation waits with `ppoll` only: `SO_RCVTIMEO`
+/// could fire too late (see [`read_within_response_timeout`]).
+const RCVTIMEO_MIN_RESPONSE_TIMEOUT: Duration = Duration::from_millis(200);
+
+/// The first wait of a confirmation on a client socket the context connected (see
+/// [`ClientSocket`](crate::context::ClientSocket)): the read itself, one system call
+/// where a poll and a read were two. `SO_RCVTIMEO` runs on the kernel's timer wheel,
+/// which may fire up to an eighth of the time plus a tick or two late, so it is set
+/// to 3/4 of the response timeout; when it fires (or a signal comes), `budget` gets
+/// the exact rest of the response timeout, measured on the monotonic clock, for the
+/// usual `ppoll`. The timeout therefore ends when libmodbus's `select` would.
+/// `None` when the caller is to wait as usual; otherwise the read's result.
+fn read_within_response_timeout(
+    ctx: &mut Context,
+    room: &mut [u8],
+    budget: &mut Option<libc::timespec>,
+) -> Option<Result<usize>> {
+    let timeout = ctx.response_timeout;
+    let socket = ctx.client_socket.as_mut()?;
+    if timeout.duration() < RCVTIMEO_MIN_RESPONSE_TIMEOUT {
+        return None;
+    }
+    if socket.rcvtimeo_for != Some(timeout) {
+        tcp::set_receive_timeout(ctx.s, timeout.duration() * 3 / 4).ok()?;
+        socket.rcvtimeo_for = Some(timeout);
+    }
+    let started = Instant::now();
+    let read = transport::recv(ctx.s, room, 0);
+    match read {
+        Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => {
+            if e.0 == libc::EINTR {
+                ctx.diag().err(format_args!("A non blocked signal was caught\n"));
+            }
+            *budget = Some(transport::to_timespec(timeout.duration().saturating_sub(started.elapsed())));
+            None
+        }
+        Ok(n) if n > 0 && ctx.byte_timeout.is_zero() => {
+            // No byte timeout: the rest of the message shares the response timeout.
+            *budget = Some(transport::to_timespec(timeout.duration().saturating_sub(started.elapsed())));
+            Some(read)
+        }
+        _ => Some(read),
     }
 }
 
@@ -804,10 +894,36 @@ mod tests {
         v
     }
 
+    /// A context whose socket is one it connected itself (blocking, see
+    /// `ClientSocket`): its confirmations wait in the read.
+    fn client_socket_context(fd: i32) -> Mutex<Context> {
+        let m = tcp_context(fd);
+        m.lock().client_socket = Some(crate::context::ClientSocket::default());
+        m
+    }
+
+    /// The socket's SO_RCVTIMEO.
+    fn receive_timeout(fd: i32) -> Duration {
+        let mut tv = libc::timeval { tv_sec: 0, tv_usec: 0 };
+        let mut len = size_of::<libc::timeval>() as libc::socklen_t;
+        // SAFETY: `tv` and `len` are live locals of the sizes getsockopt expects.
+        let rc = unsafe {
+            libc::getsockopt(fd, libc::SOL_SOCKET, libc::SO_RCVTIMEO, (&mut tv as *mut libc::timeval).cast(), &mut len)
+        };
+        assert_eq!(rc, 0);
+        Duration::new(tv.tv_sec as u64, tv.tv_usec as u32 * 1000)
+    }
+
     #[test]
     fn confirmation_split_into_single_bytes_is_assembled() {
+        for client_socket in [false, true] {
+            confirmation_split_into_single_bytes(client_socket);
+        }
+    }
+
+    fn confirmation_split_into_single_bytes(client_socket: bool) {
         let (ours, peer) = socket_pair();
-        let m = tcp_context(ours);
+        let m = if client_socket { client_socket_context(ours) } else { tcp_context(ours) };
         let writer = std::thread::spawn(move || {
             let mut req = [0u8; 12];
             let mut got = 0;
@@ -860,6 +976,114 @@ mod tests {
         assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
         // Ends on the byte timeout, long before the 2 s response timeout.
         assert!(started.elapsed() < Duration::from_millis(1500));
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    #[test]
+    fn client_socket_response_timeout_ends_on_time() {
+        // The read waits with SO_RCVTIMEO at 3/4 of the response timeout, then ppoll
+        // takes the rest: the timeout is neither early nor doubled.
+        let (ours, peer) = socket_pair();
+        let m = client_socket_context(ours);
+        let mut g = m.lock();
+        g.response_timeout = Timeout::new(0, 300_000);
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        for _ in 0..2 {
+            let started = Instant::now();
+            assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+            let took = started.elapsed();
+            // Not 225 ms (SO_RCVTIMEO alone), nor 525 (a full ppoll after it).
+            assert!(took >= Duration::from_millis(300) && took < Duration::from_millis(480), "{took:?}");
+            // 3/4 of it, as the kernel keeps it (rounded up to its tick, 10 ms at most).
+            let set = receive_timeout(ours);
+            assert!(set >= Duration::from_millis(225) && set <= Duration::from_millis(235), "{set:?}");
+        }
+        // A response timeout too short for the kernel's timer: ppoll only, on time.
+        g.response_timeout = Timeout::new(0, 100_000);
+        let started = Instant::now();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+        let took = started.elapsed();
+        assert!(took >= Duration::from_millis(100) && took < Duration::from_millis(350), "{took:?}");
+        drop(g);
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    #[test]
+    fn client_socket_without_byte_timeout_shares_the_response_timeout() {
+        let (ours, peer) = socket_pair();
+        let m = client_socket_context(ours);
+        let mut g = m.lock();
+        g.response_timeout = Timeout::new(0, 400_000);
+        g.byte_timeout = Timeout::new(0, 0);
+        let writer = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(150));
+            transport::write(peer, &[0, 1, 0, 0]).unwrap();
+            peer
+        });
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let started = Instant::now();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+        // One 400 ms budget for the whole message, not a fresh one after the bytes.
+        let took = started.elapsed();
+        assert!(took >= Duration::from_millis(400) && took < Duration::from_millis(520), "{took:?}");
+        transport::close(writer.join().unwrap());
+        transport::close(ours);
+    }
+
+    #[test]
+    fn client_socket_wait_survives_a_signal() {
+        extern "C" fn on_signal(_: libc::c_int) {}
+        // SAFETY: installs a handler that does nothing, without SA_RESTART, for a
+        // signal only this test sends; `action` is a live, fully initialised struct.
+        unsafe {
+            let mut action: libc::sigaction = std::mem::zeroed();
+            action.sa_sigaction = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+            libc::sigemptyset(&mut action.sa_mask);
+            assert_eq!(libc::sigaction(libc::SIGUSR2, &action, std::ptr::null_mut()), 0);
+        }
+        let (ours, peer) = socket_pair();
+        let m = client_socket_context(ours);
+        let mut g = m.lock();
+        g.response_timeout = Timeout::new(0, 300_000);
+        // SAFETY: pthread_self has no preconditions.
+        let waiter = unsafe { libc::pthread_self() };
+        let signaller = std::thread::spawn(move || {
+            // Within the SO_RCVTIMEO part of the wait (225 ms).
+            std::thread::sleep(Duration::from_millis(180));
+            // SAFETY: the waiting thread outlives this one (it joins it).
+            unsafe { libc::pthread_kill(waiter, libc::SIGUSR2) };
+        });
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let started = Instant::now();
+        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+        let took = started.elapsed();
+        // The rest of the 300 ms after the signal, not a fresh 300 ms (480).
+        assert!(took >= Duration::from_millis(300) && took < Duration::from_millis(460), "{took:?}");
+        signaller.join().unwrap();
+        drop(g);
+        transport::close(peer);
+        transport::close(ours);
+    }
+
+    #[test]
+    fn client_socket_send_never_blocks() {
+        // The socket is blocking; a peer that reads nothing must still give EAGAIN
+        // once the buffers are full, as libmodbus's non-blocking socket does.
+        let (ours, peer) = socket_pair();
+        let m = client_socket_context(ours);
+        let mut g = m.lock();
+        let mut out = [0u8; MAX_ADU_LENGTH];
+        let mut result = Ok(0);
+        for _ in 0..100_000 {
+            result = send_msg(&mut g, &mut out, 200);
+            if result.is_err() {
+                break;
+            }
+        }
+        assert_eq!(result, Err(Error(libc::EAGAIN)));
+        drop(g);
         transport::close(peer);
         transport::close(ours);
     }

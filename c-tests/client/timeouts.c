@@ -6,7 +6,9 @@
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
+#include <pthread.h>
 #include <stdlib.h>
+#include <sys/socket.h>
 #include <time.h>
 
 #include "../common/mbtest.h"
@@ -24,6 +26,14 @@ static void elapsed(long t0, long lo, long hi)
     long d = now_ms() - t0;
     /* The measured value itself is not printed: it would make the outputs differ. */
     printf("elapsed %s [%ld, %ld] ms\n", (d >= lo && d <= hi) ? "within" : "OUTSIDE", lo, hi);
+}
+
+/* Another thread's way out of a wait: shut the context's socket down. */
+static void *shut_down_later(void *ctx)
+{
+    mbt_msleep(200);
+    shutdown(modbus_get_socket((modbus_t *) ctx), SHUT_RDWR);
+    return NULL;
 }
 
 static void resync(modbus_t *ctx, int ms)
@@ -116,6 +126,20 @@ int main(int argc, char **argv)
     CHECK(modbus_set_response_timeout(ctx, 0, 500000));
     CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
     mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
+
+    if (backend == 't') {
+        /* modbus_get_socket from another thread must not wait for the call that is
+         * waiting (libmodbus reads the field): the shutdown ends the wait long
+         * before the 3 s response timeout. */
+        pthread_t thread;
+        mbt_section("another thread shuts the socket down during a wait");
+        CHECK(modbus_set_response_timeout(ctx, 3, 0));
+        CHECK(pthread_create(&thread, NULL, shut_down_later, ctx));
+        t0 = now_ms();
+        CHECK(modbus_read_registers(ctx, 0x1045, 1, regs));
+        elapsed(t0, 150, 2000);
+        CHECK(pthread_join(thread, NULL));
+    }
 
     CALL(modbus_close(ctx));
     CALL(modbus_free(ctx));

@@ -4,8 +4,8 @@ use std::ffi::{c_char, c_int, c_uint};
 
 use crate::context::{Context, Timeout};
 use crate::engine;
-use crate::error::strerror_modbus_c;
-use crate::ffi::{Modbus, with_ctx};
+use crate::error::{Error, strerror_modbus_c};
+use crate::ffi::{Modbus, fail, with_ctx};
 
 /// Frees a context. NULL is a no-op. The connection is not closed (call
 /// `modbus_close` first), as in libmodbus.
@@ -108,6 +108,7 @@ pub unsafe extern "C" fn modbus_set_socket(ctx: *mut Modbus, s: c_int) -> c_int 
         with_ctx(ctx, |g| {
             g.s = s;
             g.line_nonblocking = false;
+            g.client_socket = None;
             g.rx.clear();
             Ok(0)
         })
@@ -118,8 +119,11 @@ pub unsafe extern "C" fn modbus_set_socket(ctx: *mut Modbus, s: c_int) -> c_int 
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_get_socket(ctx: *mut Modbus) -> c_int {
-    // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| Ok(g.s)) }
+    // SAFETY: `ctx` is NULL or live per the caller.
+    match unsafe { ctx.as_ref() } {
+        Some(handle) => handle.socket(),
+        None => fail(Error::INVALID),
+    }
 }
 
 /// Writes a timeout to the caller's pointers (NULL pointers are skipped; libmodbus

@@ -14,6 +14,8 @@ pub mod tcp;
 pub mod version;
 
 use std::ffi::{CStr, c_char, c_int};
+use std::ops::{Deref, DerefMut};
+use std::sync::atomic::{AtomicI32, Ordering};
 
 use parking_lot::Mutex;
 
@@ -26,14 +28,57 @@ use crate::transport::set_errno;
 /// used from several threads (libmodbus contexts are not thread-safe); calls on it
 /// are serialised.
 pub struct Modbus {
-    pub ctx: Mutex<Context>,
+    ctx: Mutex<Context>,
+    /// The context's descriptor as the last call left it (see [`ContextLock`]):
+    /// `modbus_get_socket` reads it without waiting for a call another thread is
+    /// blocked in (libmodbus reads its field directly), so that a thread can, say,
+    /// `shutdown()` the socket a receive waits on.
+    socket: AtomicI32,
+}
+
+impl Modbus {
+    /// Locks the context; the descriptor is published again when the lock ends.
+    pub fn lock(&self) -> ContextLock<'_> {
+        ContextLock { guard: self.ctx.lock(), socket: &self.socket }
+    }
+
+    /// The descriptor published by the last call that released the context.
+    pub fn socket(&self) -> c_int {
+        self.socket.load(Ordering::Acquire)
+    }
+}
+
+/// The locked context of a [`Modbus`]; dropping it publishes the descriptor.
+pub struct ContextLock<'a> {
+    guard: Guard<'a>,
+    socket: &'a AtomicI32,
+}
+
+impl<'a> Deref for ContextLock<'a> {
+    type Target = Guard<'a>;
+    fn deref(&self) -> &Guard<'a> {
+        &self.guard
+    }
+}
+
+impl<'a> DerefMut for ContextLock<'a> {
+    fn deref_mut(&mut self) -> &mut Guard<'a> {
+        &mut self.guard
+    }
+}
+
+impl Drop for ContextLock<'_> {
+    fn drop(&mut self) {
+        self.socket.store(self.guard.s, Ordering::Release);
+    }
 }
 
 /// Boxes a new context for C; NULL with errno on failure.
 pub fn into_handle(ctx: Result<Context>) -> *mut Modbus {
     match ctx {
         Ok(ctx) => {
-            let raw = Box::into_raw(Box::new(Modbus { ctx: Mutex::new(ctx) }));
+            let socket = AtomicI32::new(ctx.s);
+            let raw = Box::into_raw(Box::new(Modbus { ctx: Mutex::new(ctx), socket }));
             // SAFETY: `raw` was just created from a Box and is uniquely owned here.
             unsafe { (*raw).ctx.get_mut().handle_addr = raw as usize };
             raw
@@ -68,7 +113,7 @@ pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Resul
     let Some(handle) = (unsafe { ctx.as_ref() }) else {
         return fail(Error::INVALID);
     };
-    let mut guard = handle.ctx.lock();
+    let mut guard = handle.lock();
     let r = f(&mut guard);
     drop(guard);
     status(r)

@@ -323,21 +323,23 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
     let Some(handle) = (unsafe { ctx.as_ref() }) else {
         return fail(Error::INVALID);
     };
-    if s.is_null() || !handle.ctx.lock().is_socket() {
+    if s.is_null() || !handle.lock().is_socket() {
         return fail(Error::INVALID);
     }
     // SAFETY: `s` is non-NULL and valid per the caller.
     let listen_fd = unsafe { *s };
     let accepted = listen::accept(listen_fd);
-    let mut g = handle.ctx.lock();
+    let mut g = handle.lock();
     status(match accepted {
         Ok((fd, peer)) => {
             g.s = fd;
+            g.client_socket = None;
             listen::report_accept(&mut g.diag(), peer.as_deref());
             Ok(fd)
         }
         Err(e) => {
             g.s = -1;
+            g.client_socket = None;
             Err(e)
         }
     })
@@ -1064,7 +1066,7 @@ mod tests {
             assert_eq!(modbus_enable_diagnostics(ctx.0, 0), 0);
             write_all(peer, &diag);
             assert_eq!(modbus_receive(ctx.0, buf.as_mut_ptr()), 8);
-            let g = (*ctx.0).ctx.lock();
+            let g = (*ctx.0).lock();
             assert!(g.server_ext.is_none() && !g.serves_extended);
         }
         close(peer);
@@ -1161,7 +1163,7 @@ mod tests {
         // SAFETY: live handle; pointers to live locals.
         unsafe {
             let g = |c: &Ctx| {
-                let g = (*c.0).ctx.lock();
+                let g = (*c.0).lock();
                 (g.server_ext.is_some(), g.serves_extended)
             };
             assert_eq!(modbus_set_exception_status(ctx.0, 0x6D), 0);

@@ -25,18 +25,7 @@ unsafe extern "C" {
 }
 
 fn set_reuseaddr(fd: i32) -> Result<()> {
-    let enable: libc::c_int = 1;
-    // SAFETY: `enable` is a live c_int and its size is passed alongside it.
-    let rc = unsafe {
-        libc::setsockopt(
-            fd,
-            libc::SOL_SOCKET,
-            libc::SO_REUSEADDR,
-            (&enable as *const libc::c_int).cast(),
-            size_of::<libc::c_int>() as libc::socklen_t,
-        )
-    };
-    if rc == -1 { Err(last_error()) } else { Ok(()) }
+    super::set_option(fd, libc::SOL_SOCKET, libc::SO_REUSEADDR, 1 as libc::c_int)
 }
 
 /// Runs `f`; on failure closes `fd` and passes the error (errno of the failed call) on.

@@ -27,7 +27,7 @@ pub fn last_error() -> Error {
     Error(errno())
 }
 
-fn to_timespec(d: Duration) -> libc::timespec {
+pub fn to_timespec(d: Duration) -> libc::timespec {
     libc::timespec { tv_sec: d.as_secs() as libc::time_t, tv_nsec: d.subsec_nanos() as libc::c_long }
 }
 
@@ -67,6 +67,19 @@ pub fn wait_counting_down(fd: i32, events: libc::c_short, timeout: Option<&mut l
     }
 }
 
+/// A value `setsockopt(2)` takes: plain C data, read by the kernel as bytes.
+pub trait SocketOption: Copy {}
+impl SocketOption for libc::c_int {}
+impl SocketOption for libc::timeval {}
+
+/// `setsockopt(2)` of `value` at `level`/`name`.
+pub fn set_option<T: SocketOption>(fd: i32, level: i32, name: i32, value: T) -> Result<()> {
+    // SAFETY: `value` is a live, plain-data local and its size is passed alongside it.
+    let rc =
+        unsafe { libc::setsockopt(fd, level, name, (&value as *const T).cast(), size_of::<T>() as libc::socklen_t) };
+    if rc == -1 { Err(last_error()) } else { Ok(()) }
+}
+
 /// One `read(2)` into `buf`.
 pub fn read(fd: i32, buf: &mut [u8]) -> Result<usize> {
     // SAFETY: the kernel writes at most `buf.len()` bytes into the live slice.
@@ -81,10 +94,10 @@ pub fn recv(fd: i32, buf: &mut [u8], flags: i32) -> Result<usize> {
     if n < 0 { Err(last_error()) } else { Ok(n as usize) }
 }
 
-/// One `send(2)` without SIGPIPE.
-pub fn send(fd: i32, buf: &[u8]) -> Result<usize> {
+/// One `send(2)` without SIGPIPE, with `flags` added.
+pub fn send(fd: i32, buf: &[u8], flags: i32) -> Result<usize> {
     // SAFETY: the kernel reads at most `buf.len()` bytes from the live slice.
-    let n = unsafe { libc::send(fd, buf.as_ptr().cast(), buf.len(), libc::MSG_NOSIGNAL) };
+    let n = unsafe { libc::send(fd, buf.as_ptr().cast(), buf.len(), libc::MSG_NOSIGNAL | flags) };
     if n < 0 { Err(last_error()) } else { Ok(n as usize) }
 }
 

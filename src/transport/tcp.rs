@@ -6,10 +6,10 @@ use std::ffi::CStr;
 use std::mem::{size_of, zeroed};
 use std::time::Duration;
 
-use crate::context::{Context, Link};
+use crate::context::{ClientSocket, Context, Link};
 use crate::core::Diag;
 use crate::error::{Error, Result};
-use crate::transport::{close, errno, last_error, wait};
+use crate::transport::{close, errno, last_error, set_option, wait};
 
 unsafe extern "C" {
     /// POSIX `inet_pton` (not bound by the libc crate).
@@ -19,18 +19,10 @@ unsafe extern "C" {
 /// `IPTOS_LOWDELAY`.
 const IPTOS_LOWDELAY: libc::c_int = 0x10;
 
-fn setsockopt_int(fd: i32, level: i32, name: i32, value: libc::c_int) -> Result<()> {
-    // SAFETY: `value` is a live c_int and its size is passed alongside it.
-    let rc = unsafe {
-        libc::setsockopt(fd, level, name, (&value as *const libc::c_int).cast(), size_of::<libc::c_int>() as u32)
-    };
-    if rc == -1 { Err(last_error()) } else { Ok(()) }
-}
-
 /// TCP_NODELAY and low-delay TOS, as libmodbus sets them on IPv4 client sockets.
 fn set_ipv4_options(fd: i32) -> Result<()> {
-    setsockopt_int(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1)?;
-    setsockopt_int(fd, libc::IPPROTO_IP, libc::IP_TOS, IPTOS_LOWDELAY)
+    set_option(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1)?;
+    set_option(fd, libc::IPPROTO_IP, libc::IP_TOS, IPTOS_LOWDELAY)
 }
 
 /// A non-blocking stream socket of `family`, close-on-exec.
@@ -99,12 +91,13 @@ pub fn connect_ipv4(ctx: &mut Context) -> Result<()> {
     let len = size_of::<libc::sockaddr_in>() as libc::socklen_t;
     match connect_within(fd, (&sa as *const libc::sockaddr_in).cast(), len, ctx.response_timeout.duration()) {
         Ok(()) => {
-            ctx.s = fd;
+            adopt_connected(ctx, fd);
             Ok(())
         }
         Err(e) => {
             close(fd);
             ctx.s = -1;
+            ctx.client_socket = None;
             Err(e)
         }
     }
@@ -183,7 +176,7 @@ pub fn connect_pi(ctx: &mut Context) -> Result<()> {
         diag.out(format_args!("Connecting to [{}]:{}\n", node.to_string_lossy(), service.to_string_lossy()));
         match connect_within(fd, ai.ai_addr, ai.ai_addrlen, ctx.response_timeout.duration()) {
             Ok(()) => {
-                ctx.s = fd;
+                adopt_connected(ctx, fd);
                 return Ok(());
             }
             Err(e) => {
@@ -193,11 +186,33 @@ pub fn connect_pi(ctx: &mut Context) -> Result<()> {
         }
     }
     ctx.s = -1;
+    ctx.client_socket = None;
     Err(last)
+}
+
+/// Makes a freshly connected socket the context's, switched to blocking (see
+/// [`ClientSocket`]); if that fails it stays non-blocking and is used as libmodbus
+/// uses its socket.
+fn adopt_connected(ctx: &mut Context, fd: i32) {
+    let mut nonblocking: libc::c_int = 0;
+    // SAFETY: FIONBIO reads one live c_int.
+    let rc = unsafe { libc::ioctl(fd, libc::FIONBIO, &mut nonblocking as *mut libc::c_int) };
+    ctx.s = fd;
+    ctx.client_socket = (rc == 0).then(ClientSocket::default);
+}
+
+/// Sets `SO_RCVTIMEO` (0 = none).
+pub fn set_receive_timeout(fd: i32, timeout: Duration) -> Result<()> {
+    let tv = libc::timeval {
+        tv_sec: timeout.as_secs() as libc::time_t,
+        tv_usec: timeout.subsec_micros() as libc::suseconds_t,
+    };
+    set_option(fd, libc::SOL_SOCKET, libc::SO_RCVTIMEO, tv)
 }
 
 /// `modbus_close` for TCP: shut down both directions, then close.
 pub fn close_socket(ctx: &mut Context) {
+    ctx.client_socket = None;
     if ctx.s >= 0 {
         // SAFETY: shutdown on a descriptor number has no memory preconditions.
         unsafe { libc::shutdown(ctx.s, libc::SHUT_RDWR) };
