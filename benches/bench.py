@@ -211,11 +211,9 @@ def cost_run(metric, side, transport, case, lib, n, warm=20):
             ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case,
                     "-n", str(n), "-w", str(warm)]
             run_client(ccmd, env_for("debian"), "client", "debian", timeout=600)
-            try:
-                srv.wait(600)  # it exits by itself after n + warm replies
-            except subprocess.TimeoutExpired:
-                pass
-            stop(srv)
+            # It exits by itself after n + warm replies; its counts are written at exit.
+            if wait_output(srv, 600) is None:
+                raise RuntimeError(f"{metric} server: did not exit within 600 s of its last reply (stopped)")
         return parse_metric(metric, out)
     finally:
         if line:
@@ -236,6 +234,14 @@ def per_tx(metric, side, transport, case, lib):
 
 # ---- report ---------------------------------------------------------------------------
 
+def command_output(cmd):
+    """cmd's stdout, or "?" if it cannot run or takes over 30 s (subprocess.run kills it then)."""
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.TimeoutExpired):
+        return "?"
+
+
 def machine():
     cpu = "?"
     try:
@@ -246,8 +252,8 @@ def machine():
                     break
     except OSError:
         pass
-    rustc = subprocess.run(["rustc", "--version"], capture_output=True, text=True).stdout.strip()
-    deb = subprocess.run(["dpkg-query", "-W", "-f=${Version}", "libmodbus5"], capture_output=True, text=True).stdout
+    rustc = command_output(["rustc", "--version"]).strip()
+    deb = command_output(["dpkg-query", "-W", "-f=${Version}", "libmodbus5"])
     load = open("/proc/loadavg").read().split()[:3]
     return (f"{os.cpu_count()} CPUs ({cpu}), Linux {platform.release()}, {rustc}, Debian libmodbus5 {deb}; "
             f"load average at start {' '.join(load)}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")

@@ -118,12 +118,10 @@ int main(int argc, char **argv)
 
     g_argc = argc;
     g_argv = argv;
-    ctx = mbt_ctx_from_args(argc, argv, &backend);
+    ctx = mbt_open_scenario(argc, argv, &backend, 0);
     if (ctx == NULL) {
         return 1;
     }
-    CHECK(modbus_set_debug(ctx, TRUE));
-    mbt_connect_or_die(ctx);
     memset(bits, 0, sizeof(bits));
     memset(regs, 0, sizeof(regs));
 

@@ -20,12 +20,10 @@ int main(int argc, char **argv)
     uint8_t slave_id[64];
     int i, rc;
 
-    ctx = mbt_ctx_from_args(argc, argv, &backend);
+    ctx = mbt_open_scenario(argc, argv, &backend, 0);
     if (ctx == NULL) {
         return 1;
     }
-    CHECK(modbus_set_debug(ctx, TRUE));
-    mbt_connect_or_die(ctx);
 
     mbt_section("reads");
     memset(bits, 0xAA, sizeof(bits));

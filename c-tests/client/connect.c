@@ -11,14 +11,6 @@
 
 #include "../common/mbtest.h"
 
-static void read_two(modbus_t *ctx)
-{
-    uint16_t regs[2] = {0, 0};
-    int rc;
-    CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
-    mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
-}
-
 int main(int argc, char **argv)
 {
     modbus_t *ctx;
@@ -37,7 +29,7 @@ int main(int argc, char **argv)
     CHECK_PTR(ctx, modbus_new_tcp_pi("::1", port));
     CHECK(modbus_set_debug(ctx, TRUE));
     CHECK(modbus_connect(ctx));
-    read_two(ctx);
+    mbt_read_two(ctx);
     /* connect twice: 3.1.6 closes nothing and opens a second socket */
     CALL(modbus_close(ctx));
     CALL(modbus_free(ctx));
@@ -46,7 +38,7 @@ int main(int argc, char **argv)
     CHECK_PTR(ctx, modbus_new_tcp_pi("127.0.0.1", port));
     CHECK(modbus_set_debug(ctx, TRUE));
     CHECK(modbus_connect(ctx));
-    read_two(ctx);
+    mbt_read_two(ctx);
     CALL(modbus_close(ctx));
     CALL(modbus_free(ctx));
 
@@ -54,7 +46,7 @@ int main(int argc, char **argv)
     CHECK_PTR(ctx, modbus_new_tcp_pi("localhost", port));
     CHECK(modbus_set_debug(ctx, TRUE));
     CHECK(modbus_connect(ctx));
-    read_two(ctx);
+    mbt_read_two(ctx);
     CALL(modbus_close(ctx));
     CALL(modbus_free(ctx));
 
@@ -62,11 +54,11 @@ int main(int argc, char **argv)
     CHECK_PTR(ctx, modbus_new_tcp("127.0.0.1", atoi(port)));
     CHECK(modbus_set_debug(ctx, TRUE));
     CHECK(modbus_connect(ctx));
-    read_two(ctx);
+    mbt_read_two(ctx);
     CALL(modbus_close(ctx));
     /* reconnect the same context */
     CHECK(modbus_connect(ctx));
-    read_two(ctx);
+    mbt_read_two(ctx);
     CALL(modbus_close(ctx));
     CALL(modbus_free(ctx));
 
@@ -97,12 +89,7 @@ int main(int argc, char **argv)
     {
         int err;
         char r[64];
-        mbt_diff_begin(NULL, "invalid-ip-inet-pton");
-        errno = 0;
-        rc = modbus_connect(ctx);
-        err = errno;
-        fflush(stdout);
-        mbt_diff_end(NULL, "invalid-ip-inet-pton");
+        DIFF_BLOCK_RC(NULL, "invalid-ip-inet-pton", rc, err, modbus_connect(ctx));
         snprintf(got, sizeof(got), "connect(\"999.1.2.3\"): %s",
                  rc == -1 ? "rc=-1" : mbt_fmt_rc(r, sizeof(r), rc, err));
         mbt_diff_value("invalid-ip-inet-pton", got, "connect(\"999.1.2.3\"): rc=-1",
@@ -122,12 +109,7 @@ int main(int argc, char **argv)
             CHECK_PTR(ctx, modbus_new_tcp("127.0.0.1", atoi(aux)));
             CHECK(modbus_set_response_timeout(ctx, 0, 300000));
             CHECK(modbus_set_debug(ctx, TRUE));
-            mbt_diff_begin(NULL, "connect-timeout-errno");
-            errno = 0;
-            rc = modbus_connect(ctx);
-            err = errno;
-            fflush(stdout);
-            mbt_diff_end(NULL, "connect-timeout-errno");
+            DIFF_BLOCK_RC(NULL, "connect-timeout-errno", rc, err, modbus_connect(ctx));
             snprintf(got, sizeof(got), "connect(black hole): %s", mbt_fmt_rc(r, sizeof(r), rc, err));
             mbt_diff_value("connect-timeout-errno", got, "connect(black hole): rc=-1 errno=EINPROGRESS",
                            "connect(black hole): rc=-1 errno=ETIMEDOUT");

@@ -22,12 +22,7 @@ static void resync(modbus_t *ctx)
 #define BLOCK_CALL(ctx, name, expr)                                                  \
     do {                                                                             \
         int brc_, berr_;                                                             \
-        mbt_diff_begin(ctx, name);                                                   \
-        errno = 0;                                                                   \
-        brc_ = (int) (expr);                                                         \
-        berr_ = errno;                                                               \
-        fflush(stdout);                                                              \
-        mbt_diff_end(ctx, name);                                                     \
+        DIFF_BLOCK_RC(ctx, name, brc_, berr_, expr);                                 \
         mbt_report_int(#expr, brc_, berr_);                                          \
     } while (0)
 
@@ -36,12 +31,7 @@ static void resync(modbus_t *ctx)
     do {                                                                             \
         int brc_, berr_;                                                             \
         char got_[160], r_[64];                                                      \
-        mbt_diff_begin(ctx, name);                                                   \
-        errno = 0;                                                                   \
-        brc_ = (int) (expr);                                                         \
-        berr_ = errno;                                                               \
-        fflush(stdout);                                                              \
-        mbt_diff_end(ctx, name);                                                     \
+        DIFF_BLOCK_RC(ctx, name, brc_, berr_, expr);                                 \
         snprintf(got_, sizeof(got_), "%s: %s", #expr,                                \
                  mbt_fmt_rc(r_, sizeof(r_), brc_, berr_));                           \
         mbt_diff_value(name, got_, #expr ": " deb, #expr ": " ours);                 \
@@ -54,13 +44,10 @@ int main(int argc, char **argv)
     uint8_t bits[64];
     int code, rc;
 
-    ctx = mbt_ctx_from_args(argc, argv, &backend);
+    ctx = mbt_open_scenario(argc, argv, &backend, 300000);
     if (ctx == NULL) {
         return 1;
     }
-    CHECK(modbus_set_debug(ctx, TRUE));
-    CHECK(modbus_set_response_timeout(ctx, 0, 300000));
-    mbt_connect_or_die(ctx);
     memset(regs, 0, sizeof(regs));
     memset(bits, 1, sizeof(bits));
 

@@ -15,13 +15,10 @@ int main(int argc, char **argv)
     uint16_t regs[8];
     int rc;
 
-    ctx = mbt_ctx_from_args(argc, argv, &backend);
+    ctx = mbt_open_scenario(argc, argv, &backend, 300000);
     if (ctx == NULL) {
         return 1;
     }
-    CHECK(modbus_set_debug(ctx, TRUE));
-    CHECK(modbus_set_response_timeout(ctx, 0, 300000));
-    mbt_connect_or_die(ctx);
     memset(regs, 0, sizeof(regs));
 
     mbt_section("PROTOCOL recovery");
@@ -43,8 +40,7 @@ int main(int argc, char **argv)
     CHECK(modbus_flush(ctx));
     /* timeout: PROTOCOL alone does nothing special */
     CHECK(modbus_read_registers(ctx, 0x1045, 1, regs));
-    CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
-    mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
+    mbt_read_two(ctx);
 
     mbt_section("LINK recovery");
     CHECK(modbus_set_error_recovery(ctx, MODBUS_ERROR_RECOVERY_LINK));
@@ -56,8 +52,7 @@ int main(int argc, char **argv)
         mbt_msleep(200);
         CHECK(modbus_flush(ctx));
     }
-    CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
-    mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
+    mbt_read_two(ctx);
 
     mbt_section("LINK | PROTOCOL");
     CHECK(modbus_set_error_recovery(ctx, MODBUS_ERROR_RECOVERY_LINK | MODBUS_ERROR_RECOVERY_PROTOCOL));
@@ -71,8 +66,7 @@ int main(int argc, char **argv)
     CHECK(modbus_read_registers(ctx, 0, 1, regs));
     CHECK(modbus_set_error_recovery(ctx, MODBUS_ERROR_RECOVERY_LINK));
     /* EBADF: close, sleep, connect, and the send is retried */
-    CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
-    mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
+    mbt_read_two(ctx);
 
     CALL(modbus_close(ctx));
     CALL(modbus_free(ctx));

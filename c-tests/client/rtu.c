@@ -15,14 +15,6 @@ static void custom_rts(modbus_t *ctx, int on)
     printf("custom_rts(on=%d)\n", on);
 }
 
-static void read_two(modbus_t *ctx)
-{
-    uint16_t regs[2] = {0, 0};
-    int rc;
-    CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
-    mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
-}
-
 int main(int argc, char **argv)
 {
     modbus_t *ctx;
@@ -57,14 +49,14 @@ int main(int argc, char **argv)
             CHECK(modbus_set_debug(ctx, TRUE));
             CHECK(modbus_rtu_get_rts_delay(ctx));
             CHECK(modbus_connect(ctx));
-            read_two(ctx);
+            mbt_read_two(ctx);
             CALL(modbus_close(ctx));
             CALL(modbus_free(ctx));
         }
         CHECK_PTR(ctx, modbus_new_rtu(dev, 115200, 'O', 7, 2));
         CHECK(modbus_set_slave(ctx, slave));
         CHECK(modbus_connect(ctx));
-        read_two(ctx);
+        mbt_read_two(ctx);
         CALL(modbus_close(ctx));
         CALL(modbus_free(ctx));
     }
@@ -82,19 +74,19 @@ int main(int argc, char **argv)
     CHECK(modbus_rtu_get_serial_mode(ctx));
     CHECK(modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_UP));
     CHECK(modbus_rtu_get_rts(ctx));
-    read_two(ctx);
+    mbt_read_two(ctx);
     CHECK(modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_DOWN));
-    read_two(ctx);
+    mbt_read_two(ctx);
 
     mbt_section("custom RTS callback");
     CHECK(modbus_rtu_set_custom_rts(ctx, custom_rts));
     CHECK(modbus_rtu_set_rts_delay(ctx, 1000));
     CHECK(modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_UP));
-    read_two(ctx);
+    mbt_read_two(ctx);
     CHECK(modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_DOWN));
-    read_two(ctx);
+    mbt_read_two(ctx);
     CHECK(modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_NONE));
-    read_two(ctx);
+    mbt_read_two(ctx);
 
     mbt_section("another slave: no reply");
     CHECK(modbus_set_slave(ctx, slave + 1));
@@ -117,7 +109,7 @@ int main(int argc, char **argv)
         CHECK(modbus_send_raw_request(ctx, fake_rsp, sizeof(fake_rsp)));
         CHECK_RC(rc, modbus_receive_confirmation(ctx, rsp));
         mbt_dump_u8("confirmation", rsp, rc > 0 ? rc : 0);
-        read_two(ctx);
+        mbt_read_two(ctx);
     }
 
     mbt_section("flush");

@@ -51,12 +51,10 @@ int main(int argc, char **argv)
     long t0;
     int rc;
 
-    ctx = mbt_ctx_from_args(argc, argv, &backend);
+    ctx = mbt_open_scenario(argc, argv, &backend, 0);
     if (ctx == NULL) {
         return 1;
     }
-    CHECK(modbus_set_debug(ctx, TRUE));
-    mbt_connect_or_die(ctx);
     memset(regs, 0, sizeof(regs));
 
     mbt_section("connect does not change the response timeout");
@@ -124,8 +122,7 @@ int main(int argc, char **argv)
     CHECK(modbus_get_response_timeout(ctx, &s, &us));
     printf("response timeout %u.%06u\n", s, us);
     CHECK(modbus_set_response_timeout(ctx, 0, 500000));
-    CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
-    mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
+    mbt_read_two(ctx);
 
     if (backend == 't') {
         /* modbus_get_socket from another thread must not wait for the call that is

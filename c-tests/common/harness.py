@@ -8,6 +8,7 @@ SPDX-License-Identifier: MIT OR Apache-2.0
 """
 import os
 import re
+import select
 import shutil
 import signal
 import subprocess
@@ -95,19 +96,35 @@ def check_libinfo(text, lib, what):
 
 
 def wait_ready(p, what, timeout, lib=None):
-    """Reads p's stdout up to its READY line and returns the word after READY; with lib, checks LIBINFO too."""
-    deadline = time.time() + timeout
+    """Reads p's stdout up to its READY line and returns the word after READY; with lib, checks LIBINFO too.
+    Stops p and raises RuntimeError if it exits first or no READY comes within timeout s."""
+    deadline = time.monotonic() + timeout
+    fd = p.stdout.fileno()
+    line = b""
     seen = ""
-    while time.time() < deadline:
-        line = p.stdout.readline()
-        if not line:
-            raise RuntimeError(f"{what} exited before READY: {seen} {p.stderr.read()}")
-        seen += line
-        if line.startswith("READY "):
+    # Byte by byte from the descriptor, each read after select() with the time left: a
+    # readline() blocks past the deadline when p hangs mid-line or silent, and a buffered
+    # read could take output after READY that a later communicate() would then not see.
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            stop(p)
+            raise RuntimeError(f"{what}: no READY in {timeout}s (stopped): {seen + line.decode(errors='replace')}")
+        b = os.read(fd, 1)
+        if not b:
+            stop(p)
+            raise RuntimeError(f"{what} exited before READY (exit {p.returncode}): "
+                               f"{seen + line.decode(errors='replace')} {p.stderr.read()}")
+        line += b
+        if b != b"\n":
+            continue
+        text = line.decode(errors="replace")
+        seen += text
+        line = b""
+        if text.startswith("READY "):
             if lib is not None:
                 check_libinfo(seen, lib, what)
-            return line.split()[1]
-    raise RuntimeError(f"{what}: no READY in {timeout}s")
+            return text.split()[1]
 
 
 class PtyPair:
@@ -123,6 +140,7 @@ class PtyPair:
             if os.path.exists(self.a) and os.path.exists(self.b):
                 return
             time.sleep(0.01)
+        self.close()
         raise RuntimeError("socat pty pair did not appear")
 
     def close(self):

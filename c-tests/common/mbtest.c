@@ -326,6 +326,36 @@ void mbt_connect_or_die(modbus_t *ctx)
     }
 }
 
+modbus_t *mbt_open_scenario(int argc, char **argv, char *backend, uint32_t response_us)
+{
+    modbus_t *ctx = mbt_ctx_from_args(argc, argv, backend);
+    if (ctx == NULL) {
+        return NULL;
+    }
+    CHECK(modbus_set_debug(ctx, TRUE));
+    if (response_us > 0) {
+        /* The expression CHECK would print for the literal call, value included, so that
+         * the scenario's output does not depend on this being a helper. */
+        char what[64];
+        int rc;
+        snprintf(what, sizeof(what), "modbus_set_response_timeout(ctx, 0, %u)",
+                 (unsigned int) response_us);
+        errno = 0;
+        rc = modbus_set_response_timeout(ctx, 0, response_us);
+        mbt_report_int(what, rc, errno);
+    }
+    mbt_connect_or_die(ctx);
+    return ctx;
+}
+
+void mbt_read_two(modbus_t *ctx)
+{
+    uint16_t regs[2] = {0, 0};
+    int rc;
+    CHECK_RC(rc, modbus_read_registers(ctx, 0, 2, regs));
+    mbt_dump_u16("registers 0..1", regs, rc > 0 ? rc : 0);
+}
+
 /* ---- pty and loopback helpers --------------------------------------------------- */
 
 int mbt_openpty_raw(int *master, int *slave, char *name, size_t len)

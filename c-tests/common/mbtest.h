@@ -113,6 +113,19 @@ const char *mbt_fmt_rc(char *buf, size_t len, int rc, int err);
 void mbt_diff_begin(modbus_t *ctx, const char *name);
 void mbt_diff_end(modbus_t *ctx, const char *name);
 
+/* Runs expr inside the block of `name` (mbt_diff_begin/end): its trace is masked, its
+ * return value goes to `rc` and its errno to `err`, for the caller to report after
+ * the block (unmasked, or checked with mbt_diff_value). */
+#define DIFF_BLOCK_RC(ctx, name, rc, err, expr)                                      \
+    do {                                                                             \
+        mbt_diff_begin(ctx, name);                                                   \
+        errno = 0;                                                                   \
+        (rc) = (int) (expr);                                                         \
+        (err) = errno;                                                               \
+        fflush(stdout);                                                              \
+        mbt_diff_end(ctx, name);                                                     \
+    } while (0)
+
 /* ---- crash isolation ------------------------------------------------------------ */
 
 /* Runs fn(arg) in a forked child (stdout/stderr flushed before and after) and prints
@@ -127,6 +140,13 @@ int mbt_in_child(const char *what, void (*fn)(void *), void *arg);
 modbus_t *mbt_ctx_from_args(int argc, char **argv, char *backend);
 /* Connects with a trace; exits(2) on failure (the scenario cannot continue). */
 void mbt_connect_or_die(modbus_t *ctx);
+/* The opening the client scenarios share: mbt_ctx_from_args, the debug trace on, the
+ * response timeout set to response_us (< 1 s; 0 keeps the library's default), then
+ * mbt_connect_or_die. Traced as the same calls written out would be. NULL on bad usage. */
+modbus_t *mbt_open_scenario(int argc, char **argv, char *backend, uint32_t response_us);
+/* Reads holding registers 0..1 and prints them: the scenarios' check that the
+ * context still works after a fault. */
+void mbt_read_two(modbus_t *ctx);
 
 /* ---- pty and loopback helpers --------------------------------------------------- */
 

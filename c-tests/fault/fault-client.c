@@ -18,7 +18,6 @@
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
 #define _GNU_SOURCE
-#include <dirent.h>
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -29,25 +28,9 @@
 #include <modbus.h>
 
 #include "../common/mbt-connect.h"
+#include "../common/mbt-fds.h"
 
 int print_loaded_libmodbus(void);
-
-static int count_fds(void)
-{
-    int n = 0;
-    DIR *d = opendir("/proc/self/fd");
-    struct dirent *e;
-    if (d == NULL) {
-        return -1;
-    }
-    while ((e = readdir(d)) != NULL) {
-        if (e->d_name[0] != '.') {
-            n++;
-        }
-    }
-    closedir(d);
-    return n - 1; /* the directory stream itself */
-}
 
 static double now_ms(void)
 {
@@ -114,7 +97,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: %s tcp PORT | rtu DEVICE\n", argv[0]);
         return 2;
     }
-    before = count_fds();
+    before = mbt_count_fds();
     ctx = mbt_connect("fault-client", argv[1], argv[2]);
     if (ctx == NULL) {
         return 1;
@@ -127,7 +110,7 @@ int main(int argc, char **argv)
     tx(ctx, "C", 60);
     modbus_close(ctx);
     modbus_free(ctx);
-    after = count_fds();
+    after = mbt_count_fds();
     printf("FDS before=%d after=%d\n", before, after);
     return 0;
 }

@@ -140,6 +140,8 @@ def run_one(transport, fault, lib):
             time.sleep(0.02)
         res["server_fds"] = (server_fds, after)
         return res
+    except RuntimeError as e:  # server or proxy without READY: this run fails, the others go on
+        return {"error": str(e)}
     finally:
         for p in reversed(started):
             stop(p)

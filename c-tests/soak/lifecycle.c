@@ -13,7 +13,6 @@
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
 #define _GNU_SOURCE
-#include <dirent.h>
 #include <errno.h>
 #include <netinet/in.h>
 #include <stdio.h>
@@ -24,21 +23,9 @@
 
 #include <modbus.h>
 
-int print_loaded_libmodbus(void);
+#include "../common/mbt-fds.h"
 
-static int count_fds(void)
-{
-    int n = 0;
-    DIR *d = opendir("/proc/self/fd");
-    struct dirent *e;
-    while (d != NULL && (e = readdir(d)) != NULL) {
-        n += e->d_name[0] != '.';
-    }
-    if (d != NULL) {
-        closedir(d);
-    }
-    return n - 1;
-}
+int print_loaded_libmodbus(void);
 
 /* A listening socket on a free port (returned in *port). */
 static int listener(int *port)
@@ -63,7 +50,7 @@ int main(int argc, char **argv)
     int cycles = argc > 1 ? atoi(argv[1]) : 100, before, after, i, closed_port, open_port, ls, ls2;
     char port_s[16];
 
-    before = count_fds();
+    before = mbt_count_fds();
     /* A port known to be closed: bind, read it back, close. */
     ls = listener(&closed_port);
     close(ls);
@@ -136,7 +123,7 @@ int main(int argc, char **argv)
         modbus_free(ctx);
     }
     close(ls2);
-    after = count_fds();
+    after = mbt_count_fds();
     printf("FDS before=%d after=%d cycles=%d\n", before, after, cycles);
     return before == after ? 0 : 1;
 }

@@ -55,111 +55,121 @@ def requests_for(count):
     return sum(2 if i % 7 in (1, 3) else 1 for i in range(count))
 
 
-def soak(transport):
-    line = PtyPair("mbsoak-", 3) if transport == "rtu" else None
-    name = f"soak {transport.upper()} {SOAK_TX} transactions (ours/ours)"
+def run_case(name, transport, body, *args):
+    """Runs body(name, transport, line, *args), line a pty pair for RTU (None for TCP). A
+    RuntimeError (no READY, no pty pair) fails this case only, and what the case started
+    and did not collect is stopped when it ends, so that nothing outlives it."""
+    before = list(procs)
+    line = None
     try:
-        srv = start([os.path.join(BUILD, "mb-server"), transport, "0" if transport == "tcp" else line.a],
-                    env_for("ours"))
-        addr = wait_ready(srv, "server", 60)
-        cli = start([os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
-                     str(SOAK_TX)], env_for("ours"))
-        samples = []  # (progress, client rss, client fds, server rss, server fds)
-        progress = 0
-        t0 = time.time()
-        os.set_blocking(cli.stdout.fileno(), False)
-        buf = ""
-        while cli.poll() is None:
-            try:
-                chunk = cli.stdout.read()
-            except (BlockingIOError, TypeError):
-                chunk = None
-            if chunk:
-                buf += chunk
-                m = re.findall(r"PROGRESS (\d+)", buf)
-                if m:
-                    progress = int(m[-1])
-            c, s = sample(cli.pid), sample(srv.pid)
-            if c and s:
-                samples.append((progress, c[0], c[1], s[0], s[1]))
-            time.sleep(0.1)
-            if time.time() - t0 > 3600:
-                stop(cli)
-                break
-        rest = cli.stdout.read() or ""
-        out = buf + rest
-        err = cli.stderr.read()
-        elapsed = time.time() - t0
-        stop(srv)
-        if cli.returncode != 0 or "DONE" not in out:
-            report(name, False, f"client exit {cli.returncode}: {err.strip()[:300]}")
-            return
-        samples = [x for x in samples if x[0] > 0] or samples
-        if len(samples) < 2:
-            report(name, False, "too few samples")
-            return
-        warm = [x for x in samples if x[0] >= SOAK_TX * 0.2] or samples[-1:]
-        base = warm[0]
-        end = samples[-1]
-        c_growth = max(x[1] for x in warm) - base[1]
-        s_growth = max(x[3] for x in warm) - base[3]
-        fds_c = {x[2] for x in samples}
-        fds_s = {x[4] for x in samples}
-        ok = c_growth <= RSS_SLACK_KB and s_growth <= RSS_SLACK_KB and len(fds_c) == 1 and len(fds_s) == 1
-        report(name, ok,
-               f"{SOAK_TX / elapsed:,.0f} tx/s, {len(samples)} samples; client VmRSS {samples[0][1]} -> "
-               f"{base[1]} (20%) -> {end[1]} kB (growth after warm-up {c_growth} kB), fds {sorted(fds_c)}; "
-               f"server VmRSS {samples[0][3]} -> {base[3]} -> {end[3]} kB (growth {s_growth} kB), "
-               f"fds {sorted(fds_s)}")
+        line = PtyPair("mbsoak-", 3) if transport == "rtu" else None
+        body(name, transport, line, *args)
+    except RuntimeError as e:
+        report(name, False, str(e))
     finally:
+        for p in [p for p in procs if p not in before]:
+            stop(p)
         if line:
             line.close()
 
 
-def memcheck_pair(transport, side):
+def soak(name, transport, line):
+    srv = start([os.path.join(BUILD, "mb-server"), transport, "0" if transport == "tcp" else line.a],
+                env_for("ours"))
+    addr = wait_ready(srv, "server", 60)
+    cli = start([os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
+                 str(SOAK_TX)], env_for("ours"))
+    samples = []  # (progress, client rss, client fds, server rss, server fds)
+    progress = 0
+    t0 = time.time()
+    os.set_blocking(cli.stdout.fileno(), False)
+    buf = ""
+    while cli.poll() is None:
+        try:
+            chunk = cli.stdout.read()
+        except (BlockingIOError, TypeError):
+            chunk = None
+        if chunk:
+            buf += chunk
+            m = re.findall(r"PROGRESS (\d+)", buf)
+            if m:
+                progress = int(m[-1])
+        c, s = sample(cli.pid), sample(srv.pid)
+        if c and s:
+            samples.append((progress, c[0], c[1], s[0], s[1]))
+        time.sleep(0.1)
+        if time.time() - t0 > 3600:
+            stop(cli)
+            report(name, False, f"client did not finish in 3600 s (stopped at {progress} transactions)")
+            return
+    rest = cli.stdout.read() or ""
+    out = buf + rest
+    err = cli.stderr.read()
+    elapsed = time.time() - t0
+    stop(srv)
+    if cli.returncode != 0 or "DONE" not in out:
+        report(name, False, f"client exit {cli.returncode}: {err.strip()[:300]}")
+        return
+    samples = [x for x in samples if x[0] > 0] or samples
+    if len(samples) < 2:
+        report(name, False, "too few samples")
+        return
+    warm = [x for x in samples if x[0] >= SOAK_TX * 0.2] or samples[-1:]
+    base = warm[0]
+    end = samples[-1]
+    c_growth = max(x[1] for x in warm) - base[1]
+    s_growth = max(x[3] for x in warm) - base[3]
+    fds_c = {x[2] for x in samples}
+    fds_s = {x[4] for x in samples}
+    ok = c_growth <= RSS_SLACK_KB and s_growth <= RSS_SLACK_KB and len(fds_c) == 1 and len(fds_s) == 1
+    report(name, ok,
+           f"{SOAK_TX / elapsed:,.0f} tx/s, {len(samples)} samples; client VmRSS {samples[0][1]} -> "
+           f"{base[1]} (20%) -> {end[1]} kB (growth after warm-up {c_growth} kB), fds {sorted(fds_c)}; "
+           f"server VmRSS {samples[0][3]} -> {base[3]} -> {end[3]} kB (growth {s_growth} kB), "
+           f"fds {sorted(fds_s)}")
+
+
+def memcheck_pair(name, transport, line, side):
     """Our client or server under memcheck, the peer ours without valgrind."""
-    line = PtyPair("mbsoak-", 3) if transport == "rtu" else None
-    name = f"memcheck {side} {transport.upper()} {MEMCHECK_TX} transactions"
-    try:
-        senv = env_for("ours")
-        sprefix = VALGRIND if side == "server" else []
-        cprefix = VALGRIND if side == "client" else []
-        if transport == "tcp":
-            senv["MB_EXIT_ON_CLOSE"] = "1"
-            scmd = sprefix + [os.path.join(BUILD, "mb-server"), "tcp", "0"]
-        else:
-            scmd = sprefix + [os.path.join(BUILD, "mb-server"), "rtu", line.a, str(requests_for(MEMCHECK_TX))]
-        srv = start(scmd, senv)
-        addr = wait_ready(srv, "server", 120)
-        cli = start(cprefix + [os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
-                               str(MEMCHECK_TX)], env_for("ours"))
-        done = wait_output(cli, 900)
-        if done is None:
-            report(name, False, "client timed out")
-            return
-        cout, cerr = done
-        done = wait_output(srv, 120)
-        if done is None:
-            report(name, False, "server did not exit")
-            return
-        sout, serr = done
-        measured = (cli.returncode, cerr) if side == "client" else (srv.returncode, serr)
-        ok = cli.returncode == 0 and srv.returncode == 0 and "DONE" in cout
-        detail = f"client exit {cli.returncode}, server exit {srv.returncode}"
-        if not ok:
-            detail += ": " + measured[1].strip()[-1500:]
-        report(name, ok, detail + (" (valgrind: no errors, no definite leaks)" if ok else ""))
-    finally:
-        if line:
-            line.close()
+    senv = env_for("ours")
+    sprefix = VALGRIND if side == "server" else []
+    cprefix = VALGRIND if side == "client" else []
+    if transport == "tcp":
+        senv["MB_EXIT_ON_CLOSE"] = "1"
+        scmd = sprefix + [os.path.join(BUILD, "mb-server"), "tcp", "0"]
+    else:
+        scmd = sprefix + [os.path.join(BUILD, "mb-server"), "rtu", line.a, str(requests_for(MEMCHECK_TX))]
+    srv = start(scmd, senv)
+    addr = wait_ready(srv, "server", 120)
+    cli = start(cprefix + [os.path.join(BUILD, "soak-client"), transport, addr if transport == "tcp" else line.b,
+                           str(MEMCHECK_TX)], env_for("ours"))
+    done = wait_output(cli, 900)
+    if done is None:
+        report(name, False, "client timed out")
+        return
+    cout, cerr = done
+    done = wait_output(srv, 120)
+    if done is None:
+        report(name, False, "server did not exit")
+        return
+    sout, serr = done
+    measured = (cli.returncode, cerr) if side == "client" else (srv.returncode, serr)
+    ok = cli.returncode == 0 and srv.returncode == 0 and "DONE" in cout
+    detail = f"client exit {cli.returncode}, server exit {srv.returncode}"
+    if not ok:
+        detail += ": " + measured[1].strip()[-1500:]
+    report(name, ok, detail + (" (valgrind: no errors, no definite leaks)" if ok else ""))
 
 
 def lifecycle(lib, under_valgrind, cycles):
     name = f"lifecycle {cycles} cycles ({lib}{', memcheck' if under_valgrind else ''})"
     cmd = (VALGRIND if under_valgrind else []) + [os.path.join(BUILD, "lifecycle"), str(cycles)]
     p = start(cmd, env_for(lib))
-    out, err = p.communicate(timeout=600)
-    procs.remove(p)
+    done = wait_output(p, 600)
+    if done is None:
+        report(name, False, "timed out after 600 s (stopped)")
+        return
+    out, err = done
     m = re.search(r"FDS before=(\d+) after=(\d+)", out)
     ok = p.returncode == 0 and m is not None and m.group(1) == m.group(2)
     report(name, ok, (m.group(0) if m else "no FDS line") + ("" if ok else f"; exit {p.returncode}: {err.strip()[-1500:]}"))
@@ -167,10 +177,11 @@ def lifecycle(lib, under_valgrind, cycles):
 
 def main():
     for transport in ("tcp", "rtu"):
-        soak(transport)
+        run_case(f"soak {transport.upper()} {SOAK_TX} transactions (ours/ours)", transport, soak)
     for transport in ("tcp", "rtu"):
         for side in ("client", "server"):
-            memcheck_pair(transport, side)
+            run_case(f"memcheck {side} {transport.upper()} {MEMCHECK_TX} transactions", transport, memcheck_pair,
+                     side)
     lifecycle("ours", True, 30)
     lifecycle("ours", False, 300)
     lifecycle("debian", False, 300)

@@ -861,10 +861,10 @@ pub fn client_ascii(data: &[u8]) {
     client(Framing::Ascii, data)
 }
 
-/// Every target by name, for the replay tool.
 /// A fuzz target.
 pub type Target = fn(&[u8]);
 
+/// Every target by name, for the replay tool.
 pub const TARGETS: [(&str, Target); 8] = [
     ("server_rtu", server_rtu),
     ("server_tcp", server_tcp),
