@@ -36,92 +36,47 @@ OURS_DIR=$ROOT/target/release
 ALLOWED_FILE=$CT/allowed-differences.txt
 NORMALIZE=$CT/tools/normalize.awk
 
+# shellcheck source=scripts/testlib.sh
+. "$ROOT/scripts/testlib.sh"
+# mbtest-server and the pty relay get 5 s to end on SIGTERM.
+STOP_GRACE=5
+
 ORACLE_ONLY=0
 VALGRIND=0
 VALGRIND_ONLY=0
 WITH_OUR_SERVER=0
-RUN_CARGO=1
-ONLY=""
 SKIP_UNIT=0
 SKIP_MBPOLL=0
 SKIP_SCEN=0
 FULL_DIFFS=0
 
-while [ $# -gt 0 ]; do
+suite_flag() {
     case "$1" in
     --oracle-only) ORACLE_ONLY=1 ;;
     --valgrind) VALGRIND=1 ;;
     --valgrind-only) VALGRIND=1; VALGRIND_ONLY=1 ;;
     --with-our-server) WITH_OUR_SERVER=1 ;;
-    --no-cargo) RUN_CARGO=0 ;;
-    --only) shift; ONLY=$1 ;;
     --skip-unit) SKIP_UNIT=1 ;;
     --skip-mbpoll) SKIP_MBPOLL=1 ;;
     --skip-scenarios) SKIP_SCEN=1 ;;
     --keep-going-logs) FULL_DIFFS=1 ;;
-    -h | --help) sed -n '2,/^set -u/p' "$0" | sed '$d'; exit 0 ;;
-    *) echo "unknown option $1" >&2; exit 2 ;;
+    *) return 1 ;;
     esac
-    shift
-done
+}
+parse_flags --only -- "$@"
 
-PASS=0
-FAIL=0
 declare -a MATRIX=()
-declare -a FAILED_NAMES=()
 
 log() { printf '%s\n' "$*"; }
-section() { printf '\n=== %s ===\n' "$*"; }
 
-# result NAME COLUMN STATUS [detail]
-result() {
+# matrix_result NAME COLUMN STATUS [detail]: a counted result that is also a row of
+# the summary matrix
+matrix_result() {
     local name=$1 col=$2 status=$3 detail=${4:-}
-    if [ "$status" = PASS ]; then
-        PASS=$((PASS + 1))
-    else
-        FAIL=$((FAIL + 1))
-        FAILED_NAMES+=("$name [$col] $detail")
-    fi
+    tally "$status" "$name [$col] $detail"
     MATRIX+=("$name|$col|$status${detail:+ ($detail)}")
     printf '%-4s %-40s %-22s %s\n' "$status" "$name" "$col" "$detail"
 }
-
-selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
-
-# ---------------------------------------------------------------- process bookkeeping
-declare -a PIDS=()
-LAST_PID=
-start_bg() { # start_bg OUTFILE ERRFILE cmd...: LAST_PID
-    local o=$1 e=$2
-    shift 2
-    "$@" >"$o" 2>"$e" 9>&- &
-    LAST_PID=$!
-    PIDS+=("$LAST_PID")
-}
-stop_pid() {
-    local pid=$1 i
-    [ -n "$pid" ] || return 0
-    if kill -0 "$pid" 2>/dev/null; then
-        kill "$pid" 2>/dev/null
-        for i in $(seq 1 50); do
-            kill -0 "$pid" 2>/dev/null || break
-            sleep 0.1
-        done
-        kill -9 "$pid" 2>/dev/null
-    fi
-    wait "$pid" 2>/dev/null
-    local keep=()
-    for i in "${PIDS[@]}"; do [ "$i" = "$pid" ] || keep+=("$i"); done
-    PIDS=("${keep[@]}")
-}
-cleanup() {
-    local p
-    for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done
-    sleep 0.2
-    for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
-}
-trap cleanup EXIT
-trap 'echo "interrupted"; exit 130' INT TERM
 
 wait_file() { # wait_file PATH SECONDS
     local i
@@ -314,7 +269,7 @@ build_all() {
         # shellcheck disable=SC2086
         gcc $CFLAGS_COMMON $mcf "$f" "$BIN/mbtest.o" "$BIN/libinfo.o" -o "$BIN/$name" $mlibs -lutil -ldl || ok=0
     done
-    if [ $ok = 1 ]; then result "build (Debian header, -Werror)" build PASS; else result "build (Debian header, -Werror)" build FAIL; fi
+    if [ $ok = 1 ]; then matrix_result "build (Debian header, -Werror)" build PASS; else matrix_result "build (Debian header, -Werror)" build FAIL; fi
 
     # Optional: the same sources against OUR headers (include/), compile only.
     if [ -f "$ROOT/include/modbus.h" ]; then
@@ -325,8 +280,8 @@ build_all() {
             # shellcheck disable=SC2086
             gcc $CFLAGS_COMMON -I"$ROOT/include" -c "$f" -o "$hdir/$(basename "$f" .c).o" 2>>"$hdir/errors.txt" || hok=0
         done
-        if [ $hok = 1 ]; then result "build (our include/ headers, -Werror)" build PASS
-        else result "build (our include/ headers, -Werror)" build FAIL "see $hdir/errors.txt"; fi
+        if [ $hok = 1 ]; then matrix_result "build (our include/ headers, -Werror)" build PASS
+        else matrix_result "build (our include/ headers, -Werror)" build FAIL "see $hdir/errors.txt"; fi
     fi
     [ $ok = 1 ]
 }
@@ -340,8 +295,7 @@ build_ours() {
             tail -n 20 "$LOGS/cargo-build.log" | sed 's/^/    | /'
         fi
     fi
-    if [ -f "$OURS_DIR/libmodbus.so" ]; then
-        [ -e "$OURS_DIR/libmodbus.so.5" ] || ln -sf libmodbus.so "$OURS_DIR/libmodbus.so.5"
+    if link_so5 "$OURS_DIR"; then
         OURS_AVAILABLE=1
         log "using $OURS_DIR/libmodbus.so.5 -> $(readlink -f "$OURS_DIR/libmodbus.so.5")"
         if ! nm -D --defined-only "$OURS_DIR/libmodbus.so" 2>/dev/null | grep -q ' rsmodbus_version$'; then
@@ -473,7 +427,7 @@ run_scenarios() {
     for entry in "${SCENARIOS[@]}"; do
         scn=${entry%% *}
         backends=${entry#* }
-        [ -x "$BIN/scn-$scn" ] || { result "scenario $scn" build FAIL "not built"; continue; }
+        [ -x "$BIN/scn-$scn" ] || { matrix_result "scenario $scn" build FAIL "not built"; continue; }
         for backend in $backends; do
             local name="scenario $scn/$backend"
             selected "$name" || continue
@@ -481,12 +435,12 @@ run_scenarios() {
             local col="debian-vs-$CLIENT_B"
             run_scenario_once "$scn" "$backend" debian "$da"
             if [ "$(cat "$da/rc")" != 0 ] || ! check_libinfo "$da/libinfo-client" debian; then
-                result "$name" "$col" FAIL "oracle run failed (rc $(cat "$da/rc")), see $da"
+                matrix_result "$name" "$col" FAIL "oracle run failed (rc $(cat "$da/rc")), see $da"
                 sed 's/^/    | /' "$da/stderr" | tail -n 5
                 continue
             fi
             if [ "$CLIENT_B" = ours ] && [ "$OURS_AVAILABLE" = 0 ]; then
-                result "$name" "$col" FAIL "our library not built"
+                matrix_result "$name" "$col" FAIL "our library not built"
                 continue
             fi
             local blib=$CLIENT_B
@@ -506,9 +460,9 @@ run_scenarios() {
                 why="$why DIFF-UNEXPECTED;"
             fi
             if [ -z "$why" ]; then
-                result "$name" "$col" PASS
+                matrix_result "$name" "$col" PASS
             else
-                result "$name" "$col" FAIL "$why"
+                matrix_result "$name" "$col" FAIL "$why"
                 show_diffs "$db" exit stdout stderr server.out server.err
             fi
         done
@@ -520,7 +474,7 @@ run_valgrind() {
     local vlib=ours
     [ "$ORACLE_ONLY" = 1 ] && vlib=debian
     if [ "$vlib" = ours ] && [ "$OURS_AVAILABLE" = 0 ]; then
-        result "valgrind" "$vlib" FAIL "our library not built"
+        matrix_result "valgrind" "$vlib" FAIL "our library not built"
         return
     fi
     local entry scn backends backend
@@ -538,9 +492,9 @@ run_valgrind() {
             rc=$(cat "$d/rc")
             # Warnings (e.g. "unhandled ioctl 0x542e" for TIOCSRS485) are not errors.
             if [ "$rc" = 0 ] && ! grep -qsE "Invalid (read|write|free)|uninitialised|definitely lost|Mismatched free|Syscall param|overlap|Process terminating" "$d"/valgrind.*.log; then
-                result "$name" "valgrind-$vlib" PASS
+                matrix_result "$name" "valgrind-$vlib" PASS
             else
-                result "$name" "valgrind-$vlib" FAIL "rc $rc, see $d/valgrind.*.log"
+                matrix_result "$name" "valgrind-$vlib" FAIL "rc $rc, see $d/valgrind.*.log"
                 cat "$d"/valgrind.*.log 2>/dev/null | head -n 30 | sed 's/^/    | /'
             fi
         done
@@ -592,15 +546,8 @@ run_unit() {
     local socat_pid="" srv_pid=""
     local preload=$BIN/libmbtest-libinfo.so
     if [ "$backend" = rtu ]; then
-        rm -f "$UNIT_DIR/ttyV0" "$UNIT_DIR/ttyV1"
-        start_bg "$dir/socat.out" "$dir/socat.err" socat -d -d \
-            "pty,raw,echo=0,link=$UNIT_DIR/ttyV0" "pty,raw,echo=0,link=$UNIT_DIR/ttyV1"
+        socat_pair "$dir/socat.out" "$dir/socat.err" "$UNIT_DIR/ttyV0" "$UNIT_DIR/ttyV1" 10
         socat_pid=$LAST_PID
-        local i
-        for i in $(seq 1 100); do
-            [ -e "$UNIT_DIR/ttyV0" ] && [ -e "$UNIT_DIR/ttyV1" ] && break
-            sleep 0.1
-        done
     fi
     # shellcheck disable=SC2046
     start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") LD_PRELOAD="$preload" \
@@ -632,10 +579,10 @@ run_unit_tests() {
     section "Debian's unit-test-client/server (copied from libmodbus-dev examples at test time)"
     UPORT=$(pick_port $((PORT + 10)))
     if ! prepare_unit_tests; then
-        result "unit-test build" build FAIL
+        matrix_result "unit-test build" build FAIL
         return
     fi
-    result "unit-test build" build PASS
+    matrix_result "unit-test build" build PASS
     local backend combo
     local combos=("debian debian")
     if [ "$ORACLE_ONLY" = 1 ]; then
@@ -656,7 +603,7 @@ run_unit_tests() {
             fi
             selected "$name" || continue
             if { [ "$clib" = ours ] || [ "$slib" = ours ]; } && [ "$OURS_AVAILABLE" = 0 ]; then
-                result "$name" "$col" FAIL "our library not built"
+                matrix_result "$name" "$col" FAIL "our library not built"
                 continue
             fi
             local dir=$LOGS/unit-$backend-client-${clib}-server-${slib}
@@ -690,9 +637,9 @@ run_unit_tests() {
             local detail="$UNIT_OKS OK"
             [ -n "$UNIT_DIFFS" ] && detail="$detail; EXPECTED-3.1.12-DIFFERENCE: $UNIT_DIFFS"
             if [ -z "$why" ]; then
-                result "$name" "$col" PASS "$detail"
+                matrix_result "$name" "$col" PASS "$detail"
             else
-                result "$name" "$col" FAIL "$detail;$why see $dir"
+                matrix_result "$name" "$col" FAIL "$detail;$why see $dir"
                 grep -a -B3 -A1 'assertion error' "$dir/client.out" | head -n 10 | sed 's/^/    | /'
             fi
             grep -ao 'EXPECTED-3.1.12-DIFFERENCE: .*' "$dir/client.out" | sort | uniq -c | sed 's/^/    /'
@@ -768,7 +715,7 @@ run_mbpoll() {
         local blib=$CLIENT_B
         [ "$ORACLE_ONLY" = 1 ] && blib=debian
         if [ "$blib" = ours ] && [ "$OURS_AVAILABLE" = 0 ]; then
-            result "$tname" "debian-vs-$CLIENT_B" FAIL "our library not built"
+            matrix_result "$tname" "debian-vs-$CLIENT_B" FAIL "our library not built"
             continue
         fi
         run_mbpoll_case "$name" "$backend" "$cmds" debian "$da"
@@ -794,9 +741,9 @@ run_mbpoll() {
             grep -q "exit status [^0]" "$db/exit" && why="$why non-zero exit;"
         fi
         if [ -z "$why" ]; then
-            result "$tname" "debian-vs-$CLIENT_B" PASS "$(tr '\n' ' ' <"$db/exit" | sed 's/command [0-9]* exit status //g; s/ $//; s/^/exit /')"
+            matrix_result "$tname" "debian-vs-$CLIENT_B" PASS "$(tr '\n' ' ' <"$db/exit" | sed 's/command [0-9]* exit status //g; s/ $//; s/^/exit /')"
         else
-            result "$tname" "debian-vs-$CLIENT_B" FAIL "$why"
+            matrix_result "$tname" "debian-vs-$CLIENT_B" FAIL "$why"
             show_diffs "$db" exit stdout stderr server.out server.err
         fi
     done
@@ -854,11 +801,10 @@ if [ "$ORACLE_ONLY" = 0 ]; then
         printf '  %-30s %-5s %s\n' "$name" "$kind" "${obs:-not observed}"
     done <"$ALLOWED_FILE"
 fi
-if [ ${#FAILED_NAMES[@]} -gt 0 ]; then
+if [ ${#FAILED[@]} -gt 0 ]; then
     section "failed"
-    for row in "${FAILED_NAMES[@]}"; do log "  $row"; done
+    for row in "${FAILED[@]}"; do log "  $row"; done
 fi
 log ""
 log "runtime $(($(date +%s) - START)) s; allowed differences: $ALLOWED_FILE"
-log "$PASS passed, $FAIL failed"
-[ "$FAIL" = 0 ]
+summary

@@ -26,81 +26,14 @@ OUT=${EXTTEST_OUT:-$ROOT/target/ext-tests}
 LOGS=$OUT/logs
 LIBDIR=$ROOT/target/release
 
-RUN_CARGO=1
-VALGRIND=1
-ONLY=""
-while [ $# -gt 0 ]; do
-    case "$1" in
-    --no-cargo) RUN_CARGO=0 ;;
-    --no-valgrind) VALGRIND=0 ;;
-    --only) shift; ONLY=$1 ;;
-    -h | --help) sed -n '2,/^set -u/p' "$0" | sed '$d'; exit 0 ;;
-    *) echo "unknown option $1" >&2; exit 2 ;;
-    esac
-    shift
-done
+# shellcheck source=scripts/testlib.sh
+. "$ROOT/scripts/testlib.sh"
 
-PASS=0
-FAIL=0
-declare -a FAILED=()
-result() { # result NAME PASS|FAIL [detail]
-    if [ "$2" = PASS ]; then
-        PASS=$((PASS + 1))
-    else
-        FAIL=$((FAIL + 1))
-        FAILED+=("$1${3:+: $3}")
-    fi
-    printf '%-4s %s%s\n' "$2" "$1" "${3:+  ($3)}"
-}
-section() { printf '\n=== %s ===\n' "$*"; }
-selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
-
-# ------------------------------------------------------------ processes we start
-declare -a PIDS=()
-forget_pid() {
-    local keep=() p
-    for p in "${PIDS[@]}"; do [ "$p" = "$1" ] || keep+=("$p"); done
-    PIDS=("${keep[@]}")
-}
-stop_pid() { # stop_pid PID: TERM, then KILL after 3 s, then reap
-    local pid=$1 i
-    [ -n "$pid" ] || return 0
-    if kill -0 "$pid" 2>/dev/null; then
-        kill "$pid" 2>/dev/null
-        for i in $(seq 1 30); do
-            kill -0 "$pid" 2>/dev/null || break
-            sleep 0.1
-        done
-        kill -9 "$pid" 2>/dev/null
-    fi
-    wait "$pid" 2>/dev/null
-    forget_pid "$pid"
-}
-cleanup() {
-    local p
-    for p in "${PIDS[@]}"; do stop_pid "$p"; done
-}
-trap cleanup EXIT
-trap 'echo "interrupted"; exit 130' INT TERM
+parse_flags --no-valgrind --only -- "$@"
 
 # ------------------------------------------------------------ build
 section "build"
-if [ $RUN_CARGO = 1 ]; then
-    if (cd "$ROOT" && cargo build --release 2>&1 | tail -n 2); then
-        result "cargo build --release" PASS
-    else
-        result "cargo build --release" FAIL
-    fi
-fi
-if [ -f "$LIBDIR/libmodbus.so" ] && [ ! -e "$LIBDIR/libmodbus.so.5" ]; then
-    ln -s libmodbus.so "$LIBDIR/libmodbus.so.5"
-fi
-OURS_LIB=$(readlink -f "$LIBDIR/libmodbus.so.5" 2>/dev/null || true)
-if [ -z "$OURS_LIB" ] || [ ! -f "$OURS_LIB" ]; then
-    result "our libmodbus.so.5" FAIL "missing in $LIBDIR"
-    echo "$PASS passed, $FAIL failed"
-    exit 1
-fi
+our_lib_result "$LIBDIR" 2
 echo "ours: $OURS_LIB"
 rm -rf "$OUT"
 mkdir -p "$OUT" "$LOGS"
@@ -112,32 +45,24 @@ if gcc -Wall -Wextra -Werror -O1 -g -I"$ROOT/include" -o "$BIN" "$SRC/ext-test.c
 else
     result "build c-tests/extended/ext-test.c" FAIL "see $LOGS/build.log"
     sed 's/^/    | /' "$LOGS/build.log" | head -n 20
-    echo "$PASS passed, $FAIL failed"
+    summary
     exit 1
 fi
 
 # ------------------------------------------------------------ pty pairs
 SOCAT_PID=
-PTY_DIR=
 start_pty_pair() { # start_pty_pair DIR: socat links DIR/server and DIR/client
-    PTY_DIR=$1
-    mkdir -p "$PTY_DIR"
-    socat -d -d "pty,raw,echo=0,link=$PTY_DIR/server" "pty,raw,echo=0,link=$PTY_DIR/client" \
-        >"$PTY_DIR/socat.log" 2>&1 &
-    SOCAT_PID=$!
-    PIDS+=("$SOCAT_PID")
-    local i
-    for i in $(seq 1 50); do
-        [ -e "$PTY_DIR/server" ] && [ -e "$PTY_DIR/client" ] && return 0
-        sleep 0.1
-    done
-    return 1
+    local rc=0
+    mkdir -p "$1"
+    socat_pair "$1/socat.log" "$1/socat.log" "$1/server" "$1/client" || rc=$?
+    SOCAT_PID=$LAST_PID
+    return $rc
 }
 
 # ------------------------------------------------------------ runs
 # run_case NAME VALGRIND(0|1) MODE TRANSPORT
 run_case() {
-    local name=$1 vg=$2 mode=$3 t=$4 d=$LOGS/$1 args=() pre=() rc lib n p f pid
+    local name=$1 vg=$2 mode=$3 t=$4 d=$LOGS/$1 args=() pre=() rc lib n p f
     selected "$name" || return 0
     mkdir -p "$d"
     if [ "$t" = rtu ] || [ "$t" = ascii ]; then
@@ -156,13 +81,10 @@ run_case() {
         pre=(valgrind -q --error-exitcode=99 --leak-check=full --errors-for-leak-kinds=definite
             --show-leak-kinds=definite --log-file="$d/valgrind.%p.log")
     fi
-    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 300 "${pre[@]}" "$BIN" "$mode" "$t" "${args[@]}" \
-        >"$d/out.log" 2>"$d/err.log" &
-    pid=$!
-    PIDS+=("$pid")
-    wait "$pid"
+    start_bg "$d/out.log" "$d/err.log" \
+        env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 300 "${pre[@]}" "$BIN" "$mode" "$t" "${args[@]}"
+    wait_pid "$LAST_PID"
     rc=$?
-    forget_pid "$pid"
     [ -n "$SOCAT_PID" ] && stop_pid "$SOCAT_PID"
     SOCAT_PID=
 
@@ -183,8 +105,8 @@ run_case() {
         tail -n 5 "$d/err.log" | sed 's/^/    | /'
         return
     fi
-    PASS=$((PASS + p))
-    FAIL=$((FAIL + f))
+    passed=$((passed + p))
+    failed=$((failed + f))
     [ "$f" = 0 ] || FAILED+=("$name: $f checks (see $d/out.log)")
     if [ "$rc" = 0 ] && [ "$f" = 0 ]; then
         result "$name: $p checks, exit 0" PASS
@@ -212,7 +134,7 @@ run_case fifo-only-tcp 0 fifo-only tcp
 run_case fifo-only-rtu 0 fifo-only rtu
 run_case plain-tcp 0 plain tcp
 
-if [ $VALGRIND = 1 ] && command -v valgrind >/dev/null; then
+if [ "$VALGRIND" = 1 ] && command -v valgrind >/dev/null; then
     section "under valgrind memcheck"
     run_case valgrind-full-tcp 1 full tcp
     run_case valgrind-full-rtu 1 full rtu
@@ -224,5 +146,4 @@ if [ ${#FAILED[@]} -gt 0 ]; then
     printf '  %s\n' "${FAILED[@]}"
 fi
 echo "logs: $LOGS"
-echo "$PASS passed, $FAIL failed"
-[ $FAIL = 0 ]
+summary

@@ -52,38 +52,20 @@ LOGS=$OUT/logs
 VENV=$OUT/venv
 OURS=$ROOT/target/release
 
-RUN_CARGO=1
-INSTALL=1
-ONLY=""
-while [ $# -gt 0 ]; do
-    case "$1" in
-    --no-cargo) RUN_CARGO=0 ;;
-    --no-install) INSTALL=0 ;;
-    --only) shift; ONLY=$1 ;;
-    -h | --help) sed -n '2,/^set -uo/p' "$0" | sed '$d'; exit 0 ;;
-    *) echo "unknown option $1" >&2; exit 2 ;;
-    esac
-    shift
-done
-
-mkdir -p "$BIN" "$LOGS"
-rm -f "$LOGS"/*.log
-WORK=$OUT/run
-mkdir -p "$WORK"
 # shellcheck source=scripts/testlib.sh
 . "$ROOT/scripts/testlib.sh"
 
-selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
+INSTALL=1
+suite_flag() {
+    case "$1" in
+    --no-install) INSTALL=0 ;;
+    *) return 1 ;;
+    esac
+}
+parse_flags --only -- "$@"
 
 # ---------------------------------------------------------------- prerequisites
-for tool in gcc socat python3; do
-    command -v "$tool" >/dev/null || { echo "missing $tool (scripts/install-deps.sh)"; exit 2; }
-done
-if [ "$RUN_CARGO" -eq 1 ]; then
-    cargo build --release >"$LOGS/cargo.log" 2>&1 || { tail -n 30 "$LOGS/cargo.log"; echo "cargo build failed"; exit 2; }
-fi
-[ -f "$OURS/libmodbus.so" ] || { echo "no $OURS/libmodbus.so"; exit 2; }
-[ -e "$OURS/libmodbus.so.5" ] || ln -sf libmodbus.so "$OURS/libmodbus.so.5"
+prepare_run gcc socat python3
 OURS_REAL=$(readlink -f "$OURS/libmodbus.so.5")
 
 PY=$VENV/bin/python
@@ -145,19 +127,6 @@ add_counts() {
     grep -E '^(FAIL|skip) - ' "$log" | sed 's/^/       /'
 }
 
-# check_loaded NAME LOG: the C program mapped our library.
-check_loaded() {
-    local line path
-    line=$(grep -m1 '^LOADED ' "$2")
-    path=${line#LOADED }
-    path=${path%% (*}
-    if [ -n "$path" ] && [ "$(readlink -f "$path")" = "$OURS_REAL" ] && [[ $line == *"(rsmodbus "* ]]; then
-        ok "$1: loaded $path"
-    else
-        bad "$1: wrong library" "${line:-no LOADED line}" "expected $OURS_REAL"
-    fi
-}
-
 export LD_LIBRARY_PATH=$OURS
 export PYTHONUNBUFFERED=1
 
@@ -190,7 +159,7 @@ client_case() { # NAME TRANSPORT(ours) PM_TRANSPORT PM_ARGS...
         return 0
     fi
     INTEROP_DEBUG=1 timeout 200 "$BIN/our_client" "$ours" "$where" >"$LOGS/$name-ours.log" 2>&1
-    check_loaded "$name" "$LOGS/$name-ours.log"
+    loaded_ours "$name" "$LOGS/$name-ours.log" "$OURS_REAL"
     add_counts "$name" "$LOGS/$name-ours.log"
     stop "$name-pm"
     stop "pty-$name"
@@ -214,7 +183,7 @@ if selected client-rtutcp-echo; then
     if wait_ready echo-pm READY 20; then
         INTEROP_ONLY=t_echo INTEROP_DEBUG=1 timeout 100 "$BIN/our_client" rtutcp "$port" \
             >"$LOGS/client-rtutcp-echo-ours.log" 2>&1
-        check_loaded client-rtutcp-echo "$LOGS/client-rtutcp-echo-ours.log"
+        loaded_ours client-rtutcp-echo "$LOGS/client-rtutcp-echo-ours.log" "$OURS_REAL"
         add_counts client-rtutcp-echo "$LOGS/client-rtutcp-echo-ours.log"
     else
         bad "client-rtutcp-echo: echo peer did not start"
@@ -252,7 +221,7 @@ server_case() { # NAME TRANSPORT(ours) SERVER_OPTION PM_TRANSPORT PM_ARGS...
     stop "$name-ours"
     stop "pty-$name"
     cp "$WORK/$name-ours.log" "$LOGS/$name-ours.log"
-    check_loaded "$name" "$LOGS/$name-ours.log"
+    loaded_ours "$name" "$LOGS/$name-ours.log" "$OURS_REAL"
     add_counts "$name" "$LOGS/$name-pymodbus.log"
 }
 
@@ -280,7 +249,7 @@ if selected server-rtutcp-raw; then
         timeout 60 "$PY" "$SRC/pm_rawclient.py" "$port" >"$LOGS/server-rtutcp-raw-client.log" 2>&1
         stop raw-ours
         cp "$WORK/raw-ours.log" "$LOGS/server-rtutcp-raw-ours.log"
-        check_loaded server-rtutcp-raw "$LOGS/server-rtutcp-raw-ours.log"
+        loaded_ours server-rtutcp-raw "$LOGS/server-rtutcp-raw-ours.log" "$OURS_REAL"
         add_counts server-rtutcp-raw "$LOGS/server-rtutcp-raw-client.log"
     else
         bad "server-rtutcp-raw: our server did not start"

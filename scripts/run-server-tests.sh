@@ -33,81 +33,12 @@ LOGS=$OUT/logs
 OURS_DIR=$ROOT/target/release
 ALLOWED=$SRC/allowed-differences.txt
 
-RUN_CARGO=1
-VALGRIND=1
-ONLY=""
-while [ $# -gt 0 ]; do
-    case "$1" in
-    --no-cargo) RUN_CARGO=0 ;;
-    --no-valgrind) VALGRIND=0 ;;
-    --only) shift; ONLY=$1 ;;
-    -h | --help) sed -n '2,/^set -u/p' "$0" | sed '$d'; exit 0 ;;
-    *) echo "unknown option $1" >&2; exit 2 ;;
-    esac
-    shift
-done
+# shellcheck source=scripts/testlib.sh
+. "$ROOT/scripts/testlib.sh"
 
-PASS=0
-FAIL=0
-declare -a FAILED=()
+parse_flags --no-valgrind --only -- "$@"
+
 declare -a MATRIX=()
-
-result() { # result NAME PASS|FAIL [detail]
-    if [ "$2" = PASS ]; then
-        PASS=$((PASS + 1))
-    else
-        FAIL=$((FAIL + 1))
-        FAILED+=("$1${3:+: $3}")
-    fi
-    printf '%-4s %s%s\n' "$2" "$1" "${3:+  ($3)}"
-}
-section() { printf '\n=== %s ===\n' "$*"; }
-selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
-
-# ------------------------------------------------------------ processes we start
-declare -a PIDS=()
-LAST_PID=
-start_bg() { # start_bg OUT cmd...: sets LAST_PID
-    local o=$1
-    shift
-    "$@" >"$o" 2>&1 &
-    LAST_PID=$!
-    PIDS+=("$LAST_PID")
-}
-forget_pid() {
-    local keep=() p
-    for p in "${PIDS[@]}"; do [ "$p" = "$1" ] || keep+=("$p"); done
-    PIDS=("${keep[@]}")
-}
-stop_pid() { # stop_pid PID: TERM, then KILL after 3 s, then reap
-    local pid=$1 i
-    [ -n "$pid" ] || return 0
-    if kill -0 "$pid" 2>/dev/null; then
-        kill "$pid" 2>/dev/null
-        for i in $(seq 1 30); do
-            kill -0 "$pid" 2>/dev/null || break
-            sleep 0.1
-        done
-        kill -9 "$pid" 2>/dev/null
-    fi
-    wait "$pid" 2>/dev/null
-    forget_pid "$pid"
-}
-wait_pid() { # wait_pid PID: reap and return its status
-    local rc
-    wait "$1"
-    rc=$?
-    forget_pid "$1"
-    return $rc
-}
-cleanup() {
-    local p
-    for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null; done
-    sleep 0.3
-    for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
-}
-trap cleanup EXIT
-trap 'echo "interrupted"; exit 130' INT TERM
 
 # ------------------------------------------------------------ libraries
 DEB_LIBDIR=$(pkg-config --variable=libdir libmodbus 2>/dev/null || echo /usr/lib/x86_64-linux-gnu)
@@ -136,22 +67,7 @@ check_loaded() {
 
 # ------------------------------------------------------------ build
 section "build"
-if [ $RUN_CARGO = 1 ]; then
-    if (cd "$ROOT" && cargo build --release 2>&1 | tail -n 3); then
-        result "cargo build --release" PASS
-    else
-        result "cargo build --release" FAIL
-    fi
-fi
-if [ -f "$OURS_DIR/libmodbus.so" ] && [ ! -e "$OURS_DIR/libmodbus.so.5" ]; then
-    ln -s libmodbus.so "$OURS_DIR/libmodbus.so.5"
-fi
-OURS_LIB=$(readlink -f "$OURS_DIR/libmodbus.so.5" 2>/dev/null || true)
-if [ -z "$OURS_LIB" ] || [ ! -f "$OURS_LIB" ]; then
-    result "our libmodbus.so.5" FAIL "missing in $OURS_DIR"
-    echo "$PASS passed, $FAIL failed"
-    exit 1
-fi
+our_lib_result "$OURS_DIR" 3
 echo "debian: $DEB_LIB"
 echo "ours:   $OURS_LIB"
 
@@ -320,7 +236,7 @@ valgrind_run() { # valgrind_run TRANSPORT
     MATRIX+=("valgrind|$t|$([ $ok = 1 ] && echo clean || echo FAIL)")
 }
 
-if [ $VALGRIND = 1 ] && command -v valgrind >/dev/null; then
+if [ "$VALGRIND" = 1 ] && command -v valgrind >/dev/null; then
     section "2. the same frames, our server under valgrind memcheck"
     for t in tcp rtu; do
         selected "valgrind $t" || continue
@@ -343,12 +259,11 @@ unit_start() {
     [ "$clib" = ours ] && extra+=(UT_CLIENT_312=1)
     UT_SOCAT[$key]=""
     if [ "$t" = rtu ]; then
-        start_bg "$d/socat.log" socat -d -d "pty,raw,echo=0,link=$d/ttyV0" "pty,raw,echo=0,link=$d/ttyV1"
+        socat_pair "$d/socat.log" "$d/socat.log" "$d/ttyV0" "$d/ttyV1"
         UT_SOCAT[$key]=$LAST_PID
-        for i in $(seq 1 50); do [ -e "$d/ttyV0" ] && [ -e "$d/ttyV1" ] && break; sleep 0.1; done
     fi
     # shellcheck disable=SC2046
-    start_bg "$d/server.log" $(lib_env "$slib") LD_PRELOAD="$BIN/libloaded.so" SRVTEST_LOADED_FILE="$d/loaded-server" \
+    start_bg "$d/server.log" "$d/server.log" $(lib_env "$slib") LD_PRELOAD="$BIN/libloaded.so" SRVTEST_LOADED_FILE="$d/loaded-server" \
         UT_PORT="$port" UT_DEVICE="$d/ttyV0" "$UT/unit-test-server" "$t"
     UT_SRV[$key]=$LAST_PID
     for i in $(seq 1 100); do
@@ -490,5 +405,4 @@ if [ ${#FAILED[@]} -gt 0 ]; then
     printf '  %s\n' "${FAILED[@]}"
 fi
 echo "logs: $LOGS"
-echo "$PASS passed, $FAIL failed"
-[ $FAIL = 0 ]
+summary

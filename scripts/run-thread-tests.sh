@@ -44,35 +44,21 @@ TSAN_LIB_DIR=$TSAN_TARGET/x86_64-unknown-linux-gnu/release
 NTHREADS=16
 NTX=10000
 
-RUN_CARGO=1
-TSAN=1
-while [ $# -gt 0 ]; do
-    case "$1" in
-    --no-cargo) RUN_CARGO=0 ;;
-    --no-tsan) TSAN=0 ;;
-    --long) NTX=100000 ;;
-    --ntx) shift; NTX=$1 ;;
-    -h | --help) sed -n '2,/^set -uo/p' "$0" | sed '$d'; exit 0 ;;
-    *) echo "unknown option $1" >&2; exit 2 ;;
-    esac
-    shift
-done
-
-mkdir -p "$BIN" "$LOGS"
-rm -f "$LOGS"/*.log
-WORK=$OUT/run
-mkdir -p "$WORK"
 # shellcheck source=scripts/testlib.sh
 . "$ROOT/scripts/testlib.sh"
 
-for tool in gcc socat python3; do
-    command -v "$tool" >/dev/null || { echo "missing $tool (scripts/install-deps.sh)"; exit 2; }
-done
-if [ "$RUN_CARGO" -eq 1 ]; then
-    cargo build --release >"$LOGS/cargo.log" 2>&1 || { tail -n 30 "$LOGS/cargo.log"; echo "cargo build failed"; exit 2; }
-fi
-[ -f "$OURS/libmodbus.so" ] || { echo "no $OURS/libmodbus.so"; exit 2; }
-[ -e "$OURS/libmodbus.so.5" ] || ln -sf libmodbus.so "$OURS/libmodbus.so.5"
+TSAN=1
+suite_flag() {
+    case "$1" in
+    --no-tsan) TSAN=0 ;;
+    --long) NTX=100000 ;;
+    --ntx) NTX=$2; return 2 ;;
+    *) return 1 ;;
+    esac
+}
+parse_flags -- "$@"
+
+prepare_run gcc socat python3
 
 CFLAGS=(-std=c11 -D_GNU_SOURCE -Wall -Wextra -Werror -g -I"$ROOT/include")
 IO=$ROOT/c-tests/interop
@@ -90,20 +76,6 @@ build() { # NAME gcc-args...
 build our_server "${CFLAGS[@]}" -O2 -o "$BIN/our_server" "$IO/our_server.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
 build threads "${CFLAGS[@]}" -O2 -pthread -o "$BIN/threads" "$TH/threads.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
 build mutex_cost "${CFLAGS[@]}" -O2 -o "$BIN/mutex_cost" "$TH/mutex_cost.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
-
-# check_loaded NAME LOG DIR: the program mapped DIR/libmodbus.so.5 (rsmodbus).
-check_loaded() {
-    local line path
-    line=$(grep -m1 '^LOADED ' "$2")
-    path=${line#LOADED }
-    path=${path%% (*}
-    if [ -n "$path" ] && [ "$(readlink -f "$path")" = "$(readlink -f "$3/libmodbus.so.5")" ] &&
-        [[ $line == *"(rsmodbus "* ]]; then
-        ok "$1: loaded $path"
-    else
-        bad "$1: wrong library" "${line:-no LOADED line}" "expected $3/libmodbus.so.5"
-    fi
-}
 
 # start_server NAME TRANSPORT: our_server (our library, no trace); sets WHERE (client side)
 start_server() {
@@ -140,7 +112,7 @@ run_threads() {
     env LD_LIBRARY_PATH="$libdir" "$@" timeout 900 "$binary" "$transport" "$WHERE" "$NTHREADS" "$NTX" >"$log" 2>&1
     rc=$?
     stop_server "$name"
-    check_loaded "$name" "$log" "$libdir"
+    loaded_ours "$name" "$log" "$libdir/libmodbus.so.5"
     grep -E '^[a-z]+: [0-9]+ threads' "$log" | sed 's/^/     /'
     grep -E '^FAIL' "$log" | head -n 20 | sed 's/^/     /'
     if [ "$rc" -eq 0 ] && grep -q '^ok   - all transactions correct' "$log" &&
@@ -177,7 +149,7 @@ if [ "$TSAN" -eq 1 ]; then
             if start_server tsan-selftest tcp; then
                 LD_LIBRARY_PATH=$TSAN_LIB_DIR timeout 120 "$BIN/threads-tsan" tcp "$WHERE" 1 1 --race-selftest \
                     >"$LOGS/tsan-selftest.log" 2>&1
-                check_loaded tsan-selftest "$LOGS/tsan-selftest.log" "$TSAN_LIB_DIR"
+                loaded_ours tsan-selftest "$LOGS/tsan-selftest.log" "$TSAN_LIB_DIR/libmodbus.so.5"
                 if grep -q 'WARNING: ThreadSanitizer: data race' "$LOGS/tsan-selftest.log" &&
                     grep -qE '\(libmodbus\.so[.0-9]*\+0x' "$LOGS/tsan-selftest.log"; then
                     ok "tsan-selftest: race reported with frames in libmodbus.so"
@@ -202,7 +174,7 @@ fi
 echo "=== measurement: single-threaded cost of the context mutex (not a test)"
 if start_server mutex-cost tcp; then
     LD_LIBRARY_PATH=$OURS "$BIN/mutex_cost" "$WHERE" 20000 >"$LOGS/mutex-cost-ours.log" 2>&1
-    check_loaded mutex-cost "$LOGS/mutex-cost-ours.log" "$OURS"
+    loaded_ours mutex-cost "$LOGS/mutex-cost-ours.log" "$OURS/libmodbus.so.5"
     ours_line=$(grep '^RESULT' "$LOGS/mutex-cost-ours.log")
     deb_line=""
     if [ -e /usr/lib/x86_64-linux-gnu/libmodbus.so.5 ]; then

@@ -1,32 +1,82 @@
 # shellcheck shell=bash
-# Shared helpers for scripts/check-examples.sh, check-package.sh and check-man.sh.
+# Shared helpers of the test scripts: check-examples.sh, check-package.sh and
+# check-man.sh, and the suites run-c-tests.sh, run-server-tests.sh,
+# run-extended-tests.sh, run-interop-tests.sh and run-thread-tests.sh.
 # Source it; it defines:
-#   ok/bad/check NAME ...   count one check (check runs a command, quietly)
+#
+# Counting: passed, failed, and FAILED (what failed, for a closing list)
+#   ok/bad/check NAME ...   count one check, printed "ok   - NAME" / "FAIL - NAME"
+#                           (check runs a command, quietly)
+#   result NAME PASS|FAIL [DETAIL]  count one check, printed "PASS NAME  (DETAIL)"
+#   tally PASS|FAIL WHAT    count one check, print nothing
 #   expect_line NAME FILE LINE    FILE must contain exactly the line LINE
-#   start NAME CMD...       start CMD in the background (output in $WORK/NAME.log),
-#                           remember its PID; every one is killed at exit
-#   stop NAME               stop that process by its PID and wait for it
+#   section TITLE           print a "=== TITLE ===" heading
+#   summary                 print "N passed, M failed" and return non-zero on failure
+#
+# Command line and our library (the run-*.sh suites; they set ROOT)
+#   parse_flags [FLAG...] -- "$@"   every suite takes -h/--help (prints the script's
+#                           header comment) and --no-cargo (RUN_CARGO=0, else 1); the
+#                           FLAGs before -- are the other common ones it takes:
+#                           --only REGEX (ONLY, else empty), --no-valgrind (VALGRIND=0,
+#                           else 1). Other flags go to the suite's suite_flag "$@"
+#                           (if any): it returns 0 when it used $1, 2 when it used $1
+#                           and $2, 1 for a flag it does not take
+#   selected NAME           true when NAME matches $ONLY (or --only was not given)
+#   our_lib_result DIR TAIL cargo build --release (unless --no-cargo; its last TAIL
+#                           lines shown) as a result, then DIR/libmodbus.so.5; sets
+#                           OURS_LIB; ends the run when there is no library
+#   prepare_run TOOL...     $BIN and $LOGS (last run's logs removed), WORK=$OUT/run,
+#                           cargo build --release (unless --no-cargo; output in
+#                           $LOGS/cargo.log); exit 2 when a TOOL or
+#                           $OURS/libmodbus.so(.5) is missing or the build fails
+#   link_so5 DIR            DIR/libmodbus.so.5 -> libmodbus.so; fails without the .so
+#   loaded_ours NAME LOG LIB  the "LOADED path (rsmodbus ...)" line in LOG
+#                           (c-tests/interop/interop.c) names LIB
+#
+# Processes: every one started here is remembered by its PID and stopped by it; what
+# still runs when the script exits or is interrupted is stopped then.
+#   start_bg OUT ERR CMD... CMD in the background, stdout to OUT, stderr to ERR (ERR
+#                           may be OUT); sets LAST_PID; PIDS lists the running ones
+#   stop_pid PID            TERM, KILL after STOP_GRACE seconds (3), reap
+#   wait_pid PID            wait for it to end by itself; returns its exit status
+#   start NAME CMD...       start_bg with output in $WORK/NAME.log, known by NAME
+#   stop NAME               stop_pid that process
 #   wait_exit NAME [SECS]   wait for it to end by itself; sets $rc to its exit code
 #   wait_for FILE TEXT [SECS]   wait until FILE contains TEXT
 #   wait_ready NAME TEXT [SECS] wait until started process NAME prints TEXT; fails
 #                           at once if it has exited
 #   free_port               print a free TCP port on 127.0.0.1
-#   pty_pair NAME A B       socat pty pair, links $A and $B (waits until both exist)
-#   summary                 print "N passed, M failed" and return non-zero on failure
-# The caller sets WORK (a scratch directory) before sourcing.
+#   socat_pair OUT ERR A B [SECS]  start_bg a socat pty pair linked at A and B; fails
+#                           when the links are not there within SECS (5)
+#   pty_pair NAME A B       the same, known by NAME (output in $WORK/NAME.log)
+# The caller sets WORK (a scratch directory) before using start or pty_pair.
 # SPDX-License-Identifier: MIT OR Apache-2.0
 
 passed=0
 failed=0
-declare -A _pids=()
+declare -a FAILED=()
 
-ok() { passed=$((passed + 1)); echo "ok   - $1"; }
+tally() {
+    if [ "$1" = PASS ]; then
+        passed=$((passed + 1))
+    else
+        failed=$((failed + 1))
+        FAILED+=("$2")
+    fi
+}
+
+ok() { tally PASS "$1"; echo "ok   - $1"; }
 bad() {
-    failed=$((failed + 1))
+    tally FAIL "$1"
     echo "FAIL - $1"
     shift
     local line
     for line in "$@"; do echo "       $line"; done
+}
+
+result() {
+    tally "$2" "$1${3:+: $3}"
+    printf '%-4s %s%s\n' "$2" "$1" "${3:+  ($3)}"
 }
 
 # check NAME CMD...: runs CMD; passes when it exits 0 (its output goes to the log).
@@ -50,29 +100,159 @@ expect_line() {
     fi
 }
 
-_cleanup_pids() {
-    local name
-    for name in "${!_pids[@]}"; do
-        kill "${_pids[$name]}" 2>/dev/null || true
+section() { printf '\n=== %s ===\n' "$*"; }
+
+summary() {
+    echo "$passed passed, $failed failed"
+    [ "$failed" -eq 0 ]
+}
+
+# ------------------------------------------------------------ command line, library
+# shellcheck disable=SC2034 # VALGRIND is read by the suites
+parse_flags() {
+    local takes=" " rc
+    while [ "$1" != -- ]; do
+        takes+="$1 "
+        shift
     done
-    for name in "${!_pids[@]}"; do
-        wait "${_pids[$name]}" 2>/dev/null || true
+    shift
+    RUN_CARGO=1
+    [[ $takes != *" --only "* ]] || ONLY=""
+    [[ $takes != *" --no-valgrind "* ]] || VALGRIND=1
+    while [ $# -gt 0 ]; do
+        case "$1" in
+        -h | --help) sed -n '2,/^set -u/p' "$0" | sed '$d'; exit 0 ;;
+        --no-cargo) RUN_CARGO=0; shift; continue ;;
+        esac
+        rc=1
+        if [[ $takes == *" $1 "* ]]; then
+            case "$1" in
+            --only) ONLY=$2; rc=2 ;;
+            --no-valgrind) VALGRIND=0; rc=0 ;;
+            esac
+        elif declare -F suite_flag >/dev/null; then
+            rc=0
+            suite_flag "$@" || rc=$?
+        fi
+        case $rc in
+        0) shift ;;
+        2) shift 2 ;;
+        *) echo "unknown option $1" >&2; exit 2 ;;
+        esac
     done
-    _pids=()
+}
+
+selected() { [ -z "$ONLY" ] || [[ $1 =~ $ONLY ]]; }
+
+link_so5() {
+    [ -f "$1/libmodbus.so" ] || return 1
+    [ -e "$1/libmodbus.so.5" ] || ln -sf libmodbus.so "$1/libmodbus.so.5"
+}
+
+our_lib_result() {
+    local dir=$1 lines=$2
+    if [ "$RUN_CARGO" = 1 ]; then
+        if (cd "$ROOT" && cargo build --release 2>&1 | tail -n "$lines"); then
+            result "cargo build --release" PASS
+        else
+            result "cargo build --release" FAIL
+        fi
+    fi
+    link_so5 "$dir"
+    OURS_LIB=$(readlink -f "$dir/libmodbus.so.5" 2>/dev/null || true)
+    if [ -z "$OURS_LIB" ] || [ ! -f "$OURS_LIB" ]; then
+        # Nothing else can run without it.
+        result "our libmodbus.so.5" FAIL "missing in $dir"
+        summary
+        exit 1
+    fi
+}
+
+prepare_run() {
+    local tool
+    mkdir -p "$BIN" "$LOGS"
+    rm -f "$LOGS"/*.log
+    WORK=$OUT/run
+    mkdir -p "$WORK"
+    for tool in "$@"; do
+        command -v "$tool" >/dev/null || { echo "missing $tool (scripts/install-deps.sh)"; exit 2; }
+    done
+    if [ "$RUN_CARGO" -eq 1 ]; then
+        (cd "$ROOT" && cargo build --release) >"$LOGS/cargo.log" 2>&1 ||
+            { tail -n 30 "$LOGS/cargo.log"; echo "cargo build failed"; exit 2; }
+    fi
+    link_so5 "$OURS" || { echo "no $OURS/libmodbus.so"; exit 2; }
+}
+
+loaded_ours() {
+    local name=$1 log=$2 lib=$3 line path
+    line=$(grep -m1 '^LOADED ' "$log")
+    path=${line#LOADED }
+    path=${path%% (*}
+    if [ -n "$path" ] && [ "$(readlink -f "$path")" = "$(readlink -f "$lib")" ] &&
+        [[ $line == *"(rsmodbus "* ]]; then
+        ok "$name: loaded $path"
+    else
+        bad "$name: wrong library" "${line:-no LOADED line}" "expected $lib"
+    fi
+}
+
+# ------------------------------------------------------------ processes
+declare -a PIDS=()
+declare -A _pids=()
+LAST_PID=
+STOP_GRACE=3
+
+start_bg() {
+    local o=$1 e=$2
+    shift 2
+    # fd 9 is run-c-tests.sh's lock: a process left behind must not hold it.
+    if [ "$e" = "$o" ]; then
+        "$@" >"$o" 2>&1 9>&- &
+    else
+        "$@" >"$o" 2>"$e" 9>&- &
+    fi
+    LAST_PID=$!
+    PIDS+=("$LAST_PID")
+}
+
+forget_pid() {
+    local keep=() p
+    for p in "${PIDS[@]}"; do [ "$p" = "$1" ] || keep+=("$p"); done
+    PIDS=("${keep[@]}")
+}
+
+stop_pid() {
+    local pid=$1 i
+    [ -n "$pid" ] || return 0
+    if kill -0 "$pid" 2>/dev/null; then
+        kill "$pid" 2>/dev/null || true
+        for ((i = 0; i < STOP_GRACE * 10; i++)); do
+            kill -0 "$pid" 2>/dev/null || break
+            sleep 0.1
+        done
+        kill -9 "$pid" 2>/dev/null || true
+    fi
+    wait "$pid" 2>/dev/null || true
+    forget_pid "$pid"
+}
+
+wait_pid() {
+    local rc=0
+    wait "$1" || rc=$?
+    forget_pid "$1"
+    return $rc
 }
 
 start() {
     local name=$1
     shift
-    "$@" >"$WORK/$name.log" 2>&1 &
-    _pids[$name]=$!
+    start_bg "$WORK/$name.log" "$WORK/$name.log" "$@"
+    _pids[$name]=$LAST_PID
 }
 
 stop() {
-    local pid=${_pids[$1]:-}
-    [ -n "$pid" ] || return 0
-    kill "$pid" 2>/dev/null || true
-    wait "$pid" 2>/dev/null || true
+    stop_pid "${_pids[$1]:-}"
     unset "_pids[$1]"
 }
 
@@ -89,9 +269,9 @@ wait_exit() {
         kill "$pid" 2>/dev/null || true
         echo "       ($1 still running after ${secs}s: killed)"
     fi
-    wait "$pid" 2>/dev/null
     # shellcheck disable=SC2034 # read by the caller
-    rc=$?
+    rc=0
+    wait_pid "$pid" 2>/dev/null || rc=$?
     unset "_pids[$1]"
 }
 
@@ -118,20 +298,30 @@ free_port() {
     python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'
 }
 
-pty_pair() {
-    local name=$1 a=$2 b=$3 i
+socat_pair() {
+    local o=$1 e=$2 a=$3 b=$4 secs=${5:-5} i
     rm -f "$a" "$b"
-    start "$name" socat pty,raw,echo=0,link="$a" pty,raw,echo=0,link="$b"
-    for ((i = 0; i < 50; i++)); do
+    start_bg "$o" "$e" socat -d -d "pty,raw,echo=0,link=$a" "pty,raw,echo=0,link=$b"
+    for ((i = 0; i < secs * 10; i++)); do
         [ -e "$a" ] && [ -e "$b" ] && return 0
         sleep 0.1
     done
     return 1
 }
 
-summary() {
-    echo "$passed passed, $failed failed"
-    [ "$failed" -eq 0 ]
+pty_pair() {
+    local rc=0
+    socat_pair "$WORK/$1.log" "$WORK/$1.log" "$2" "$3" || rc=$?
+    _pids[$1]=$LAST_PID
+    return $rc
 }
 
+# Stops what is still running: TERM to all at once, then each one as stop_pid does.
+_cleanup_pids() {
+    local p
+    for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
+    for p in "${PIDS[@]}"; do stop_pid "$p"; done
+    _pids=()
+}
 trap _cleanup_pids EXIT
+trap 'echo "interrupted"; exit 130' INT TERM
