@@ -265,6 +265,69 @@ def fmt(x, digits=0):
     return f"{x:,.{digits}f}"
 
 
+# The performance targets: TCP ours/ours at least 1.5x Debian/Debian and 85% of the bare
+# floor; RTU at least 1.2x; at most 3 system calls per side on TCP; fewer user-space
+# instructions than libmodbus; no allocation per transaction.
+TCP_RATIO, FLOOR_SHARE, RTU_RATIO, TCP_SYSCALLS = 1.5, 0.85, 1.2, 3
+
+
+def throughput_verdict(target, ours, waiting, bare):
+    """A throughput target (ratios to Debian/Debian): met, out of reach (the floor
+    itself is below it: the measured proof), or not met."""
+    if ours >= target:
+        return "met", f"{ours:.2f}x"
+    if waiting < target:
+        return "out of reach", (f"the waiting floor itself is {waiting:.2f}x (bare floor {bare:.2f}x); "
+                                f"ours {ours:.2f}x, {ours / waiting:.0%} of it")
+    if bare < target:
+        return "out of reach", f"the bare floor itself is {bare:.2f}x; ours {ours:.2f}x"
+    return "NOT MET", f"ours {ours:.2f}x, waiting floor {waiting:.2f}x"
+
+
+def verdicts(results, costs):
+    """Each target against this run's measurements, and a closing count."""
+    rows = []
+    for (transport, case), med in results.items():
+        dd, oo = med[("debian", "debian")], med[("ours", "ours")]
+        fl, fw = med[(None, None)], med[("wait", None)]
+        title = f"{transport.upper()} {CASE_TITLES[case]}"
+        if transport == "tcp":
+            rows.append((f"{title}: >= {TCP_RATIO}x Debian",) + throughput_verdict(TCP_RATIO, oo / dd, fw / dd, fl / dd))
+            share = oo / fl
+            if share >= FLOOR_SHARE:
+                rows.append((f"{title}: >= {FLOOR_SHARE:.0%} of the bare floor", "met", f"{share:.0%}"))
+            elif fw / fl < FLOOR_SHARE:
+                rows.append((f"{title}: >= {FLOOR_SHARE:.0%} of the bare floor", "out of reach",
+                             f"the waiting floor itself is {fw / fl:.0%} of it; ours {share:.0%}"))
+            else:
+                rows.append((f"{title}: >= {FLOOR_SHARE:.0%} of the bare floor", "NOT MET",
+                             f"{share:.0%} (waiting floor {fw / fl:.0%})"))
+        else:
+            rows.append((f"{title}: >= {RTU_RATIO}x Debian",) + throughput_verdict(RTU_RATIO, oo / dd, fw / dd, fl / dd))
+    for (metric, transport, case, side), (theirs, ours) in costs.items():
+        title = f"{transport.upper()} {CASE_TITLES[case]}, {side}"
+        if metric == "syscalls" and transport == "tcp":
+            rows.append((f"{title}: <= {TCP_SYSCALLS} system calls", "met" if ours <= TCP_SYSCALLS else "NOT MET",
+                         f"{ours:.1f} (Debian {theirs:.1f})"))
+        elif metric == "Ir":
+            rows.append((f"{title}: fewer instructions than Debian", "met" if ours < theirs else "NOT MET",
+                         f"{ours:,.0f} vs {theirs:,.0f}"))
+        elif metric == "allocs":
+            rows.append((f"{title}: no allocation per transaction", "met" if ours < 0.005 else "NOT MET",
+                         f"{ours:.2f}"))
+    if not rows:
+        return []
+    out = ["\n### Against the targets\n",
+           "\"Out of reach\" is the measured proof that a target cannot be met on this machine by a library "
+           "keeping libmodbus's semantics: the floor of the same run (see above) is below it.\n",
+           "| target | verdict | measured |", "|---|---|---|"]
+    out.extend(f"| {t} | {v} | {m} |" for t, v, m in rows)
+    missed = sum(v == "NOT MET" for _, v, _ in rows)
+    reach = sum(v == "out of reach" for _, v, _ in rows)
+    out.append(f"\n{len(rows) - missed - reach} met, {reach} out of reach, {missed} not met.")
+    return out
+
+
 def main():
     if not os.path.exists(os.path.join(OURS_DIR, "libmodbus.so.5")):
         raise SystemExit(f"{OURS_DIR}/libmodbus.so.5 missing: run scripts/bench.sh")
@@ -317,6 +380,7 @@ def main():
                          f"{od / dd:.2f}x | {do / dd:.2f}x | {fmt(fl)} | {oo / fl:.0%} | {dd / fl:.0%} | "
                          f"{fmt(fw)} | {fw / dd:.2f}x | {oo / fw:.0%} |")
 
+    costs = {}
     if STALLS:
         lines.append("\nStalls (a single transaction slower than 50 ms):\n")
         lines.extend(f"- {s}" for s in STALLS)
@@ -356,16 +420,20 @@ def main():
                                               if k != "total" and v >= 0.05)
                         log(f"syscalls {transport} {case} {side}: debian {dd_detail} | ours {detail}")
                         row += f" {dt:.1f} | {ot:.1f} | {detail} |"
+                        costs[("syscalls", transport, case, side)] = (dt, ot)
                     if "callgrind" in METRICS:
                         d = per_tx("callgrind", side, transport, case, "debian")
                         o = per_tx("callgrind", side, transport, case, "ours")
                         row += f" {fmt(d['total'])} ({fmt(d['lib'])}) | {fmt(o['total'])} ({fmt(o['lib'])}) |"
+                        costs[("Ir", transport, case, side)] = (d["total"], o["total"])
                     if "allocs" in METRICS:
                         d = per_tx("allocs", side, transport, case, "debian")
                         o = per_tx("allocs", side, transport, case, "ours")
                         row += f" {d['total']:.2f} | {o['total']:.2f} |"
+                        costs[("allocs", transport, case, side)] = (d["total"], o["total"])
                     lines.append(row)
                     log(row)
+    lines.extend(verdicts(results, costs))
     lines.append(f"\n({time.time() - started:.0f} s; `scripts/bench.sh`{' with BENCH_QUICK=1' if QUICK else ''})")
     text = "\n".join(lines) + "\n"
     os.makedirs(BUILD, exist_ok=True)
