@@ -10,9 +10,18 @@ pub fn set_bits_from_byte(dest: &mut [u8], value: u8) {
 
 /// Unpacks `dest.len()` bits, LSB first, from `packed`.
 pub fn set_bits_from_bytes(dest: &mut [u8], packed: &[u8]) {
+    // 64 bits at a time (sizes the compiler knows, so the inner loop unrolls), then
+    // 8 at a time: a byte's bits spread to one 0/1 byte each.
+    let blocks = (dest.len() / 64).min(packed.len() / 8);
+    let (dest_blocks, dest) = dest.split_at_mut(blocks * 64);
+    let (packed_blocks, packed) = packed.split_at(blocks * 8);
+    for (block, bytes) in dest_blocks.chunks_exact_mut(64).zip(packed_blocks.chunks_exact(8)) {
+        for (eight, &byte) in block.chunks_exact_mut(8).zip(bytes) {
+            eight.copy_from_slice(&SPREAD_BITS[byte as usize].to_le_bytes());
+        }
+    }
     let mut chunks = dest.chunks_exact_mut(8);
     let mut bytes = packed.iter();
-    // Eight bits at a time: a byte's bits spread to one 0/1 byte each.
     for (chunk, &byte) in (&mut chunks).zip(&mut bytes) {
         chunk.copy_from_slice(&SPREAD_BITS[byte as usize].to_le_bytes());
     }
