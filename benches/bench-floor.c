@@ -10,9 +10,10 @@
  * With FLOOR_WAIT=1 in the environment it makes the waits a library with libmodbus's
  * semantics cannot do without: on TCP the server peeks before its exact read (so that
  * bytes past the request stay in the kernel for the application's own poll loop),
- * while the client needs no wait of its own (its read can block with SO_RCVTIMEO
- * carrying most of the response timeout); on a pty both sides poll (with a timeout)
- * before each read, termios having no finer read timeout than tenths of a second.
+ * while the client needs no wait of its own: its read blocks, bounded by SO_RCVTIMEO
+ * (a timeout has to be armed somewhere, and this one costs a kernel timer per wait);
+ * on a pty both sides poll (with a timeout) before each read, termios having no finer
+ * read timeout than tenths of a second.
  *
  * The server learns the sizes from a 2-byte hello (request size, response size).
  * Prints "READY <port>" (server) and "RESULT case=... tx=N secs=S tps=T" (client).
@@ -30,6 +31,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/time.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -175,6 +177,10 @@ int main(int argc, char **argv)
                 return 1;
             }
             setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
+            if (wait_mode) {
+                struct timeval limit = {5, 0};
+                setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &limit, sizeof(limit));
+            }
         } else {
             fd = open_pty(argv[3]);
         }
