@@ -342,6 +342,15 @@ impl Context {
         DebugSink { enabled: self.debug }
     }
 
+    /// Makes `fd` the context's descriptor (-1: none), as one the context knows
+    /// nothing about: the fast paths of a line it opened itself
+    /// (`line_nonblocking`, `client_socket`) are off until the opener turns them on.
+    pub fn set_descriptor(&mut self, fd: i32) {
+        self.s = fd;
+        self.line_nonblocking = false;
+        self.client_socket = None;
+    }
+
     /// `modbus_set_slave`.
     pub fn set_slave(&mut self, slave: i32) -> Result<()> {
         let max = if self.quirks & QUIRK_MAX_SLAVE != 0 { 255 } else { 247 };

@@ -106,9 +106,7 @@ pub unsafe extern "C" fn modbus_set_socket(ctx: *mut Modbus, s: c_int) -> c_int 
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            g.s = s;
-            g.line_nonblocking = false;
-            g.client_socket = None;
+            g.set_descriptor(s);
             g.rx.clear();
             Ok(0)
         })

@@ -332,14 +332,12 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
     let mut g = handle.lock();
     status(match accepted {
         Ok((fd, peer)) => {
-            g.s = fd;
-            g.client_socket = None;
+            g.set_descriptor(fd);
             listen::report_accept(&mut g.diag(), peer.as_deref());
             Ok(fd)
         }
         Err(e) => {
-            g.s = -1;
-            g.client_socket = None;
+            g.set_descriptor(-1);
             Err(e)
         }
     })

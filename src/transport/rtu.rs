@@ -116,10 +116,10 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &tios) } < 0 {
         let e = last_error();
         close(fd);
-        ctx.s = -1;
+        ctx.set_descriptor(-1);
         return Err(e);
     }
-    ctx.s = fd;
+    ctx.set_descriptor(fd);
     ctx.line_nonblocking = true;
     Ok(())
 }
@@ -134,8 +134,7 @@ pub fn close_line(ctx: &mut Context) {
         unsafe { libc::tcsetattr(ctx.s, libc::TCSANOW, &saved) };
     }
     close(ctx.s);
-    ctx.s = -1;
-    ctx.line_nonblocking = false;
+    ctx.set_descriptor(-1);
 }
 
 /// Discards both directions of the line (`tcflush(TCIOFLUSH)`).

@@ -96,8 +96,7 @@ pub fn connect_ipv4(ctx: &mut Context) -> Result<()> {
         }
         Err(e) => {
             close(fd);
-            ctx.s = -1;
-            ctx.client_socket = None;
+            ctx.set_descriptor(-1);
             Err(e)
         }
     }
@@ -185,8 +184,7 @@ pub fn connect_pi(ctx: &mut Context) -> Result<()> {
             }
         }
     }
-    ctx.s = -1;
-    ctx.client_socket = None;
+    ctx.set_descriptor(-1);
     Err(last)
 }
 
@@ -197,7 +195,7 @@ fn adopt_connected(ctx: &mut Context, fd: i32) {
     let mut nonblocking: libc::c_int = 0;
     // SAFETY: FIONBIO reads one live c_int.
     let rc = unsafe { libc::ioctl(fd, libc::FIONBIO, &mut nonblocking as *mut libc::c_int) };
-    ctx.s = fd;
+    ctx.set_descriptor(fd);
     ctx.client_socket = (rc == 0).then(ClientSocket::default);
 }
 
@@ -212,11 +210,10 @@ pub fn set_receive_timeout(fd: i32, timeout: Duration) -> Result<()> {
 
 /// `modbus_close` for TCP: shut down both directions, then close.
 pub fn close_socket(ctx: &mut Context) {
-    ctx.client_socket = None;
     if ctx.s >= 0 {
         // SAFETY: shutdown on a descriptor number has no memory preconditions.
         unsafe { libc::shutdown(ctx.s, libc::SHUT_RDWR) };
         close(ctx.s);
-        ctx.s = -1;
+        ctx.set_descriptor(-1);
     }
 }
