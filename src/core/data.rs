@@ -53,6 +53,22 @@ pub fn byte_from_bits(src: &[u8]) -> u8 {
     src.iter().take(8).enumerate().fold(0u8, |acc, (i, &b)| acc | (b << i))
 }
 
+/// Registers to the wire: `values[i]` big-endian at `out[2 * i..]`, for as many as both
+/// hold. A plain zip: the compiler turns it into vector shifts.
+pub fn registers_to_be(values: &[u16], out: &mut [u8]) {
+    for (pair, v) in out.chunks_exact_mut(2).zip(values) {
+        pair.copy_from_slice(&v.to_be_bytes());
+    }
+}
+
+/// Registers from the wire: `regs[i]` from the big-endian pair at `bytes[2 * i..]`, for
+/// as many as both hold.
+pub fn registers_from_be(bytes: &[u8], regs: &mut [u16]) {
+    for (r, pair) in regs.iter_mut().zip(bytes.chunks_exact(2)) {
+        *r = u16::from_be_bytes([pair[0], pair[1]]);
+    }
+}
+
 /// Byte orders of a float in two registers, named after the order of its IEEE-754
 /// bytes A (most significant) to D in register 0 high, register 0 low, register 1
 /// high, register 1 low.
@@ -138,5 +154,34 @@ mod tests {
         assert_eq!(d, [1, 0, 1, 1, 0, 0, 1, 1, 1, 0, 9, 9]);
         assert_eq!(byte_from_bits(&[1, 0, 1, 1, 0, 0, 1, 1]), 0xCD);
         assert_eq!(byte_from_bits(&[1, 1, 1]), 0x07);
+    }
+
+    #[test]
+    fn registers_cross_the_wire_big_endian_at_every_length() {
+        // Lengths around the 8-register blocks, up to a full 125-register read; the
+        // sentinels after the last pair and register must survive.
+        for n in [0usize, 1, 7, 8, 9, 15, 16, 17, 123, 125] {
+            let values: Vec<u16> = (0..n as u16).map(|i| 0x0102u16.wrapping_mul(i + 1) ^ 0xA55A).collect();
+            let mut wire = vec![0xEEu8; 2 * n + 3];
+            registers_to_be(&values, &mut wire);
+            for (i, v) in values.iter().enumerate() {
+                assert_eq!([wire[2 * i], wire[2 * i + 1]], [(v >> 8) as u8, *v as u8], "n={n} i={i}");
+            }
+            assert_eq!(&wire[2 * n..], &[0xEE; 3], "n={n}: nothing written past the values");
+            let mut back = vec![0xBEEFu16; n + 2];
+            registers_from_be(&wire[..2 * n], &mut back);
+            assert_eq!(&back[..n], &values[..], "n={n}");
+            assert_eq!(&back[n..], &[0xBEEF; 2], "n={n}: nothing written past the pairs");
+        }
+    }
+
+    #[test]
+    fn registers_stop_at_the_shorter_side() {
+        let mut wire = [0u8; 5]; // room for two pairs and a half
+        registers_to_be(&[0x1234, 0x5678, 0x9ABC], &mut wire);
+        assert_eq!(wire, [0x12, 0x34, 0x56, 0x78, 0]);
+        let mut regs = [0u16; 3];
+        registers_from_be(&[0xAB, 0xCD, 0xEF], &mut regs); // one pair and a stray byte
+        assert_eq!(regs, [0xABCD, 0, 0]);
     }
 }

@@ -14,6 +14,7 @@
 //! send, unless an RTU broadcast suppresses it.
 
 use crate::core::crc::{crc16, stored_crc};
+use crate::core::data::{registers_from_be, registers_to_be};
 use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind, data_length, extended_length, is_extended, meta_length};
 use crate::core::limits::*;
 use crate::core::{Diag, fc};
@@ -104,11 +105,7 @@ impl Req<'_> {
     /// Big-endian registers from byte `at` into `regs` (bytes past the end read as 0).
     fn registers_to(&self, at: usize, regs: &mut [u16]) {
         match self.0.get(at..at + 2 * regs.len()) {
-            Some(bytes) => {
-                for (reg, pair) in regs.iter_mut().zip(bytes.chunks_exact(2)) {
-                    *reg = u16::from_be_bytes([pair[0], pair[1]]);
-                }
-            }
+            Some(bytes) => registers_from_be(bytes, regs),
             None => {
                 for (k, reg) in regs.iter_mut().enumerate() {
                     *reg = self.u16(at + 2 * k);
@@ -329,10 +326,7 @@ impl Server {
         let first = table.range(address, nb as i64)?;
         let n = response_basis(framing, framing.response_tid(req), slave, function, out);
         out[n] = (2 * nb) as u8;
-        let body = &mut out[n + 1..n + 1 + 2 * nb];
-        for (pair, value) in body.chunks_exact_mut(2).zip(&table.data[first..first + nb]) {
-            pair.copy_from_slice(&value.to_be_bytes());
-        }
+        registers_to_be(&table.data[first..first + nb], &mut out[n + 1..n + 1 + 2 * nb]);
         Some(Outcome::Respond { len: n + 1 + 2 * nb, exception: None, flush_first: false, suppressed: false })
     }
 
@@ -402,10 +396,8 @@ impl Server {
                     let mut n = response_basis(framing, tid, slave, function, out);
                     out[n] = (nb * 2) as u8;
                     n += 1;
-                    for v in &table.data[first..first + nb as usize] {
-                        out[n..n + 2].copy_from_slice(&v.to_be_bytes());
-                        n += 2;
-                    }
+                    registers_to_be(&table.data[first..first + nb as usize], &mut out[n..n + 2 * nb as usize]);
+                    n += 2 * nb as usize;
                     (n, None, false)
                 } else {
                     let shown =
@@ -600,10 +592,8 @@ impl Server {
                     let mut n = response_basis(framing, tid, slave, function, out);
                     out[n] = (nb * 2) as u8;
                     n += 1;
-                    for v in &table.data[first..first + nb as usize] {
-                        out[n..n + 2].copy_from_slice(&v.to_be_bytes());
-                        n += 2;
-                    }
+                    registers_to_be(&table.data[first..first + nb as usize], &mut out[n..n + 2 * nb as usize]);
+                    n += 2 * nb as usize;
                     (n, None, false)
                 } else {
                     let start = table.start as i64;

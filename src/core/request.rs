@@ -1,5 +1,6 @@
 //! Client requests: argument checks and encoding, as libmodbus 3.1.12 does them.
 
+use crate::core::data::registers_to_be;
 use crate::core::frame::Framing;
 use crate::core::limits::*;
 use crate::core::{Diag, fc};
@@ -160,7 +161,7 @@ impl Request<'_> {
                 put_u16(out, p, addr);
                 put_u16(out, p + 2, values.len() as i32);
                 out[p + 4] = (values.len() * 2) as u8;
-                write_registers_be(&mut out[p + 5..], values);
+                registers_to_be(values, &mut out[p + 5..]);
                 p + 5 + values.len() * 2
             }
             Request::MaskWriteRegister { addr, and_mask, or_mask } => {
@@ -175,7 +176,7 @@ impl Request<'_> {
                 put_u16(out, p + 4, write_addr);
                 put_u16(out, p + 6, write_nb);
                 out[p + 8] = write_nb.wrapping_mul(2) as u8;
-                write_registers_be(&mut out[p + 9..], values);
+                registers_to_be(values, &mut out[p + 9..]);
                 p + 9 + values.len() * 2
             }
             Request::ReportSlaveId
@@ -184,7 +185,7 @@ impl Request<'_> {
             | Request::GetCommEventLog => p,
             Request::Diagnostics { sub_function, data } => {
                 put_u16(out, p, sub_function as i32);
-                write_registers_be(&mut out[p + 2..], data);
+                registers_to_be(data, &mut out[p + 2..]);
                 p + 2 + data.len() * 2
             }
             Request::ReadFileRecord { file, record, nb } => {
@@ -201,7 +202,7 @@ impl Request<'_> {
                 put_u16(out, p + 2, file as i32);
                 put_u16(out, p + 4, record as i32);
                 put_u16(out, p + 6, values.len() as i32);
-                write_registers_be(&mut out[p + 8..], values);
+                registers_to_be(values, &mut out[p + 8..]);
                 p + 8 + values.len() * 2
             }
             Request::ReadFifoQueue { addr } => {
@@ -215,12 +216,6 @@ impl Request<'_> {
                 p + 3
             }
         }
-    }
-}
-
-fn write_registers_be(out: &mut [u8], values: &[u16]) {
-    for (pair, v) in out.chunks_exact_mut(2).zip(values) {
-        pair.copy_from_slice(&v.to_be_bytes());
     }
 }
 

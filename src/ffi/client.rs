@@ -4,6 +4,7 @@
 use std::ffi::c_int;
 use std::slice;
 
+use crate::core::data::registers_from_be;
 use crate::core::fc;
 use crate::core::frame::{MAX_ADU_LENGTH, MsgKind};
 use crate::core::limits::{MAX_PDU_LENGTH, MAX_READ_BITS, MAX_READ_REGISTERS};
@@ -49,9 +50,7 @@ fn store_registers(g: &Guard<'_>, rsp: &AduBuf, count: c_int, dest: *mut u16) {
     // SAFETY: the response count was checked to equal the requested count, for which
     // the caller provides room at `dest` (checked non-NULL).
     let dest = unsafe { slice::from_raw_parts_mut(dest, count as usize) };
-    for (d, pair) in dest.iter_mut().zip(data.chunks_exact(2)) {
-        *d = u16::from_be_bytes([pair[0], pair[1]]);
-    }
+    registers_from_be(data, dest);
 }
 
 /// Reads `nb` coils (FC 01) into `dest` (one byte per coil, 0 or 1). Returns `nb`.
