@@ -12,6 +12,7 @@ import select
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 
@@ -35,18 +36,27 @@ def start(cmd, env, stdout=subprocess.PIPE):
     return p
 
 
+def _signal_and_wait(p, sig):
+    """Sends sig to p's session and waits up to STOP_GRACE s: True if p has exited."""
+    try:
+        os.killpg(p.pid, sig)
+    except ProcessLookupError:
+        pass
+    try:
+        p.wait(STOP_GRACE)
+        return True
+    except subprocess.TimeoutExpired:
+        return False
+
+
 def stop(p):
     """Ends p's session (SIGTERM, SIGKILL after STOP_GRACE s) unless it has exited; forgets p."""
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-        try:
-            p.wait(STOP_GRACE)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait()
+    if p.poll() is None and not _signal_and_wait(p, signal.SIGTERM):
+        if not _signal_and_wait(p, signal.SIGKILL):
+            # SIGKILL cannot be caught, but a process stuck in the kernel (a pty close,
+            # a dead NFS mount) can still outlive it: say so rather than hang.
+            sys.stderr.write(f"harness: pid {p.pid} ({p.args!r:.80}) survived SIGKILL for {STOP_GRACE} s; "
+                             "left behind\n")
     if p in procs:
         procs.remove(p)
 

@@ -82,9 +82,16 @@ def soak(name, transport, line):
     samples = []  # (progress, client rss, client fds, server rss, server fds)
     progress = 0
     t0 = time.time()
+    # Both pipes are drained while the client runs: a client that fills one (64 kB of
+    # error messages) must not block on it until the 3600 s limit.
     os.set_blocking(cli.stdout.fileno(), False)
-    buf = ""
+    os.set_blocking(cli.stderr.fileno(), False)
+    buf, err = "", ""
     while cli.poll() is None:
+        try:
+            err += cli.stderr.read() or ""
+        except (BlockingIOError, TypeError):
+            pass
         try:
             chunk = cli.stdout.read()
         except (BlockingIOError, TypeError):
@@ -104,7 +111,7 @@ def soak(name, transport, line):
             return
     rest = cli.stdout.read() or ""
     out = buf + rest
-    err = cli.stderr.read()
+    err += cli.stderr.read() or ""
     elapsed = time.time() - t0
     stop(srv)
     if cli.returncode != 0 or "DONE" not in out:

@@ -11,7 +11,6 @@
 //! | `client_tcp` | the same with MBAP framing                                            |
 //! | `ffi_server` | the C ABI: `modbus_receive` + `modbus_reply` over a socket pair, mapping with start offsets |
 //! | `ffi_client` | the C ABI: every client call against pre-written response bytes      |
-//!
 //! | `server_ascii`, `client_ascii` | the same paths with Modbus ASCII: characters -> `ascii::Decoder` -> LRC -> ... |
 //!
 //! The FFI targets choose TCP, RTU or ASCII contexts from their first byte.
