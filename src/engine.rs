@@ -626,17 +626,18 @@ fn read_within_response_timeout(
     }
     let started = Instant::now();
     let read = transport::recv(ctx.s, room, 0);
+    let rest_of_timeout = || Some(transport::to_timespec(timeout.duration().saturating_sub(started.elapsed())));
     match read {
         Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => {
             if e.0 == libc::EINTR {
                 ctx.diag().err(format_args!("A non blocked signal was caught\n"));
             }
-            *budget = Some(transport::to_timespec(timeout.duration().saturating_sub(started.elapsed())));
+            *budget = rest_of_timeout();
             None
         }
         Ok(n) if n > 0 && ctx.byte_timeout.is_zero() => {
             // No byte timeout: the rest of the message shares the response timeout.
-            *budget = Some(transport::to_timespec(timeout.duration().saturating_sub(started.elapsed())));
+            *budget = rest_of_timeout();
             Some(read)
         }
         _ => Some(read),
