@@ -111,6 +111,37 @@ def throughput(transport, case, server_lib, client_lib, seconds):
             line.close()
 
 
+DD, OD, DO, OO, FLOOR, WAIT = ("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), \
+    (None, None), ("wait", None)
+
+
+class Run:
+    """The throughput samples of one case: one per pairing per round. A ratio between
+    two pairings is the median of its per-round values (the two ran seconds apart, at
+    most, so a slow change of the machine's load cancels out), with the lowest and
+    highest per-round values to show how far one round can stray."""
+
+    def __init__(self, samples):
+        self.samples = samples
+
+    def tps(self, pairing):
+        return statistics.median(self.samples[pairing])
+
+    def per_round(self, a, b):
+        return [x / y for x, y in zip(self.samples[a], self.samples[b])]
+
+    def ratio(self, a, b):
+        return statistics.median(self.per_round(a, b))
+
+    def spread(self, a, b, percent=False):
+        rs = self.per_round(a, b)
+        if len(rs) < 2:
+            return "-"
+        if percent:
+            return f"{min(rs):.0%}-{max(rs):.0%}"
+        return f"{min(rs):.2f}-{max(rs):.2f}x"
+
+
 # ---- per-transaction costs ------------------------------------------------------------
 
 def tool_prefix(metric, out):
@@ -271,39 +302,39 @@ def fmt(x, digits=0):
 TCP_RATIO, FLOOR_SHARE, RTU_RATIO, TCP_SYSCALLS = 1.5, 0.85, 1.2, 3
 
 
-def throughput_verdict(target, ours, waiting, bare):
+def throughput_verdict(target, ours, waiting, bare, share_of_waiting):
     """A throughput target (ratios to Debian/Debian): met, out of reach (the floor
     itself is below it: the measured proof), or not met."""
     if ours >= target:
         return "met", f"{ours:.2f}x"
     if waiting < target:
         return "out of reach", (f"the waiting floor itself is {waiting:.2f}x (bare floor {bare:.2f}x); "
-                                f"ours {ours:.2f}x, {ours / waiting:.0%} of it")
+                                f"ours {ours:.2f}x, {share_of_waiting:.0%} of it")
     if bare < target:
         return "out of reach", f"the bare floor itself is {bare:.2f}x; ours {ours:.2f}x"
-    return "NOT MET", f"ours {ours:.2f}x, waiting floor {waiting:.2f}x"
+    return "NOT MET", f"ours {ours:.2f}x, waiting floor {waiting:.2f}x, ours {share_of_waiting:.0%} of it"
 
 
 def verdicts(results, costs):
     """Each target against this run's measurements, and a closing count."""
     rows = []
-    for (transport, case), med in results.items():
-        dd, oo = med[("debian", "debian")], med[("ours", "ours")]
-        fl, fw = med[(None, None)], med[("wait", None)]
+    for (transport, case), run in results.items():
         title = f"{transport.upper()} {CASE_TITLES[case]}"
+        target = TCP_RATIO if transport == "tcp" else RTU_RATIO
+        verdict, measured = throughput_verdict(target, run.ratio(OO, DD), run.ratio(WAIT, DD), run.ratio(FLOOR, DD),
+                                               run.ratio(OO, WAIT))
+        rows.append((f"{title}: >= {target}x Debian", verdict,
+                     f"{measured}; per round: ours {run.spread(OO, DD)}, waiting floor {run.spread(WAIT, DD)}"))
         if transport == "tcp":
-            rows.append((f"{title}: >= {TCP_RATIO}x Debian",) + throughput_verdict(TCP_RATIO, oo / dd, fw / dd, fl / dd))
-            share = oo / fl
+            share, waiting_share = run.ratio(OO, FLOOR), run.ratio(WAIT, FLOOR)
             if share >= FLOOR_SHARE:
                 rows.append((f"{title}: >= {FLOOR_SHARE:.0%} of the bare floor", "met", f"{share:.0%}"))
-            elif fw / fl < FLOOR_SHARE:
+            elif waiting_share < FLOOR_SHARE:
                 rows.append((f"{title}: >= {FLOOR_SHARE:.0%} of the bare floor", "out of reach",
-                             f"the waiting floor itself is {fw / fl:.0%} of it; ours {share:.0%}"))
+                             f"the waiting floor itself is {waiting_share:.0%} of it; ours {share:.0%}"))
             else:
                 rows.append((f"{title}: >= {FLOOR_SHARE:.0%} of the bare floor", "NOT MET",
-                             f"{share:.0%} (waiting floor {fw / fl:.0%})"))
-        else:
-            rows.append((f"{title}: >= {RTU_RATIO}x Debian",) + throughput_verdict(RTU_RATIO, oo / dd, fw / dd, fl / dd))
+                             f"{share:.0%} (waiting floor {waiting_share:.0%})"))
     for (metric, transport, case, side), (theirs, ours) in costs.items():
         title = f"{transport.upper()} {CASE_TITLES[case]}, {side}"
         if metric == "syscalls" and transport == "tcp":
@@ -338,13 +369,14 @@ def main():
     lines.append(f"Machine: {machine()}.  ")
     if PIN:
         lines.append(f"All processes pinned to CPU(s) {PIN} (taskset).  ")
-    lines.append(f"Method: each figure is the median of {ROUNDS} alternating run(s) of {SECONDS} s per pairing "
+    lines.append(f"Method: each tx/s figure is the median of {ROUNDS} alternating run(s) of {SECONDS} s per pairing "
                  f"(order rotated every round); client and server are the same binaries, only "
-                 f"LD_LIBRARY_PATH differs. RTU runs over a socat pty pair. Ratios are ours/Debian within this run.\n")
+                 f"LD_LIBRARY_PATH differs. RTU runs over a socat pty pair. A ratio is the median of its per-round "
+                 f"ratios (the pairings of a round run seconds apart); in brackets, the lowest and "
+                 f"highest per-round value.\n")
 
     results = {}
-    combos = [("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), (None, None),
-              ("wait", None)]
+    combos = [DD, OD, DO, OO, FLOOR, WAIT]
     for transport in TRANSPORTS if THROUGHPUT else []:
         for case in CASES:
             samples = {c: [] for c in combos}
@@ -353,9 +385,10 @@ def main():
                 for c in order:
                     client_lib, server_lib = c
                     samples[c].append(throughput(transport, case, server_lib, client_lib, SECONDS))
-            med = {c: statistics.median(v) for c, v in samples.items()}
-            results[(transport, case)] = med
-            log(f"{transport} {case}: " + ", ".join(f"{c[0]}/{c[1]}={med[c]:.0f}" for c in combos))
+                log(f"  round {r + 1}: " + ", ".join(f"{c[0]}/{c[1]}={samples[c][-1]:.0f}" for c in combos))
+            results[(transport, case)] = Run(samples)
+            log(f"{transport} {case}: " + ", ".join(f"{c[0]}/{c[1]}={results[(transport, case)].tps(c):.0f}"
+                                                    for c in combos))
 
     if results:
         lines.append("### Transactions per second\n")
@@ -365,20 +398,16 @@ def main():
                      "peeks before its exact read, the client's read waits by itself; pty: both sides poll with a "
                      "timeout before reading); its ratio to Debian/Debian is the most a library keeping those "
                      "semantics could reach.\n")
-        lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio | client ratio | server ratio | "
+        lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio (per round) | client ratio | server ratio | "
                      "bare floor tx/s | ours/floor | Debian/floor | waiting floor tx/s | waiting floor/Debian | "
-                     "ours/waiting floor |")
+                     "ours/waiting floor (per round) |")
         lines.append("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-        for (transport, case), med in results.items():
-            dd = med[("debian", "debian")]
-            oo = med[("ours", "ours")]
-            od = med[("ours", "debian")]
-            do = med[("debian", "ours")]
-            fl = med[(None, None)]
-            fw = med[("wait", None)]
-            lines.append(f"| {transport.upper()} | {CASE_TITLES[case]} | {fmt(dd)} | {fmt(oo)} | {oo / dd:.2f}x | "
-                         f"{od / dd:.2f}x | {do / dd:.2f}x | {fmt(fl)} | {oo / fl:.0%} | {dd / fl:.0%} | "
-                         f"{fmt(fw)} | {fw / dd:.2f}x | {oo / fw:.0%} |")
+        for (transport, case), run in results.items():
+            lines.append(f"| {transport.upper()} | {CASE_TITLES[case]} | {fmt(run.tps(DD))} | {fmt(run.tps(OO))} | "
+                         f"{run.ratio(OO, DD):.2f}x ({run.spread(OO, DD)}) | {run.ratio(OD, DD):.2f}x | "
+                         f"{run.ratio(DO, DD):.2f}x | {fmt(run.tps(FLOOR))} | {run.ratio(OO, FLOOR):.0%} | "
+                         f"{run.ratio(DD, FLOOR):.0%} | {fmt(run.tps(WAIT))} | {run.ratio(WAIT, DD):.2f}x | "
+                         f"{run.ratio(OO, WAIT):.0%} ({run.spread(OO, WAIT, percent=True)}) |")
 
     costs = {}
     if STALLS:
