@@ -12,6 +12,7 @@ SPDX-License-Identifier: MIT OR Apache-2.0
 import os
 import platform
 import re
+import resource
 import shutil
 import statistics
 import subprocess
@@ -79,8 +80,11 @@ def run_client(cmd, env, what, lib=None, timeout=120):
 
 
 def throughput(transport, case, server_lib, client_lib, seconds):
-    """One alternating measurement: transactions/s, or the floor when server_lib is None
-    (client_lib "wait": the floor with the waits libmodbus's semantics need)."""
+    """One alternating measurement: (transactions/s, CPU), or the floor when server_lib
+    is None (client_lib "wait": the floor with the waits libmodbus's semantics need).
+    CPU is (user, system) seconds per transaction of all the measurement's processes
+    (client, server, socat), from the rusage of children this process has reaped."""
+    cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
     line = PtyPair("mbbench-", 2) if transport == "rtu" else None
     try:
         floor = server_lib is None
@@ -92,7 +96,7 @@ def throughput(transport, case, server_lib, client_lib, seconds):
             addr = wait_ready(srv, "floor server", 30)
             ccmd = [bin_("bench-floor"), "client", "tcp" if transport == "tcp" else "pty",
                     addr if transport == "tcp" else line.b, case, str(seconds)]
-            tps, _, _ = run_client(ccmd, fenv, "floor client")
+            tps, out, _ = run_client(ccmd, fenv, "floor client")
         else:
             scmd = [bin_("mb-server"), transport, "0" if transport == "tcp" else line.a]
             srv = start(scmd, env_for(server_lib))
@@ -105,10 +109,12 @@ def throughput(transport, case, server_lib, client_lib, seconds):
                               f"slowest transaction {float(m.group(1)):.0f} ms")
                 log("STALL: " + STALLS[-1])
         stop(srv)
-        return tps
     finally:
         if line:
             line.close()
+    cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    tx = int(re.search(r"RESULT .*tx=([0-9]+)", out).group(1))
+    return tps, ((cpu_after.ru_utime - cpu_before.ru_utime) / tx, (cpu_after.ru_stime - cpu_before.ru_stime) / tx)
 
 
 DD, OD, DO, OO, FLOOR, WAIT = ("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), \
@@ -121,8 +127,13 @@ class Run:
     most, so a slow change of the machine's load cancels out), with the lowest and
     highest per-round values to show how far one round can stray."""
 
-    def __init__(self, samples):
+    def __init__(self, samples, cpu):
         self.samples = samples
+        self.cpu = cpu
+
+    def cpu_us(self, pairing):
+        """Median user and system CPU microseconds per transaction (all processes)."""
+        return tuple(statistics.median(c[i] for c in self.cpu[pairing]) * 1e6 for i in (0, 1))
 
     def tps(self, pairing):
         return statistics.median(self.samples[pairing])
@@ -380,13 +391,16 @@ def main():
     for transport in TRANSPORTS if THROUGHPUT else []:
         for case in CASES:
             samples = {c: [] for c in combos}
+            cpu = {c: [] for c in combos}
             for r in range(ROUNDS):
                 order = combos[r % len(combos):] + combos[:r % len(combos)]
                 for c in order:
                     client_lib, server_lib = c
-                    samples[c].append(throughput(transport, case, server_lib, client_lib, SECONDS))
+                    tps, used = throughput(transport, case, server_lib, client_lib, SECONDS)
+                    samples[c].append(tps)
+                    cpu[c].append(used)
                 log(f"  round {r + 1}: " + ", ".join(f"{c[0]}/{c[1]}={samples[c][-1]:.0f}" for c in combos))
-            results[(transport, case)] = Run(samples)
+            results[(transport, case)] = Run(samples, cpu)
             log(f"{transport} {case}: " + ", ".join(f"{c[0]}/{c[1]}={results[(transport, case)].tps(c):.0f}"
                                                     for c in combos))
 
@@ -408,6 +422,21 @@ def main():
                          f"{run.ratio(DO, DD):.2f}x | {fmt(run.tps(FLOOR))} | {run.ratio(OO, FLOOR):.0%} | "
                          f"{run.ratio(DD, FLOOR):.0%} | {fmt(run.tps(WAIT))} | {run.ratio(WAIT, DD):.2f}x | "
                          f"{run.ratio(OO, WAIT):.0%} ({run.spread(OO, WAIT, percent=True)}) |")
+        lines.append("\n### CPU time per transaction\n")
+        lines.append("User and system CPU time of all the processes of a measurement (client, server, and socat "
+                     "on RTU), from the rusage of the reaped processes, divided by its transactions; medians over "
+                     "the rounds. Start-up is included (a few ms per run), and a kernel that accounts CPU time by "
+                     "sampling at its tick (CONFIG_TICK_CPU_ACCOUNTING, the usual) makes each figure rough. Where "
+                     "ours/ours and the waiting floor make the same system calls, the difference in user time is the "
+                     "library's own work.\n")
+        lines.append("| transport | case | Debian/Debian user | ours/ours user | waiting floor user | bare floor user "
+                     "| Debian/Debian system | ours/ours system | waiting floor system | bare floor system |")
+        lines.append("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+        for (transport, case), run in results.items():
+            used = [run.cpu_us(c) for c in (DD, OO, WAIT, FLOOR)]
+            lines.append(f"| {transport.upper()} | {CASE_TITLES[case]} | "
+                         + " | ".join(f"{u[0]:.2f} µs" for u in used) + " | "
+                         + " | ".join(f"{u[1]:.2f} µs" for u in used) + " |")
 
     costs = {}
     if STALLS:
