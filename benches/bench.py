@@ -412,9 +412,9 @@ def main():
                      "peeks before its exact read, the client's read waits by itself; pty: both sides poll with a "
                      "timeout before reading); its ratio to Debian/Debian is the most a library keeping those "
                      "semantics could reach.\n")
-        lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio (per round) | client ratio | server ratio | "
-                     "bare floor tx/s | ours/floor | Debian/floor | waiting floor tx/s | waiting floor/Debian | "
-                     "ours/waiting floor (per round) |")
+        lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio (per round) | "
+                     "client ratio | server ratio | bare floor tx/s | ours/floor | Debian/floor | waiting floor tx/s | "
+                     "waiting floor/Debian | ours/waiting floor (per round) |")
         lines.append("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
         for (transport, case), run in results.items():
             lines.append(f"| {transport.upper()} | {CASE_TITLES[case]} | {fmt(run.tps(DD))} | {fmt(run.tps(OO))} | "
