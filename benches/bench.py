@@ -29,6 +29,7 @@ BUILD = os.path.join(ROOT, "target", "bench")
 # scripts/bench.sh copies the library here so that a rebuild during the run cannot
 # change (or truncate) the measured one.
 OURS_DIR = os.environ.get("BENCH_OURS_DIR", os.path.join(ROOT, "target", "release"))
+RESULTS = os.environ.get("BENCH_RESULTS", os.path.join(BUILD, "results.md"))  # the report's copy
 QUICK = os.environ.get("BENCH_QUICK", "0") == "1"
 CASES = os.environ.get("BENCH_CASES", "r125 c2000 w123 wr121 r1").split()
 TRANSPORTS = os.environ.get("BENCH_TRANSPORTS", "tcp rtu").split()
@@ -496,7 +497,7 @@ def main():
     lines.append(f"\n({time.time() - started:.0f} s; `scripts/bench.sh`{' with BENCH_QUICK=1' if QUICK else ''})")
     text = "\n".join(lines) + "\n"
     os.makedirs(BUILD, exist_ok=True)
-    with open(os.path.join(BUILD, "results.md"), "w") as f:
+    with open(RESULTS, "w") as f:
         f.write(text)
     print(text)
 

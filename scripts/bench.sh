@@ -8,8 +8,9 @@
 # of every case over TCP loopback and an RTU pty pair, for our client, our server and
 # both against Debian's, the bare floor, and system calls, instructions and heap
 # allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_ROUNDS,
-# BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN
-# (see benches/README.md).
+# BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN,
+# BENCH_RESULTS (see benches/README.md). scripts/run-bench-smoke.sh is the short run
+# of the test command.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail

@@ -60,6 +60,7 @@ ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/run-extended-tests.sh ] && run c-extended scripts/run-extended-tests.sh
 [ -x scripts/run-fault-tests.sh ] && run faults scripts/run-fault-tests.sh
 [ -x scripts/run-soak.sh ] && run soak scripts/run-soak.sh
+[ -x scripts/run-bench-smoke.sh ] && run bench-smoke scripts/run-bench-smoke.sh
 [ -x scripts/fuzz.sh ] && run fuzz-smoke scripts/fuzz.sh --smoke 3
 run demo scripts/demo.sh
 
