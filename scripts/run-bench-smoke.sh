@@ -2,9 +2,10 @@
 # A short run of the benchmark suite (about 20 s: read 1 register, TCP and RTU), part
 # of the test command so that the benchmark keeps working between full runs. It checks:
 # every program loaded the library it was meant to (bench.py stops otherwise), the
-# report has all its tables, and the targets judged on exact counts per transaction
-# (system calls, instructions, heap allocations) are met. Throughput verdicts are
-# printed, not judged: timing is never a pass/fail test here.
+# report has all its tables, and the targets judged on counts per transaction are met:
+# system calls and heap allocations, and instructions over TCP (on a pty, how the
+# bytes of a frame are split between reads depends on timing). Throughput verdicts
+# are printed, not judged: timing is never a pass/fail test here.
 #
 #   scripts/run-bench-smoke.sh    report in target/bench/smoke.md, log in target/bench/smoke.log
 #
@@ -43,11 +44,17 @@ for transport in ("TCP", "RTU"):
     for side in ("client", "server"):
         check(re.search(rf"^\| {transport} \| read 1 register \| {side} \| [0-9.]+ \| [0-9.]+ \|", text, re.M)
               is not None, f"{transport} {side} cost row")
-# Verdicts on exact counts: system calls, instructions, allocations per transaction.
-exact = [m for m in re.finditer(r"^\| ([^|]*(system calls|instructions|allocation)[^|]*) \| ([^|]+) \|", text, re.M)]
-check(len(exact) == 10, f"10 verdicts on exact counts (found {len(exact)})")
-for m in exact:
-    check(m.group(3).strip() == "met", f"{m.group(1).strip()}: {m.group(3).strip()}")
+# Verdicts on counts per transaction: system calls, instructions, allocations. On a
+# pty the bytes of a frame may arrive in more reads when the machine is busy, which
+# adds instructions to either library: RTU instruction verdicts are shown, not judged.
+counted = [m for m in re.finditer(r"^\| ([^|]*(system calls|instructions|allocation)[^|]*) \| ([^|]+) \|", text, re.M)]
+check(len(counted) == 10, f"10 verdicts on counts per transaction (found {len(counted)})")
+for m in counted:
+    target, verdict = m.group(1).strip(), m.group(3).strip()
+    if target.startswith("RTU") and m.group(2) == "instructions":
+        print(f"INFO {target}: {verdict}")
+    else:
+        check(verdict == "met", f"{target}: {verdict}")
 failed = checks.count(False)
 print(f"bench-smoke: {len(checks) - failed} passed, {failed} failed")
 sys.exit(1 if failed else 0)
