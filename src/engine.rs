@@ -915,6 +915,19 @@ mod tests {
         Duration::new(tv.tv_sec as u64, tv.tv_usec as u32 * 1000)
     }
 
+    /// Waits for a confirmation that must time out; returns how long that took.
+    fn wait_for_timeout(g: &mut Guard<'_>) -> Duration {
+        let mut buf = [0u8; MAX_ADU_LENGTH];
+        let started = Instant::now();
+        assert_eq!(receive_msg(g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+        started.elapsed()
+    }
+
+    /// `took` lies in `[lo_ms, hi_ms)`.
+    fn assert_took(took: Duration, lo_ms: u64, hi_ms: u64) {
+        assert!(took >= Duration::from_millis(lo_ms) && took < Duration::from_millis(hi_ms), "{took:?}");
+    }
+
     #[test]
     fn confirmation_split_into_single_bytes_is_assembled() {
         for client_socket in [false, true] {
@@ -953,10 +966,8 @@ mod tests {
         let m = tcp_context(ours);
         let mut g = m.lock();
         g.response_timeout = Timeout::new(0, 50_000);
+        assert!(wait_for_timeout(&mut g) >= Duration::from_millis(45));
         let mut buf = [0u8; MAX_ADU_LENGTH];
-        let started = Instant::now();
-        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
-        assert!(started.elapsed() >= Duration::from_millis(45));
         // Half a frame, then the peer goes away.
         transport::write(peer, &[0, 1, 0, 0, 0, 7]).unwrap();
         transport::close(peer);
@@ -972,11 +983,8 @@ mod tests {
         g.response_timeout = Timeout::new(2, 0);
         g.byte_timeout = Timeout::new(0, 20_000);
         transport::write(peer, &[0, 1, 0, 0]).unwrap();
-        let mut buf = [0u8; MAX_ADU_LENGTH];
-        let started = Instant::now();
-        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
         // Ends on the byte timeout, long before the 2 s response timeout.
-        assert!(started.elapsed() < Duration::from_millis(1500));
+        assert!(wait_for_timeout(&mut g) < Duration::from_millis(1500));
         transport::close(peer);
         transport::close(ours);
     }
@@ -989,23 +997,16 @@ mod tests {
         let m = client_socket_context(ours);
         let mut g = m.lock();
         g.response_timeout = Timeout::new(0, 300_000);
-        let mut buf = [0u8; MAX_ADU_LENGTH];
         for _ in 0..2 {
-            let started = Instant::now();
-            assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
-            let took = started.elapsed();
             // Not 225 ms (SO_RCVTIMEO alone), nor 525 (a full ppoll after it).
-            assert!(took >= Duration::from_millis(300) && took < Duration::from_millis(480), "{took:?}");
+            assert_took(wait_for_timeout(&mut g), 300, 480);
             // 3/4 of it, as the kernel keeps it (rounded up to its tick, 10 ms at most).
             let set = receive_timeout(ours);
             assert!(set >= Duration::from_millis(225) && set <= Duration::from_millis(235), "{set:?}");
         }
         // A response timeout too short for the kernel's timer: ppoll only, on time.
         g.response_timeout = Timeout::new(0, 100_000);
-        let started = Instant::now();
-        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
-        let took = started.elapsed();
-        assert!(took >= Duration::from_millis(100) && took < Duration::from_millis(350), "{took:?}");
+        assert_took(wait_for_timeout(&mut g), 100, 350);
         drop(g);
         transport::close(peer);
         transport::close(ours);
@@ -1023,12 +1024,8 @@ mod tests {
             transport::write(peer, &[0, 1, 0, 0]).unwrap();
             peer
         });
-        let mut buf = [0u8; MAX_ADU_LENGTH];
-        let started = Instant::now();
-        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
         // One 400 ms budget for the whole message, not a fresh one after the bytes.
-        let took = started.elapsed();
-        assert!(took >= Duration::from_millis(400) && took < Duration::from_millis(520), "{took:?}");
+        assert_took(wait_for_timeout(&mut g), 400, 520);
         transport::close(writer.join().unwrap());
         transport::close(ours);
     }
@@ -1056,12 +1053,8 @@ mod tests {
             // SAFETY: the waiting thread outlives this one (it joins it).
             unsafe { libc::pthread_kill(waiter, libc::SIGUSR2) };
         });
-        let mut buf = [0u8; MAX_ADU_LENGTH];
-        let started = Instant::now();
-        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
-        let took = started.elapsed();
         // The rest of the 300 ms after the signal, not a fresh 300 ms (480).
-        assert!(took >= Duration::from_millis(300) && took < Duration::from_millis(460), "{took:?}");
+        assert_took(wait_for_timeout(&mut g), 300, 460);
         signaller.join().unwrap();
         drop(g);
         transport::close(peer);
