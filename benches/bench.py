@@ -120,6 +120,13 @@ def throughput(transport, case, server_lib, client_lib, seconds):
 
 DD, OD, DO, OO, FLOOR, WAIT = ("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), \
     (None, None), ("wait", None)
+PAIRING_NAMES = {DD: "Debian/Debian", OD: "ours/Debian", DO: "Debian/ours", OO: "ours/ours",
+                 FLOOR: "bare floor", WAIT: "waiting floor"}
+
+
+def tps_line(tps):
+    """One line of tx/s per pairing (client/server, or a floor), for the log."""
+    return ", ".join(f"{PAIRING_NAMES[c]}={v:.0f}" for c, v in tps.items())
 
 
 class Run:
@@ -401,10 +408,9 @@ def main():
                     tps, used = throughput(transport, case, server_lib, client_lib, SECONDS)
                     samples[c].append(tps)
                     cpu[c].append(used)
-                log(f"  round {r + 1}: " + ", ".join(f"{c[0]}/{c[1]}={samples[c][-1]:.0f}" for c in combos))
+                log(f"  round {r + 1}: " + tps_line({c: samples[c][-1] for c in combos}))
             results[(transport, case)] = Run(samples, cpu)
-            log(f"{transport} {case}: " + ", ".join(f"{c[0]}/{c[1]}={results[(transport, case)].tps(c):.0f}"
-                                                    for c in combos))
+            log(f"{transport} {case} (medians): " + tps_line({c: results[(transport, case)].tps(c) for c in combos}))
 
     if results:
         lines.append("### Transactions per second\n")
