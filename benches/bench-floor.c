@@ -13,7 +13,8 @@
  * while the client needs no wait of its own: its read blocks, bounded by SO_RCVTIMEO
  * (a timeout has to be armed somewhere, and this one costs a kernel timer per wait);
  * on a pty both sides poll (with a timeout) before each read, termios having no finer
- * read timeout than tenths of a second.
+ * read timeout than tenths of a second. On TCP, FLOOR_WAIT=peek makes only the server's
+ * peek and FLOOR_WAIT=timeout only the client's SO_RCVTIMEO, to price each on its own.
  *
  * The server learns the sizes from a 2-byte hello (request size, response size).
  * Prints "READY <port>" (server) and "RESULT case=... tx=N secs=S tps=T" (client).
@@ -43,12 +44,14 @@ static double now(void)
     return (double) ts.tv_sec + (double) ts.tv_nsec / 1e9;
 }
 
-static int wait_mode; /* FLOOR_WAIT=1 */
+static int wait_mode;           /* FLOOR_WAIT=1, peek or timeout */
+static int server_peeks = 1;     /* TCP: not with FLOOR_WAIT=timeout */
+static int client_times_out = 1; /* TCP: not with FLOOR_WAIT=peek */
 
 /* FLOOR_WAIT: the wait before a read (see the top). */
 static int wait_before_read(int fd, int tcp, int server)
 {
-    if (!wait_mode || (tcp && !server)) {
+    if (!wait_mode || (tcp && (!server || !server_peeks))) {
         return 0;
     }
     if (tcp) {
@@ -119,7 +122,19 @@ int main(int argc, char **argv)
         return 2;
     }
     tcp = strcmp(argv[2], "tcp") == 0;
-    wait_mode = getenv("FLOOR_WAIT") != NULL && strcmp(getenv("FLOOR_WAIT"), "1") == 0;
+    const char *waits = getenv("FLOOR_WAIT") != NULL ? getenv("FLOOR_WAIT") : "0";
+    if (strcmp(waits, "peek") == 0 || strcmp(waits, "timeout") == 0) {
+        if (!tcp) {
+            fprintf(stderr, "bench-floor: FLOOR_WAIT=%s is for TCP only\n", waits);
+            return 2;
+        }
+        server_peeks = strcmp(waits, "peek") == 0;
+        client_times_out = !server_peeks;
+    } else if (strcmp(waits, "0") != 0 && strcmp(waits, "1") != 0) {
+        fprintf(stderr, "bench-floor: FLOOR_WAIT must be 0, 1, peek or timeout\n");
+        return 2;
+    }
+    wait_mode = strcmp(waits, "0") != 0;
     memset(buf, 0x5A, sizeof(buf));
     if (strcmp(argv[1], "server") == 0) {
         int req, rsp, one = 1;
@@ -177,7 +192,7 @@ int main(int argc, char **argv)
                 return 1;
             }
             setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
-            if (wait_mode) {
+            if (wait_mode && client_times_out) {
                 struct timeval limit = {5, 0};
                 setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &limit, sizeof(limit));
             }

@@ -39,6 +39,8 @@ METRIC_CASES = os.environ.get("BENCH_METRIC_CASES", "r125" if QUICK else " ".joi
 METRICS = os.environ.get("BENCH_METRICS", "strace callgrind allocs").split()
 THROUGHPUT = os.environ.get("BENCH_THROUGHPUT", "1") == "1"
 PIN = os.environ.get("BENCH_PIN", "")  # e.g. "1": every process of a measurement on that CPU set
+# TCP: price the waiting floor's two waits one at a time (two more floors per case).
+FLOOR_PARTS = os.environ.get("BENCH_FLOOR_PARTS", "0" if QUICK else "1") == "1"
 if PIN:
     harness.COMMAND_PREFIX = ["taskset", "-c", PIN]
 CASE_TITLES = {
@@ -82,7 +84,8 @@ def run_client(cmd, env, what, lib=None, timeout=120):
 
 def throughput(transport, case, server_lib, client_lib, seconds):
     """One alternating measurement: (transactions/s, CPU), or the floor when server_lib
-    is None (client_lib "wait": the floor with the waits libmodbus's semantics need).
+    is None (client_lib "wait": the floor with the waits libmodbus's semantics need;
+    "peek" or "timeout": with only one of them, on TCP).
     CPU is (user, system) seconds per transaction of all the measurement's processes
     (client, server, socat), from the rusage of children this process has reaped."""
     cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -90,7 +93,7 @@ def throughput(transport, case, server_lib, client_lib, seconds):
     try:
         floor = server_lib is None
         if floor:
-            fenv = dict(os.environ, FLOOR_WAIT="1" if client_lib == "wait" else "0")
+            fenv = dict(os.environ, FLOOR_WAIT={"wait": "1", "peek": "peek", "timeout": "timeout"}.get(client_lib, "0"))
             scmd = [bin_("bench-floor"), "server", "tcp" if transport == "tcp" else "pty",
                     "0" if transport == "tcp" else line.a]
             srv = start(scmd, fenv)
@@ -120,8 +123,9 @@ def throughput(transport, case, server_lib, client_lib, seconds):
 
 DD, OD, DO, OO, FLOOR, WAIT = ("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), \
     (None, None), ("wait", None)
+PEEK, TIMEOUT = ("peek", None), ("timeout", None)  # the bare floor plus one of the waiting floor's waits
 PAIRING_NAMES = {DD: "Debian/Debian", OD: "ours/Debian", DO: "Debian/ours", OO: "ours/ours",
-                 FLOOR: "bare floor", WAIT: "waiting floor"}
+                 FLOOR: "bare floor", WAIT: "waiting floor", PEEK: "floor + peek", TIMEOUT: "floor + timeout"}
 
 
 def tps_line(tps):
@@ -396,8 +400,8 @@ def main():
                  f"highest per-round value.\n")
 
     results = {}
-    combos = [DD, OD, DO, OO, FLOOR, WAIT]
     for transport in TRANSPORTS if THROUGHPUT else []:
+        combos = [DD, OD, DO, OO, FLOOR, WAIT] + ([PEEK, TIMEOUT] if transport == "tcp" and FLOOR_PARTS else [])
         for case in CASES:
             samples = {c: [] for c in combos}
             cpu = {c: [] for c in combos}
@@ -430,6 +434,18 @@ def main():
                          f"{run.ratio(DO, DD):.2f}x | {fmt(run.tps(FLOOR))} | {run.ratio(OO, FLOOR):.0%} | "
                          f"{run.ratio(DD, FLOOR):.0%} | {fmt(run.tps(WAIT))} | {run.ratio(WAIT, DD):.2f}x | "
                          f"{run.ratio(OO, WAIT):.0%} ({run.spread(OO, WAIT, percent=True)}) |")
+        priced = [(k, run) for k, run in results.items() if PEEK in run.samples]
+        if priced:
+            lines.append("\n### What each wait costs (TCP)\n")
+            lines.append("The bare floor with only the server's peek before its exact read, with only the "
+                         "client's `SO_RCVTIMEO`, and with both (the waiting floor); each as a share of the bare "
+                         "floor (median of the per-round ratios, lowest and highest in brackets).\n")
+            lines.append("| case | bare floor tx/s | + server peek | + client timeout | both: waiting floor |")
+            lines.append("|---|---:|---:|---:|---:|")
+            for (transport, case), run in priced:
+                lines.append(f"| {CASE_TITLES[case]} | {fmt(run.tps(FLOOR))} | "
+                             + " | ".join(f"{run.ratio(c, FLOOR):.1%} ({run.spread(c, FLOOR, percent=True)})"
+                                          for c in (PEEK, TIMEOUT, WAIT)) + " |")
         lines.append("\n### CPU time per transaction\n")
         lines.append("User and system CPU time of all the processes of a measurement (client, server, and socat "
                      "on RTU), from the rusage of the reaped processes, divided by its transactions; medians over "
