@@ -16,7 +16,7 @@ mkdir -p target/bench
 report=target/bench/smoke.md
 rm -f "$report"
 status=0
-BENCH_QUICK=1 BENCH_CASES=r1 BENCH_METRIC_CASES=r1 BENCH_RESULTS="$report" scripts/bench.sh \
+BENCH_QUICK=1 BENCH_FLOOR_PARTS=1 BENCH_CASES=r1 BENCH_METRIC_CASES=r1 BENCH_RESULTS="$report" scripts/bench.sh \
     >/dev/null 2>target/bench/smoke.log || status=$?
 if [ "$status" -ne 0 ]; then
     tail -n 20 target/bench/smoke.log
@@ -35,7 +35,7 @@ def check(ok, what):
     print(f"{'PASS' if ok else 'FAIL'} {what}")
 
 
-for heading in ("### Transactions per second", "### CPU time per transaction",
+for heading in ("### Transactions per second", "### What each wait costs (TCP)", "### CPU time per transaction",
                 "### Cost per transaction (steady state)", "### Against the targets"):
     check(heading in text, f"report has '{heading}'")
 for transport in ("TCP", "RTU"):
@@ -47,6 +47,8 @@ for transport in ("TCP", "RTU"):
 # Verdicts on counts per transaction: system calls, instructions, allocations. On a
 # pty the bytes of a frame may arrive in more reads when the machine is busy, which
 # adds instructions to either library: RTU instruction verdicts are shown, not judged.
+check(re.search(r"^\| read 1 register \| [0-9,]+ \|( [0-9.]+% \([^)]*\) \|){3}$", text, re.M) is not None,
+      "TCP row of the priced waits (floor + peek, floor + timeout, waiting floor)")
 counted = [m for m in re.finditer(r"^\| ([^|]*(system calls|instructions|allocation)[^|]*) \| ([^|]+) \|", text, re.M)]
 check(len(counted) == 10, f"10 verdicts on counts per transaction (found {len(counted)})")
 for m in counted:
