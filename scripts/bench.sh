@@ -9,7 +9,7 @@
 # both against Debian's, the bare floor, and system calls, instructions and heap
 # allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_ROUNDS,
 # BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN,
-# BENCH_RESULTS (see benches/README.md). scripts/run-bench-smoke.sh is the short run
+# BENCH_FLOOR_PARTS, BENCH_RESULTS (see benches/README.md). scripts/run-bench-smoke.sh is the short run
 # of the test command.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
