@@ -18,6 +18,8 @@
  *
  * The server learns the sizes from a 2-byte hello (request size, response size).
  * Prints "READY <port>" (server) and "RESULT case=... tx=N secs=S tps=T" (client).
+ * With BENCH_COUNTER set, a client takes part in an interleaved measurement
+ * (bench-counter.h).
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
@@ -36,6 +38,8 @@
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
+
+#include "bench-counter.h"
 
 static double now(void)
 {
@@ -174,6 +178,7 @@ int main(int argc, char **argv)
     } else {
         int req, rsp, one = 1;
         long tx = 0;
+        volatile uint64_t *counter = bench_counter_open();
         double t0, t1, secs;
         if (argc < 6) {
             return 2;
@@ -220,8 +225,14 @@ int main(int argc, char **argv)
                 return 1;
             }
             tx++;
+            if (counter != NULL) {
+                bench_counter_publish(counter, tx);
+            }
             if ((tx & 31) == 0) {
                 t1 = now();
+                if (counter != NULL && bench_counter_stop_requested(counter)) {
+                    break;
+                }
             }
         }
         t1 = now();

@@ -9,12 +9,16 @@ allocations. It is a benchmark, not a test: it fails only if a program fails.
 
 SPDX-License-Identifier: MIT OR Apache-2.0
 """
+import math
+import mmap
 import os
 import platform
 import re
 import resource
 import shutil
+import signal
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -33,8 +37,10 @@ RESULTS = os.environ.get("BENCH_RESULTS", os.path.join(BUILD, "results.md"))  # 
 QUICK = os.environ.get("BENCH_QUICK", "0") == "1"
 CASES = os.environ.get("BENCH_CASES", "r125 c2000 w123 wr121 r1").split()
 TRANSPORTS = os.environ.get("BENCH_TRANSPORTS", "tcp rtu").split()
-ROUNDS = int(os.environ.get("BENCH_ROUNDS", "1" if QUICK else "5"))
-SECONDS = float(os.environ.get("BENCH_SECONDS", "0.3" if QUICK else "1.5"))
+# Every pairing of a case runs SECONDS in all, in slices of SLICE seconds taking turns
+# with the others (see interleaved()).
+SECONDS = float(os.environ.get("BENCH_SECONDS", "0.6" if QUICK else "10"))
+SLICE = float(os.environ.get("BENCH_SLICE", "0.1"))
 METRIC_CASES = os.environ.get("BENCH_METRIC_CASES", "r125" if QUICK else " ".join(CASES)).split()
 METRICS = os.environ.get("BENCH_METRICS", "strace callgrind allocs").split()
 THROUGHPUT = os.environ.get("BENCH_THROUGHPUT", "1") == "1"
@@ -51,7 +57,7 @@ CASE_TITLES = {
     "r1": "read 1 register",
 }
 
-STALLS = []  # 32 consecutive transactions of a timed run taking over 50 ms
+STALLS = []  # slices of a pairing at under half its median rate
 
 
 def log(*a):
@@ -82,45 +88,6 @@ def run_client(cmd, env, what, lib=None, timeout=120):
     return float(m.group(1)) if m else None, out, err
 
 
-def throughput(transport, case, server_lib, client_lib, seconds):
-    """One alternating measurement: (transactions/s, CPU), or the floor when server_lib
-    is None (client_lib "wait": the floor with the waits libmodbus's semantics need;
-    "peek" or "timeout": with only one of them, on TCP).
-    CPU is (user, system) seconds per transaction of all the measurement's processes
-    (client, server, socat), from the rusage of children this process has reaped."""
-    cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    line = PtyPair("mbbench-", 2) if transport == "rtu" else None
-    try:
-        floor = server_lib is None
-        if floor:
-            fenv = dict(os.environ, FLOOR_WAIT={"wait": "1", "peek": "peek", "timeout": "timeout"}.get(client_lib, "0"))
-            scmd = [bin_("bench-floor"), "server", "tcp" if transport == "tcp" else "pty",
-                    "0" if transport == "tcp" else line.a]
-            srv = start(scmd, fenv)
-            addr = wait_ready(srv, "floor server", 30)
-            ccmd = [bin_("bench-floor"), "client", "tcp" if transport == "tcp" else "pty",
-                    addr if transport == "tcp" else line.b, case, str(seconds)]
-            tps, out, _ = run_client(ccmd, fenv, "floor client")
-        else:
-            scmd = [bin_("mb-server"), transport, "0" if transport == "tcp" else line.a]
-            srv = start(scmd, env_for(server_lib))
-            addr = wait_ready(srv, "server", 30, server_lib)
-            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case, "-t", str(seconds)]
-            tps, out, _ = run_client(ccmd, env_for(client_lib), "client", client_lib)
-            m = re.search(r"max_ms=([0-9.]+)", out)
-            if m and float(m.group(1)) > 50:
-                STALLS.append(f"{transport} {case} client={client_lib} server={server_lib}: "
-                              f"slowest 32 transactions {float(m.group(1)):.0f} ms")
-                log("STALL: " + STALLS[-1])
-        stop(srv)
-    finally:
-        if line:
-            line.close()
-    cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    tx = int(re.search(r"RESULT .*tx=([0-9]+)", out).group(1))
-    return tps, ((cpu_after.ru_utime - cpu_before.ru_utime) / tx, (cpu_after.ru_stime - cpu_before.ru_stime) / tx)
-
-
 DD, OD, DO, OO, FLOOR, WAIT = ("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), \
     (None, None), ("wait", None)
 PEEK, TIMEOUT = ("peek", None), ("timeout", None)  # the bare floor plus one of the waiting floor's waits
@@ -133,36 +100,194 @@ def tps_line(tps):
     return ", ".join(f"{PAIRING_NAMES[c]}={v:.0f}" for c, v in tps.items())
 
 
+def cpu_ns(pid):
+    """Nanoseconds pid has spent on a CPU (user and system: /proc/PID/schedstat)."""
+    with open(f"/proc/{pid}/schedstat") as f:
+        return int(f.read().split()[0])
+
+
+class Pairing:
+    """One pairing (client/server libraries, or a floor) of an interleaved measurement:
+    a server and a client that runs until told to stop, paused (SIGSTOP) except during
+    its slices. The client publishes its transaction count in a shared file
+    (benches/bench-counter.h)."""
+
+    def __init__(self, transport, case, combo, counter_path):
+        client_lib, server_lib = combo
+        self.combo, self.client_lib = combo, client_lib
+        self.name = PAIRING_NAMES[combo]
+        self.line = PtyPair("mbbench-", 2) if transport == "rtu" else None
+        self.srv = self.client = None
+        with open(counter_path, "wb") as f:
+            f.write(bytes(16))
+        fd = os.open(counter_path, os.O_RDWR)
+        try:
+            self.counter = mmap.mmap(fd, 16)
+        finally:
+            os.close(fd)
+        where = "0" if transport == "tcp" else self.line.a
+        if server_lib is None:
+            # A floor: client_lib None is the bare one, else the waits it makes.
+            env = dict(os.environ, FLOOR_WAIT={"wait": "1", "peek": "peek", "timeout": "timeout"}.get(client_lib, "0"),
+                       BENCH_COUNTER=counter_path)
+            self.srv = start([bin_("bench-floor"), "server", "tcp" if transport == "tcp" else "pty", where], env)
+            addr = wait_ready(self.srv, "floor server", 30)
+            self.client_lib = None
+            ccmd = [bin_("bench-floor"), "client", "tcp" if transport == "tcp" else "pty",
+                    addr if transport == "tcp" else self.line.b, case, "1e9"]
+        else:
+            self.srv = start([bin_("mb-server"), transport, where], env_for(server_lib))
+            addr = wait_ready(self.srv, "server", 30, server_lib)
+            env = dict(env_for(client_lib), BENCH_COUNTER=counter_path)
+            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else self.line.b, case, "-t", "1e9"]
+        self.client = start(ccmd, env)
+        # Running once its count moves: connected, warmed up, in its timed loop.
+        deadline = time.monotonic() + 60
+        while self.count() == 0:
+            if self.client.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"{self.name} client: did not start ({self.client.stderr.read().strip()!r:.300})")
+            time.sleep(0.01)
+        self.pause()
+        self.procs = [p.pid for p in (self.client, self.srv, self.line.p if self.line else None) if p]
+        self.base_count, self.base_cpu = self.count(), self.cpu()
+
+    def count(self):
+        return struct.unpack_from("=Q", self.counter, 0)[0]
+
+    def cpu(self):
+        """CPU nanoseconds of the client, the server, and socat on a pty."""
+        return [cpu_ns(pid) for pid in self.procs]
+
+    def pause(self):
+        os.kill(self.client.pid, signal.SIGSTOP)
+        _, status = os.waitpid(self.client.pid, os.WUNTRACED)
+        if not os.WIFSTOPPED(status):
+            self.client.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
+            raise RuntimeError(f"{self.name} client: exit {self.client.returncode}: "
+                               f"{self.client.stderr.read().strip()!r:.300}")
+
+    def resume(self):
+        os.kill(self.client.pid, signal.SIGCONT)
+
+    def cpu_per_tx(self):
+        """Microseconds of CPU per transaction since the first pause: client, server, socat."""
+        tx = max(1, self.count() - self.base_count)
+        return [(b - a) / tx / 1e3 for a, b in zip(self.base_cpu, self.cpu())]
+
+    def finish(self):
+        """Ends the client's run, checks it exited well and loaded the right library."""
+        struct.pack_into("=Q", self.counter, 8, 1)
+        self.resume()
+        done = wait_output(self.client, 60)
+        if done is None:
+            raise RuntimeError(f"{self.name} client: did not stop")
+        out, err = done
+        if self.client.returncode != 0:
+            raise RuntimeError(f"{self.name} client: exit {self.client.returncode}: {err.strip()} {out.strip()}")
+        if self.client_lib is not None:
+            check_libinfo(out, self.client_lib, f"{self.name} client")
+
+    def close(self):
+        """Stops whatever still runs (also after an error) and releases the line and the counter."""
+        if self.client is not None and self.client.returncode is None:
+            try:
+                os.kill(self.client.pid, signal.SIGCONT)  # a stopped process would hold SIGTERM back
+            except ProcessLookupError:
+                pass
+            stop(self.client)
+        if self.srv is not None:
+            stop(self.srv)
+        if self.line:
+            self.line.close()
+        self.counter.close()
+
+
+def interleaved(transport, case, combos, seconds, slice_s):
+    """Throughput of every pairing of combos, which take turns: in each cycle every
+    pairing's client runs for one slice of slice_s seconds while the others are paused
+    (the order rotates every cycle), for seconds per pairing in all. One sample per
+    pairing per cycle (transactions of the slice / its length): pairings compared within
+    a cycle ran a fraction of a second apart, so changes of the machine's load cancel out
+    of their ratio. CPU time per transaction comes from the processes' schedstat."""
+    tmp = tempfile.mkdtemp(prefix="mbinter-")
+    pairings = {}
+    pinned = set(int(c) for c in re.findall(r"\d+", PIN)) if PIN else set()
+    runner_cpus = os.sched_getaffinity(0)
+    try:
+        if pinned and runner_cpus - pinned:
+            os.sched_setaffinity(0, runner_cpus - pinned)  # the runner keeps off the measured CPU
+        for k, c in enumerate(combos):
+            pairings[c] = Pairing(transport, case, c, os.path.join(tmp, f"counter{k}"))
+        samples = {c: [] for c in combos}
+        for k in range(max(1, round(seconds / slice_s))):
+            for c in combos[k % len(combos):] + combos[:k % len(combos)]:
+                p = pairings[c]
+                before, t0 = p.count(), time.monotonic()
+                p.resume()
+                time.sleep(slice_s)
+                p.pause()
+                samples[c].append((p.count() - before) / (time.monotonic() - t0))
+            if k % 20 == 19:
+                log(f"  cycle {k + 1}: " + tps_line({c: samples[c][-1] for c in combos}))
+        cpu = {c: pairings[c].cpu_per_tx() for c in combos}
+        for c in combos:
+            pairings[c].finish()
+    finally:
+        for p in pairings.values():
+            p.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+        os.sched_setaffinity(0, runner_cpus)
+    for c, rates in samples.items():
+        med = statistics.median(rates)
+        slow = [r for r in rates if r < med / 2]
+        if slow:
+            STALLS.append(f"{transport} {case} {PAIRING_NAMES[c]}: {len(slow)} of {len(rates)} slices under half "
+                          f"the median rate (slowest {min(slow):,.0f} tx/s, median {med:,.0f})")
+            log("STALL: " + STALLS[-1])
+    return Run(samples, cpu)
+
+
+def median_ci(values):
+    """The 95% confidence interval of the median of values (distribution-free, from
+    order statistics), or None with fewer than 6 values."""
+    v = sorted(values)
+    n = len(v)
+    if n < 6:
+        return None
+    half = 0.98 * math.sqrt(n)  # 1.96 standard errors of the median's rank, n / 2 +- 1.96 sqrt(n) / 2
+    return v[max(0, math.floor(n / 2 - half))], v[min(n - 1, math.ceil(n / 2 + half))]
+
+
 class Run:
-    """The throughput samples of one case: one per pairing per round. A ratio between
-    two pairings is the median of its per-round values (the two ran seconds apart, at
-    most, so a slow change of the machine's load cancels out), with the lowest and
-    highest per-round values to show how far one round can stray."""
+    """The throughput samples of one case: one per pairing per cycle. A ratio between
+    two pairings is the median of its per-cycle values, given with the 95% confidence
+    interval of that median."""
 
     def __init__(self, samples, cpu):
         self.samples = samples
         self.cpu = cpu
 
     def cpu_us(self, pairing):
-        """Median user and system CPU microseconds per transaction (all processes)."""
-        return tuple(statistics.median(c[i] for c in self.cpu[pairing]) * 1e6 for i in (0, 1))
+        """Microseconds of CPU per transaction: client, server, socat (RTU)."""
+        return self.cpu[pairing]
 
     def tps(self, pairing):
         return statistics.median(self.samples[pairing])
 
-    def per_round(self, a, b):
+    def per_cycle(self, a, b):
         return [x / y for x, y in zip(self.samples[a], self.samples[b])]
 
     def ratio(self, a, b):
-        return statistics.median(self.per_round(a, b))
+        return statistics.median(self.per_cycle(a, b))
 
     def spread(self, a, b, percent=False):
-        rs = self.per_round(a, b)
-        if len(rs) < 2:
+        """The ratio's confidence interval, as text."""
+        ci = median_ci(self.per_cycle(a, b))
+        if ci is None:
             return "-"
         if percent:
-            return f"{min(rs):.0%}-{max(rs):.0%}"
-        return f"{min(rs):.2f}-{max(rs):.2f}x"
+            return f"{ci[0]:.1%}-{ci[1]:.1%}"
+        return f"{ci[0]:.3f}-{ci[1]:.3f}x"
 
 
 # ---- per-transaction costs ------------------------------------------------------------
@@ -333,10 +458,10 @@ def throughput_verdict(target, ours, waiting, bare, share_of_waiting):
         return "met", f"{ours:.3f}x"
     if waiting < target:
         return "out of reach", (f"the waiting floor itself is {waiting:.3f}x (bare floor {bare:.3f}x); "
-                                f"ours {ours:.3f}x, {share_of_waiting:.0%} of it")
+                                f"ours {ours:.3f}x, {share_of_waiting:.1%} of it")
     if bare < target:
         return "out of reach", f"the bare floor itself is {bare:.3f}x; ours {ours:.3f}x"
-    return "NOT MET", f"ours {ours:.3f}x, waiting floor {waiting:.3f}x, ours {share_of_waiting:.0%} of it"
+    return "NOT MET", f"ours {ours:.3f}x, waiting floor {waiting:.3f}x, ours {share_of_waiting:.1%} of it"
 
 
 def verdicts(results, costs):
@@ -348,7 +473,7 @@ def verdicts(results, costs):
         verdict, measured = throughput_verdict(target, run.ratio(OO, DD), run.ratio(WAIT, DD), run.ratio(FLOOR, DD),
                                                run.ratio(OO, WAIT))
         rows.append((f"{title}: >= {target}x Debian", verdict,
-                     f"{measured}; per round: ours {run.spread(OO, DD)}, waiting floor {run.spread(WAIT, DD)}"))
+                     f"{measured}; 95% confidence intervals: ours {run.spread(OO, DD)}, waiting floor {run.spread(WAIT, DD)}"))
         if transport == "tcp":
             share, waiting_share = run.ratio(OO, FLOOR), run.ratio(WAIT, FLOOR)
             if share >= FLOOR_SHARE:
@@ -393,28 +518,22 @@ def main():
     lines.append(f"Machine: {machine()}.  ")
     if PIN:
         lines.append(f"All processes pinned to CPU(s) {PIN} (taskset).  ")
-    lines.append(f"Method: each tx/s figure is the median of {ROUNDS} alternating run(s) of {SECONDS} s per pairing "
-                 f"(order rotated every round); client and server are the same binaries, only "
-                 f"LD_LIBRARY_PATH differs. RTU runs over a socat pty pair. A ratio is the median of its per-round "
-                 f"ratios (the pairings of a round run seconds apart); in brackets, the lowest and "
-                 f"highest per-round value.\n")
+    cycles = max(1, round(SECONDS / SLICE))
+    lines.append(f"Method: the pairings of a case take turns: in each of {cycles} cycle(s) every pairing runs for "
+                 f"{SLICE} s while the others are paused (SIGSTOP), in an order rotated every cycle. A tx/s figure "
+                 f"is the median over the cycles; a ratio is the median of its per-cycle ratios (the two pairings "
+                 f"ran within a second of each other), in brackets its 95% confidence interval. Client and server "
+                 f"are the same binaries, only LD_LIBRARY_PATH differs. RTU runs over a socat pty pair.\n")
 
     results = {}
     for transport in TRANSPORTS if THROUGHPUT else []:
         combos = [DD, OD, DO, OO, FLOOR, WAIT] + ([PEEK, TIMEOUT] if transport == "tcp" and FLOOR_PARTS else [])
+        if SLICE * (len(combos) - 1) > 3:
+            raise SystemExit(f"BENCH_SLICE={SLICE}: a client would wait over 3 s paused (the floor's timeouts are 5 s)")
         for case in CASES:
-            samples = {c: [] for c in combos}
-            cpu = {c: [] for c in combos}
-            for r in range(ROUNDS):
-                order = combos[r % len(combos):] + combos[:r % len(combos)]
-                for c in order:
-                    client_lib, server_lib = c
-                    tps, used = throughput(transport, case, server_lib, client_lib, SECONDS)
-                    samples[c].append(tps)
-                    cpu[c].append(used)
-                log(f"  round {r + 1}: " + tps_line({c: samples[c][-1] for c in combos}))
-            results[(transport, case)] = Run(samples, cpu)
-            log(f"{transport} {case} (medians): " + tps_line({c: results[(transport, case)].tps(c) for c in combos}))
+            log(f"{transport} {case}: {len(combos)} pairings, {cycles} cycles of {SLICE} s each")
+            results[(transport, case)] = run = interleaved(transport, case, combos, SECONDS, SLICE)
+            log(f"{transport} {case} (medians): " + tps_line({c: run.tps(c) for c in combos}))
 
     if results:
         lines.append("### Transactions per second\n")
@@ -424,22 +543,22 @@ def main():
                      "peeks before its exact read, the client's read waits by itself; pty: both sides poll with a "
                      "timeout before reading); its ratio to Debian/Debian is the most a library keeping those "
                      "semantics could reach.\n")
-        lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio (per round) | "
+        lines.append("| transport | case | Debian/Debian tx/s | ours/ours tx/s | both ratio (95% CI) | "
                      "client ratio | server ratio | bare floor tx/s | ours/floor | Debian/floor | waiting floor tx/s | "
-                     "waiting floor/Debian | ours/waiting floor (per round) |")
+                     "waiting floor/Debian | ours/waiting floor (95% CI) |")
         lines.append("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
         for (transport, case), run in results.items():
             lines.append(f"| {transport.upper()} | {CASE_TITLES[case]} | {fmt(run.tps(DD))} | {fmt(run.tps(OO))} | "
-                         f"{run.ratio(OO, DD):.2f}x ({run.spread(OO, DD)}) | {run.ratio(OD, DD):.2f}x | "
+                         f"{run.ratio(OO, DD):.3f}x ({run.spread(OO, DD)}) | {run.ratio(OD, DD):.2f}x | "
                          f"{run.ratio(DO, DD):.2f}x | {fmt(run.tps(FLOOR))} | {run.ratio(OO, FLOOR):.0%} | "
                          f"{run.ratio(DD, FLOOR):.0%} | {fmt(run.tps(WAIT))} | {run.ratio(WAIT, DD):.2f}x | "
-                         f"{run.ratio(OO, WAIT):.0%} ({run.spread(OO, WAIT, percent=True)}) |")
+                         f"{run.ratio(OO, WAIT):.1%} ({run.spread(OO, WAIT, percent=True)}) |")
         priced = [(k, run) for k, run in results.items() if PEEK in run.samples]
         if priced:
             lines.append("\n### What each wait costs (TCP)\n")
             lines.append("The bare floor with only the server's peek before its exact read, with only the "
                          "client's `SO_RCVTIMEO`, and with both (the waiting floor); each as a share of the bare "
-                         "floor (median of the per-round ratios, lowest and highest in brackets).\n")
+                         "floor (median of the per-cycle ratios, 95% confidence interval in brackets).\n")
             lines.append("| case | bare floor tx/s | + server peek | + client timeout | both: waiting floor |")
             lines.append("|---|---:|---:|---:|---:|")
             for (transport, case), run in priced:
@@ -447,24 +566,22 @@ def main():
                              + " | ".join(f"{run.ratio(c, FLOOR):.1%} ({run.spread(c, FLOOR, percent=True)})"
                                           for c in (PEEK, TIMEOUT, WAIT)) + " |")
         lines.append("\n### CPU time per transaction\n")
-        lines.append("User and system CPU time of all the processes of a measurement (client, server, and socat "
-                     "on RTU), from the rusage of the reaped processes, divided by its transactions; medians over "
-                     "the rounds. Start-up is included (a few ms per run), and a kernel that accounts CPU time by "
-                     "sampling at its tick (CONFIG_TICK_CPU_ACCOUNTING, the usual) makes each figure rough. Where "
-                     "ours/ours and the waiting floor make the same system calls, the difference in user time is the "
-                     "library's own work.\n")
-        lines.append("| transport | case | Debian/Debian user | ours/ours user | waiting floor user | bare floor user "
-                     "| Debian/Debian system | ours/ours system | waiting floor system | bare floor system |")
-        lines.append("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+        lines.append("CPU time (user and system) of the measurement's processes per transaction, from "
+                     "/proc/PID/schedstat over all the cycles: client + server (+ socat on RTU). Ours/ours and the "
+                     "waiting floor make the same system calls, so the difference between them, split by side in "
+                     "the last column, is what the library's own work costs.\n")
+        lines.append("| transport | case | Debian/Debian | ours/ours | waiting floor | bare floor | "
+                     "ours - waiting floor: client + server |")
+        lines.append("|---|---|---:|---:|---:|---:|---:|")
         for (transport, case), run in results.items():
-            used = [run.cpu_us(c) for c in (DD, OO, WAIT, FLOOR)]
+            ours, wait = run.cpu_us(OO), run.cpu_us(WAIT)
             lines.append(f"| {transport.upper()} | {CASE_TITLES[case]} | "
-                         + " | ".join(f"{u[0]:.2f} µs" for u in used) + " | "
-                         + " | ".join(f"{u[1]:.2f} µs" for u in used) + " |")
+                         + " | ".join(f"{sum(run.cpu_us(c)):.2f} µs" for c in (DD, OO, WAIT, FLOOR))
+                         + f" | {ours[0] - wait[0]:+.2f} + {ours[1] - wait[1]:+.2f} µs |")
 
     costs = {}
     if STALLS:
-        lines.append("\nStalls (32 consecutive transactions taking over 50 ms):\n")
+        lines.append("\nStalls (slices of a pairing at under half its median rate):\n")
         lines.extend(f"- {s}" for s in STALLS)
     if METRICS:
         lines.append("\n### Cost per transaction (steady state)\n")

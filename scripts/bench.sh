@@ -7,7 +7,7 @@
 # Prints Markdown tables (also written to target/bench/results.md): transactions/s
 # of every case over TCP loopback and an RTU pty pair, for our client, our server and
 # both against Debian's, the bare floor, and system calls, instructions and heap
-# allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_ROUNDS,
+# allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_SLICE,
 # BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN,
 # BENCH_FLOOR_PARTS, BENCH_RESULTS (see benches/README.md). scripts/run-bench-smoke.sh is the short run
 # of the test command.

@@ -41,6 +41,8 @@ for heading in ("### Transactions per second", "### What each wait costs (TCP)",
 for transport in ("TCP", "RTU"):
     check(re.search(rf"^\| {transport} \| read 1 register \| [0-9,]+ \| [0-9,]+ \|", text, re.M) is not None,
           f"{transport} throughput row with figures")
+    check(re.search(rf"^\| {transport} \| read 1 register \|( [0-9.]+ µs \|){{4}} [-+][0-9.]+ \+ [-+][0-9.]+ µs \|$",
+                    text, re.M) is not None, f"{transport} CPU time row with figures")
     for side in ("client", "server"):
         check(re.search(rf"^\| {transport} \| read 1 register \| {side} \| [0-9.]+ \| [0-9.]+ \|", text, re.M)
               is not None, f"{transport} {side} cost row")
