@@ -57,7 +57,7 @@ CASE_TITLES = {
     "r1": "read 1 register",
 }
 
-STALLS = []  # slices of a pairing at under half its median rate
+STALLS = []  # per case, the slices of each pairing at under half its median rate
 
 
 def log(*a):
@@ -237,13 +237,12 @@ def interleaved(transport, case, combos, seconds, slice_s):
             p.close()
         shutil.rmtree(tmp, ignore_errors=True)
         os.sched_setaffinity(0, runner_cpus)
-    for c, rates in samples.items():
-        med = statistics.median(rates)
-        slow = [r for r in rates if r < med / 2]
-        if slow:
-            STALLS.append(f"{transport} {case} {PAIRING_NAMES[c]}: {len(slow)} of {len(rates)} slices under half "
-                          f"the median rate (slowest {min(slow):,.0f} tx/s, median {med:,.0f})")
-            log("STALL: " + STALLS[-1])
+    medians = {c: statistics.median(rates) for c, rates in samples.items()}
+    slow = {c: sum(r < medians[c] / 2 for r in rates) for c, rates in samples.items()}
+    if any(slow.values()):
+        STALLS.append(f"{transport} {case}: " + ", ".join(f"{PAIRING_NAMES[c]} {n}" for c, n in slow.items() if n)
+                      + f" of {len(samples[combos[0]])}")
+        log("SLOW SLICES: " + STALLS[-1])
     return Run(samples, cpu)
 
 
@@ -586,7 +585,8 @@ def main():
 
     costs = {}
     if STALLS:
-        lines.append("\nStalls (slices of a pairing at under half its median rate):\n")
+        lines.append("\nSlow slices (at under half their pairing's median rate; when the floors have them too, "
+                     "the machine or the pty caused them, not a library):\n")
         lines.extend(f"- {s}" for s in STALLS)
     if METRICS:
         lines.append("\n### Cost per transaction (steady state)\n")
