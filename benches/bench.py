@@ -4,9 +4,8 @@
 Runs the same C client and server binaries with Debian's libmodbus.so.5 and with
 rsmodbus (chosen by LD_LIBRARY_PATH), taking turns within one run (interleaved()),
 and prints Markdown tables: transactions/s and ratios for every case, transport and
-pairing, the bare
-floor, and per-transaction system calls, user-space instructions and heap
-allocations. It is a benchmark, not a test: it fails only if a program fails.
+pairing, the bare floor, and per-transaction system calls, user-space instructions
+and heap allocations. It is a benchmark, not a test: it fails only if a program fails.
 
 SPDX-License-Identifier: MIT OR Apache-2.0
 """
