@@ -13,8 +13,8 @@ import math
 import mmap
 import os
 import platform
+import random
 import re
-import resource
 import shutil
 import signal
 import statistics
@@ -112,12 +112,21 @@ class Pairing:
     its slices. The client publishes its transaction count in a shared file
     (benches/bench-counter.h)."""
 
-    def __init__(self, transport, case, combo, counter_path):
-        client_lib, server_lib = combo
-        self.combo, self.client_lib = combo, client_lib
+    def __init__(self, transport, case, combo, counter_path, limit_s):
+        """limit_s: the wall-clock seconds after which the client ends by itself (paused
+        time included), should the runner die without telling it to stop."""
         self.name = PAIRING_NAMES[combo]
+        self.srv = self.client = self.line = self.counter = None
+        try:
+            self._start(transport, case, combo, counter_path, limit_s)
+        except BaseException:
+            self.close()
+            raise
+
+    def _start(self, transport, case, combo, counter_path, limit_s):
+        client_lib, server_lib = combo
+        self.client_lib = client_lib
         self.line = PtyPair("mbbench-", 2) if transport == "rtu" else None
-        self.srv = self.client = None
         with open(counter_path, "wb") as f:
             f.write(bytes(16))
         fd = os.open(counter_path, os.O_RDWR)
@@ -134,17 +143,19 @@ class Pairing:
             addr = wait_ready(self.srv, "floor server", 30)
             self.client_lib = None
             ccmd = [bin_("bench-floor"), "client", "tcp" if transport == "tcp" else "pty",
-                    addr if transport == "tcp" else self.line.b, case, "1e9"]
+                    addr if transport == "tcp" else self.line.b, case, str(limit_s)]
         else:
             self.srv = start([bin_("mb-server"), transport, where], env_for(server_lib))
             addr = wait_ready(self.srv, "server", 30, server_lib)
             env = dict(env_for(client_lib), BENCH_COUNTER=counter_path)
-            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else self.line.b, case, "-t", "1e9"]
+            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else self.line.b, case,
+                    "-t", str(limit_s)]
         self.client = start(ccmd, env)
         # Running once its count moves: connected, warmed up, in its timed loop.
         deadline = time.monotonic() + 60
         while self.count() == 0:
             if self.client.poll() is not None or time.monotonic() > deadline:
+                stop(self.client)  # before reading its stderr to the end
                 raise RuntimeError(f"{self.name} client: did not start ({self.client.stderr.read().strip()!r:.300})")
             time.sleep(0.01)
         self.pause()
@@ -199,7 +210,8 @@ class Pairing:
             stop(self.srv)
         if self.line:
             self.line.close()
-        self.counter.close()
+        if self.counter is not None:
+            self.counter.close()
 
 
 def interleaved(transport, case, combos, seconds, slice_s):
@@ -209,18 +221,29 @@ def interleaved(transport, case, combos, seconds, slice_s):
     pairing per cycle (transactions of the slice / its length): pairings compared within
     a cycle ran a fraction of a second apart, so changes of the machine's load cancel out
     of their ratio. CPU time per transaction comes from the processes' schedstat."""
-    tmp = tempfile.mkdtemp(prefix="mbinter-")
+    # The counters in memory (tmpfs): a page of a disk file could be write-protected
+    # for writeback, and the client's next store would fault.
+    tmp = tempfile.mkdtemp(prefix="mbinter-", dir="/dev/shm" if os.path.isdir("/dev/shm") else None)
     pairings = {}
-    pinned = set(int(c) for c in re.findall(r"\d+", PIN)) if PIN else set()
     runner_cpus = os.sched_getaffinity(0)
+    cycles = max(1, round(seconds / slice_s))
+    # A client ends by itself long after the measurement should have (a dead runner
+    # must not leave it running); the runner ends it before then.
+    limit_s = 60 + 2 * seconds * len(combos)
+    order = random.Random(f"{transport} {case}")  # the same orders in every run
     try:
+        pinned = cpu_list(PIN)
         if pinned and runner_cpus - pinned:
-            os.sched_setaffinity(0, runner_cpus - pinned)  # the runner keeps off the measured CPU
+            os.sched_setaffinity(0, runner_cpus - pinned)  # the runner keeps off the measured CPUs
+        elif pinned:
+            log(f"the runner shares CPU(s) {PIN} with the measurement (no other CPU allowed)")
         for k, c in enumerate(combos):
-            pairings[c] = Pairing(transport, case, c, os.path.join(tmp, f"counter{k}"))
+            pairings[c] = Pairing(transport, case, c, os.path.join(tmp, f"counter{k}"), limit_s)
         samples = {c: [] for c in combos}
-        for k in range(max(1, round(seconds / slice_s))):
-            for c in combos[k % len(combos):] + combos[:k % len(combos)]:
+        for k in range(cycles):
+            # A new random order every cycle: no pairing always follows the same one
+            # (the one before leaves its code and data in the caches).
+            for c in order.sample(combos, len(combos)):
                 p = pairings[c]
                 before, t0 = p.count(), time.monotonic()
                 p.resume()
@@ -248,13 +271,26 @@ def interleaved(transport, case, combos, seconds, slice_s):
 
 def median_ci(values):
     """The 95% confidence interval of the median of values (distribution-free, from
-    order statistics), or None with fewer than 6 values."""
+    order statistics: the ranks (n - 1) / 2 -+ 1.96 sqrt(n) / 2, widened to whole
+    ranks), or None with fewer than 6 values. It takes the per-cycle values as
+    independent; a slow drift of the machine makes them less so, and the interval
+    somewhat optimistic."""
     v = sorted(values)
     n = len(v)
     if n < 6:
         return None
-    half = 0.98 * math.sqrt(n)  # 1.96 standard errors of the median's rank, n / 2 +- 1.96 sqrt(n) / 2
-    return v[max(0, math.floor(n / 2 - half))], v[min(n - 1, math.ceil(n / 2 + half))]
+    lo = max(0, math.floor((n - 1) / 2 - 0.98 * math.sqrt(n)))
+    return v[lo], v[n - 1 - lo]
+
+
+def cpu_list(spec):
+    """The CPUs of a taskset-style list ("1", "0,2", "0-3", "0-7:2"); empty for ""."""
+    cpus = set()
+    for part in filter(None, spec.split(",")):
+        span, _, stride = part.partition(":")
+        first, _, last = span.partition("-")
+        cpus.update(range(int(first), int(last or first) + 1, int(stride or 1)))
+    return cpus
 
 
 class Run:
@@ -524,7 +560,7 @@ def main():
         lines.append(f"All processes pinned to CPU(s) {PIN} (taskset).  ")
     cycles = max(1, round(SECONDS / SLICE))
     lines.append(f"Method: the pairings of a case take turns: in each of {cycles} cycle(s) every pairing runs for "
-                 f"{SLICE} s while the others are paused (SIGSTOP), in an order rotated every cycle. A tx/s figure "
+                 f"{SLICE} s while the others are paused (SIGSTOP), in a new random order every cycle. A tx/s figure "
                  f"is the median over the cycles; a ratio is the median of its per-cycle ratios (the two pairings "
                  f"ran within a second of each other), in brackets its 95% confidence interval. Client and server "
                  f"are the same binaries, only LD_LIBRARY_PATH differs. RTU runs over a socat pty pair.\n")
@@ -532,8 +568,9 @@ def main():
     results = {}
     for transport in TRANSPORTS if THROUGHPUT else []:
         combos = [DD, OD, DO, OO, FLOOR, WAIT] + ([PEEK, TIMEOUT] if transport == "tcp" and FLOOR_PARTS else [])
-        if SLICE * (len(combos) - 1) > 3:
-            raise SystemExit(f"BENCH_SLICE={SLICE}: a client would wait over 3 s paused (the floor's timeouts are 5 s)")
+        # In random orders a client may run first in one cycle and last in the next.
+        if 2 * SLICE * (len(combos) - 1) > 3:
+            raise SystemExit(f"BENCH_SLICE={SLICE}: a client could wait over 3 s paused (the floor's timeouts are 5 s)")
         for case in CASES:
             log(f"{transport} {case}: {len(combos)} pairings, {cycles} cycles of {SLICE} s each")
             results[(transport, case)] = run = interleaved(transport, case, combos, SECONDS, SLICE)
@@ -647,6 +684,9 @@ def main():
 
 
 if __name__ == "__main__":
+    # SIGTERM (a CI timeout, kill) unwinds like an error, so that the clients paused
+    # with SIGSTOP are resumed and stopped on the way out.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
         main()
     finally:
