@@ -16,7 +16,14 @@
  * read timeout than tenths of a second. On TCP, FLOOR_WAIT=peek makes only the server's
  * peek and FLOOR_WAIT=timeout only the client's SO_RCVTIMEO, to price each on its own.
  *
- * The server learns the sizes from a 2-byte hello (request size, response size).
+ * With FLOOR_DATA=1 as well (TCP or pty) it is the *data floor*: both sides also
+ * convert the case's values between arrays and the wire, the least any library has
+ * to do with them (client: 121/123 registers out, 125/1 in, or 2000 coils unpacked;
+ * server: the registers written into and read out of a table, or 2000 coils packed),
+ * in plain C that the compiler vectorises, and SSE2 for packing coils.
+ *
+ * The server learns the sizes and the case from a 3-byte hello (request size,
+ * response size, case number).
  * Prints "READY <port>" (server) and "RESULT case=... tx=N secs=S tps=T" (client).
  * With BENCH_COUNTER set, a client takes part in an interleaved measurement
  * (bench-counter.h).
@@ -38,6 +45,8 @@
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
+
+#include <emmintrin.h>
 
 #include "bench-counter.h"
 
@@ -103,8 +112,91 @@ static int open_pty(const char *dev)
     return fd;
 }
 
+/* ---- the data floor's conversions (FLOOR_DATA=1) ---- */
+enum { NO_DATA, R125, C2000, W123, WR121, R1 };
+static uint16_t values[256], table[256];
+static uint8_t coils[2048], coil_table[2048];
+static uint64_t spread_bits[256]; /* byte i of spread_bits[b] = bit i of b */
+
+static void registers_out(const uint16_t *v, unsigned char *wire, int n)
+{
+    for (int i = 0; i < n; i++) {
+        uint16_t be = __builtin_bswap16(v[i]);
+        memcpy(wire + 2 * i, &be, 2);
+    }
+}
+
+static void registers_in(const unsigned char *wire, uint16_t *v, int n)
+{
+    for (int i = 0; i < n; i++) {
+        uint16_t be;
+        memcpy(&be, wire + 2 * i, 2);
+        v[i] = __builtin_bswap16(be);
+    }
+}
+
+/* n a multiple of 16: bit 0 of each value to one bit, 16 values per step. */
+static void coils_packed(const uint8_t *bits, unsigned char *out, int n)
+{
+    for (int i = 0; i < n; i += 16) {
+        int m = _mm_movemask_epi8(_mm_slli_epi16(_mm_loadu_si128((const __m128i *) (bits + i)), 7));
+        out[i / 8] = (unsigned char) m;
+        out[i / 8 + 1] = (unsigned char) (m >> 8);
+    }
+}
+
+static void coils_unpacked(const unsigned char *packed, uint8_t *bits, int n)
+{
+    for (int i = 0; i < n / 8; i++) {
+        memcpy(bits + 8 * i, &spread_bits[packed[i]], 8);
+    }
+}
+
+static void data_init(void)
+{
+    for (int b = 0; b < 256; b++) {
+        for (int k = 0; k < 8; k++) {
+            spread_bits[b] |= (uint64_t) ((b >> k) & 1) << (8 * k);
+        }
+        values[b] = (uint16_t) (b * 3);
+    }
+    for (int k = 0; k < 2048; k++) {
+        coil_table[k] = (uint8_t) (k % 3 == 0);
+    }
+}
+
+/* Server, between reading the request and sending the response; h: header length. */
+static void server_data(int c, unsigned char *b, int h)
+{
+    switch (c) {
+    case R125: registers_out(table, b + h + 2, 125); break;
+    case C2000: coils_packed(coil_table, b + h + 2, 2000); break;
+    case W123: registers_in(b + h + 6, table, 123); break;
+    case WR121: registers_in(b + h + 10, table, 121); registers_out(table, b + h + 2, 125); break;
+    case R1: registers_out(table, b + h + 2, 1); break;
+    }
+}
+
+static void client_request_data(int c, unsigned char *b, int h)
+{
+    if (c == W123) {
+        registers_out(values, b + h + 6, 123);
+    } else if (c == WR121) {
+        registers_out(values, b + h + 10, 121);
+    }
+}
+
+static void client_response_data(int c, const unsigned char *b, int h)
+{
+    switch (c) {
+    case R125: case WR121: registers_in(b + h + 2, values, 125); break;
+    case C2000: coils_unpacked(b + h + 2, coils, 2000); break;
+    case R1: registers_in(b + h + 2, values, 1); break;
+    }
+}
+
 /* Case sizes (request, response) for TCP (MBAP) and RTU (CRC). */
-static void sizes(const char *c, int tcp, int *req, int *rsp)
+static int sizes(const char *c, int tcp, int *req, int *rsp)
 {
     int h = tcp ? 7 : 1, cs = tcp ? 0 : 2;
     if (strcmp(c, "r125") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 250 + cs; }
@@ -113,6 +205,8 @@ static void sizes(const char *c, int tcp, int *req, int *rsp)
     else if (strcmp(c, "wr121") == 0) { *req = h + 10 + 242 + cs; *rsp = h + 2 + 250 + cs; }
     else if (strcmp(c, "r1") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 2 + cs; }
     else { fprintf(stderr, "unknown case %s\n", c); exit(2); }
+    return strcmp(c, "r125") == 0 ? R125 : strcmp(c, "c2000") == 0 ? C2000 : strcmp(c, "w123") == 0 ? W123
+         : strcmp(c, "wr121") == 0 ? WR121 : R1;
 }
 
 int main(int argc, char **argv)
@@ -139,6 +233,12 @@ int main(int argc, char **argv)
         return 2;
     }
     wait_mode = strcmp(waits, "0") != 0;
+    const char *data = getenv("FLOOR_DATA") != NULL ? getenv("FLOOR_DATA") : "0";
+    if (strcmp(data, "0") != 0 && strcmp(data, "1") != 0) {
+        fprintf(stderr, "bench-floor: FLOOR_DATA must be 0 or 1\n");
+        return 2;
+    }
+    data_init();
     memset(buf, 0x5A, sizeof(buf));
     if (strcmp(argv[1], "server") == 0) {
         int req, rsp, one = 1;
@@ -166,13 +266,17 @@ int main(int argc, char **argv)
             printf("READY %s\n", argv[3]);
             fflush(stdout);
         }
-        if (fd < 0 || read_full(fd, buf, 2, tcp) != 0) {
+        if (fd < 0 || read_full(fd, buf, 3, tcp) != 0) {
             return 1;
         }
         req = buf[0];
         rsp = buf[1];
-        while (wait_before_read(fd, tcp, 1) == 0 && read_full(fd, buf, req + 4, tcp) == 0 &&
-               write_full(fd, buf, rsp + 4, tcp) == 0) {
+        int data_case = buf[2], h = tcp ? 7 : 1;
+        while (wait_before_read(fd, tcp, 1) == 0 && read_full(fd, buf, req + 4, tcp) == 0) {
+            server_data(data_case, buf, h);
+            if (write_full(fd, buf, rsp + 4, tcp) != 0) {
+                break;
+            }
         }
         return 0;
     } else {
@@ -183,7 +287,10 @@ int main(int argc, char **argv)
         if (argc < 6) {
             return 2;
         }
-        sizes(argv[4], tcp, &req, &rsp);
+        int data_case = sizes(argv[4], tcp, &req, &rsp), h = tcp ? 7 : 1;
+        if (strcmp(data, "1") != 0) {
+            data_case = NO_DATA;
+        }
         secs = atof(argv[5]);
         if (tcp) {
             struct sockaddr_in sa;
@@ -207,7 +314,8 @@ int main(int argc, char **argv)
         /* Sizes are sent minus 4 so that 259 fits a byte. */
         buf[0] = (unsigned char) (req - 4);
         buf[1] = (unsigned char) (rsp - 4);
-        if (fd < 0 || write_full(fd, buf, 2, tcp) != 0) {
+        buf[2] = (unsigned char) data_case;
+        if (fd < 0 || write_full(fd, buf, 3, tcp) != 0) {
             return 1;
         }
         memset(buf, 0x5A, sizeof(buf));
@@ -219,11 +327,13 @@ int main(int argc, char **argv)
         t0 = now();
         t1 = t0;
         while (t1 - t0 < secs) {
+            client_request_data(data_case, buf, h);
             if (write_full(fd, buf, req, tcp) != 0 || wait_before_read(fd, tcp, 0) != 0 ||
                 read_full(fd, buf, rsp, tcp) != 0) {
                 fprintf(stderr, "bench-floor: transaction failed\n");
                 return 1;
             }
+            client_response_data(data_case, buf, h);
             tx++;
             if (counter != NULL) {
                 bench_counter_publish(counter, tx);

@@ -91,8 +91,10 @@ def run_client(cmd, env, what, lib=None, timeout=120):
 DD, OD, DO, OO, FLOOR, WAIT = ("debian", "debian"), ("ours", "debian"), ("debian", "ours"), ("ours", "ours"), \
     (None, None), ("wait", None)
 PEEK, TIMEOUT = ("peek", None), ("timeout", None)  # the bare floor plus one of the waiting floor's waits
+DATA = ("data", None)  # the waiting floor plus the conversions of the values (FLOOR_DATA=1)
 PAIRING_NAMES = {DD: "Debian/Debian", OD: "ours/Debian", DO: "Debian/ours", OO: "ours/ours",
-                 FLOOR: "bare floor", WAIT: "waiting floor", PEEK: "floor + peek", TIMEOUT: "floor + timeout"}
+                 FLOOR: "bare floor", WAIT: "waiting floor", PEEK: "floor + peek", TIMEOUT: "floor + timeout",
+                 DATA: "data floor"}
 
 
 def tps_line(tps):
@@ -137,8 +139,9 @@ class Pairing:
         where = "0" if transport == "tcp" else self.line.a
         if server_lib is None:
             # A floor: client_lib None is the bare one, else the waits it makes.
-            env = dict(os.environ, FLOOR_WAIT={"wait": "1", "peek": "peek", "timeout": "timeout"}.get(client_lib, "0"),
-                       BENCH_COUNTER=counter_path)
+            env = dict(os.environ,
+                       FLOOR_WAIT={"wait": "1", "peek": "peek", "timeout": "timeout", "data": "1"}.get(client_lib, "0"),
+                       FLOOR_DATA="1" if client_lib == "data" else "0", BENCH_COUNTER=counter_path)
             self.srv = start([bin_("bench-floor"), "server", "tcp" if transport == "tcp" else "pty", where], env)
             addr = wait_ready(self.srv, "floor server", 30)
             self.client_lib = None
@@ -512,6 +515,8 @@ def verdicts(results, costs):
             ours_cpu, library = sum(run.cpu_us(OO)), sum(run.cpu_us(OO)) - sum(run.cpu_us(WAIT))
             measured += (f"; to meet it, ours/ours needs about {ours_cpu * (1 - run.ratio(OO, DD) / target):.2f} µs "
                          f"less CPU per transaction (its library work costs {library:.2f} µs over the waiting floor)")
+        if DATA in run.samples:
+            measured += f"; the data floor is {run.ratio(DATA, DD):.3f}x ({run.spread(DATA, DD)}), ours {run.ratio(OO, DATA):.1%} of it"
         rows.append((f"{title}: >= {target}x Debian", verdict,
                      f"{measured}; 95% confidence intervals: ours {run.spread(OO, DD)}, waiting floor {run.spread(WAIT, DD)}"))
         if transport == "tcp":
@@ -567,7 +572,8 @@ def main():
 
     results = {}
     for transport in TRANSPORTS if THROUGHPUT else []:
-        combos = [DD, OD, DO, OO, FLOOR, WAIT] + ([PEEK, TIMEOUT] if transport == "tcp" and FLOOR_PARTS else [])
+        combos = [DD, OD, DO, OO, FLOOR, WAIT] + ([DATA] if transport == "tcp" else []) \
+            + ([PEEK, TIMEOUT] if transport == "tcp" and FLOOR_PARTS else [])
         # In random orders a client may run first in one cycle and last in the next.
         if 2 * SLICE * (len(combos) - 1) > 3:
             raise SystemExit(f"BENCH_SLICE={SLICE}: a client could wait over 3 s paused (the floor's timeouts are 5 s)")
@@ -606,6 +612,19 @@ def main():
                 lines.append(f"| {CASE_TITLES[case]} | {fmt(run.tps(FLOOR))} | "
                              + " | ".join(f"{run.ratio(c, FLOOR):.1%} ({run.spread(c, FLOOR, percent=True)})"
                                           for c in (PEEK, TIMEOUT, WAIT)) + " |")
+        with_data = [(k, run) for k, run in results.items() if DATA in run.samples]
+        if with_data:
+            lines.append("\n### The data floor (TCP)\n")
+            lines.append("The waiting floor plus the conversions of the case's values between arrays and the wire on "
+                         "both sides (registers byte-swapped, vectorised by the compiler; coils packed with SSE2 and "
+                         "unpacked from a table): the least a library has to do with the values, and nothing else "
+                         "(no header, no check). 95% confidence intervals in brackets.\n")
+            lines.append("| case | waiting floor/Debian | data floor/Debian | ours/Debian | ours/data floor |")
+            lines.append("|---|---:|---:|---:|---:|")
+            for (transport, case), run in with_data:
+                lines.append(f"| {CASE_TITLES[case]} | {run.ratio(WAIT, DD):.3f}x | {run.ratio(DATA, DD):.3f}x "
+                             f"({run.spread(DATA, DD)}) | {run.ratio(OO, DD):.3f}x ({run.spread(OO, DD)}) | "
+                             f"{run.ratio(OO, DATA):.1%} ({run.spread(OO, DATA, percent=True)}) |")
         lines.append("\n### CPU time per transaction\n")
         lines.append("CPU time (user and system) of the measurement's processes per transaction, from "
                      "/proc/PID/schedstat over all the cycles: client + server (+ socat on RTU). Ours/ours and the "

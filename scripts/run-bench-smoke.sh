@@ -35,7 +35,8 @@ def check(ok, what):
     print(f"{'PASS' if ok else 'FAIL'} {what}")
 
 
-for heading in ("### Transactions per second", "### What each wait costs (TCP)", "### CPU time per transaction",
+for heading in ("### Transactions per second", "### What each wait costs (TCP)", "### The data floor (TCP)",
+                "### CPU time per transaction",
                 "### Cost per transaction (steady state)", "### Against the targets"):
     check(heading in text, f"report has '{heading}'")
 for transport in ("TCP", "RTU"):
@@ -48,6 +49,8 @@ for transport in ("TCP", "RTU"):
               is not None, f"{transport} {side} cost row")
 check(re.search(r"^\| read 1 register \| [0-9,]+ \|( [0-9.]+% \([^)]*\) \|){3}$", text, re.M) is not None,
       "TCP row of the priced waits (floor + peek, floor + timeout, waiting floor)")
+check(re.search(r"^\| read 1 register \| [0-9.]+x( \| [0-9.]+x \([^)]*\)){2} \| [0-9.]+% \([^)]*\) \|$", text, re.M)
+      is not None, "TCP row of the data floor")
 # Verdicts on counts per transaction: system calls, instructions, allocations. On a
 # pty the bytes of a frame may arrive in more reads when the machine is busy, which
 # adds instructions to either library: RTU instruction verdicts are shown, not judged.
