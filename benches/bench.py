@@ -220,7 +220,7 @@ class Pairing:
 def interleaved(transport, case, combos, seconds, slice_s):
     """Throughput of every pairing of combos, which take turns: in each cycle every
     pairing's client runs for one slice of slice_s seconds while the others are paused
-    (the order rotates every cycle), for seconds per pairing in all. One sample per
+    (in a new random order every cycle), for seconds per pairing in all. One sample per
     pairing per cycle (transactions of the slice / its length): pairings compared within
     a cycle ran a fraction of a second apart, so changes of the machine's load cancel out
     of their ratio. CPU time per transaction comes from the processes' schedstat."""
