@@ -195,18 +195,17 @@ static void client_response_data(int c, const unsigned char *b, int h)
     }
 }
 
-/* Case sizes (request, response) for TCP (MBAP) and RTU (CRC). */
+/* Case sizes (request, response) for TCP (MBAP) and RTU (CRC); returns the case. */
 static int sizes(const char *c, int tcp, int *req, int *rsp)
 {
     int h = tcp ? 7 : 1, cs = tcp ? 0 : 2;
-    if (strcmp(c, "r125") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 250 + cs; }
-    else if (strcmp(c, "c2000") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 250 + cs; }
-    else if (strcmp(c, "w123") == 0) { *req = h + 6 + 246 + cs; *rsp = h + 5 + cs; }
-    else if (strcmp(c, "wr121") == 0) { *req = h + 10 + 242 + cs; *rsp = h + 2 + 250 + cs; }
-    else if (strcmp(c, "r1") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 2 + cs; }
-    else { fprintf(stderr, "unknown case %s\n", c); exit(2); }
-    return strcmp(c, "r125") == 0 ? R125 : strcmp(c, "c2000") == 0 ? C2000 : strcmp(c, "w123") == 0 ? W123
-         : strcmp(c, "wr121") == 0 ? WR121 : R1;
+    if (strcmp(c, "r125") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 250 + cs; return R125; }
+    if (strcmp(c, "c2000") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 250 + cs; return C2000; }
+    if (strcmp(c, "w123") == 0) { *req = h + 6 + 246 + cs; *rsp = h + 5 + cs; return W123; }
+    if (strcmp(c, "wr121") == 0) { *req = h + 10 + 242 + cs; *rsp = h + 2 + 250 + cs; return WR121; }
+    if (strcmp(c, "r1") == 0) { *req = h + 5 + cs; *rsp = h + 2 + 2 + cs; return R1; }
+    fprintf(stderr, "unknown case %s\n", c);
+    exit(2);
 }
 
 int main(int argc, char **argv)
