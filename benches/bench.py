@@ -699,11 +699,15 @@ def main():
     print(text)
 
 
-if __name__ == "__main__":
-    # SIGTERM (a CI timeout, kill) unwinds like an error, so that the clients paused
-    # with SIGSTOP are resumed and stopped on the way out.
+def run_main(main_fn):
+    """Runs main_fn. SIGTERM (a CI timeout, kill) unwinds like an error, so that the
+    clients paused with SIGSTOP are resumed and stopped on the way out."""
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     try:
-        main()
+        main_fn()
     finally:
         stop_all()
+
+
+if __name__ == "__main__":
+    run_main(main)

@@ -79,12 +79,14 @@ def wait_output(p, timeout):
 
 
 def env_for(lib, ours_dir=OURS_DIR):
-    """The environment that makes a program load `lib` ("ours" from ours_dir, or "debian")."""
+    """The environment that makes a program load `lib`: "ours" from ours_dir, "debian",
+    or "ours:DIR", a build of ours in DIR (the benchmarks' A/B runs)."""
+    kind, _, where = lib.partition(":")
     e = dict(os.environ)
     e.pop("LD_LIBRARY_PATH", None)
-    if lib == "ours":
-        e["LD_LIBRARY_PATH"] = ours_dir
-    e["EXPECT_LIB"] = lib  # libinfo.c exits 97 if another libmodbus.so.5 is loaded
+    if kind == "ours":
+        e["LD_LIBRARY_PATH"] = where or ours_dir
+    e["EXPECT_LIB"] = kind  # libinfo.c exits 97 if another libmodbus.so.5 is loaded
     return e
 
 
@@ -97,12 +99,16 @@ def loaded_lib(text):
 
 
 def check_libinfo(text, lib, what):
-    """Raises RuntimeError unless the LIBINFO line in text names `lib` ("ours" or "debian")."""
+    """Raises RuntimeError unless the LIBINFO line in text names `lib` ("ours", "debian",
+    or "ours:DIR": ours, loaded from DIR)."""
+    kind, _, where = lib.partition(":")
     found = loaded_lib(text)
     if found is None:
         raise RuntimeError(f"{what}: no LIBINFO line")
-    if found[0] != lib:
-        raise RuntimeError(f"{what}: expected {lib} but loaded {found[1]}")
+    if found[0] != kind:
+        raise RuntimeError(f"{what}: expected {kind} but loaded {found[1]}")
+    if where and os.path.realpath(os.path.dirname(found[1])) != os.path.realpath(where):
+        raise RuntimeError(f"{what}: expected ours from {where} but loaded {found[1]}")
 
 
 def wait_ready(p, what, timeout, lib=None):
