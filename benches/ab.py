@@ -28,6 +28,8 @@ def main():
     for d in dirs:
         if not os.path.exists(os.path.join(d, "libmodbus.so.5")):
             raise SystemExit(f"{d}/libmodbus.so.5 missing")
+    if os.path.realpath(dirs[0]) == os.path.realpath(dirs[1]):
+        raise SystemExit("A_DIR and B_DIR are the same directory: copy the library to measure a build against itself")
     cases = sys.argv[3:] or ["wr121"]
     seconds = float(os.environ.get("BENCH_SECONDS", "30"))
     transports = os.environ.get("BENCH_TRANSPORTS", "tcp").split()
