@@ -50,6 +50,13 @@
 
 #include "bench-counter.h"
 
+/* The environment variable `name`, or `fallback` when it is not set. */
+static const char *env_or(const char *name, const char *fallback)
+{
+    const char *v = getenv(name);
+    return v != NULL ? v : fallback;
+}
+
 static double now(void)
 {
     struct timespec ts;
@@ -219,7 +226,7 @@ int main(int argc, char **argv)
         return 2;
     }
     tcp = strcmp(argv[2], "tcp") == 0;
-    const char *waits = getenv("FLOOR_WAIT") != NULL ? getenv("FLOOR_WAIT") : "0";
+    const char *waits = env_or("FLOOR_WAIT", "0");
     if (strcmp(waits, "peek") == 0 || strcmp(waits, "timeout") == 0) {
         if (!tcp) {
             fprintf(stderr, "bench-floor: FLOOR_WAIT=%s is for TCP only\n", waits);
@@ -232,7 +239,7 @@ int main(int argc, char **argv)
         return 2;
     }
     wait_mode = strcmp(waits, "0") != 0;
-    const char *data = getenv("FLOOR_DATA") != NULL ? getenv("FLOOR_DATA") : "0";
+    const char *data = env_or("FLOOR_DATA", "0");
     if (strcmp(data, "0") != 0 && strcmp(data, "1") != 0) {
         fprintf(stderr, "bench-floor: FLOOR_DATA must be 0 or 1\n");
         return 2;
