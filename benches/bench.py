@@ -558,6 +558,7 @@ def main():
     mode = "quick" if QUICK else "full"
     lines.append(f"## rsmodbus vs libmodbus: benchmark ({mode} mode)\n")
     lines.append(f"Machine: {machine()}.  ")
+    lines.append(f"Ours: {os.environ.get('BENCH_OURS_BUILD', OURS_DIR)}.  ")
     if PIN:
         lines.append(f"All processes pinned to CPU(s) {PIN} (taskset).  ")
     cycles = max(1, round(SECONDS / SLICE))

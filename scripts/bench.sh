@@ -10,7 +10,9 @@
 # allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_SLICE,
 # BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN,
 # BENCH_FLOOR_PARTS, BENCH_RESULTS (see benches/README.md). scripts/run-bench-smoke.sh is the short run
-# of the test command.
+# of the test command. "Ours" is the library the Debian packages ship, built with
+# profile-guided optimisation (scripts/build-pgo.sh); BENCH_PGO=0 measures a plain
+# `cargo build --release` instead.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
@@ -19,10 +21,17 @@ scripts/install-deps.sh >/dev/null
 for tool in strace socat valgrind python3 gcc; do
     command -v "$tool" >/dev/null || { apt-get install -y -qq "$tool" >/dev/null; }
 done
-cargo build --release -q
-[ -e target/release/libmodbus.so.5 ] || ln -sf libmodbus.so target/release/libmodbus.so.5
+if [ "${BENCH_PGO:-1}" = 0 ]; then
+    cargo build --release -q
+    built=target/release
+    export BENCH_OURS_BUILD="a plain cargo build --release (BENCH_PGO=0)"
+else
+    scripts/build-pgo.sh >/dev/null
+    built=target/pgo/release
+    export BENCH_OURS_BUILD="the profile-guided build the Debian packages ship (scripts/build-pgo.sh)"
+fi
 benches/build.sh target/bench
-# Measure a copy: a rebuild of target/release during the run must not change it.
+# Measure a copy: a rebuild of the library during the run must not change it.
 mkdir -p target/bench/ours
-cp target/release/libmodbus.so target/bench/ours/libmodbus.so.5
+cp "$built/libmodbus.so" target/bench/ours/libmodbus.so.5
 BENCH_OURS_DIR=$PWD/target/bench/ours exec python3 benches/bench.py

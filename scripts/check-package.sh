@@ -8,8 +8,9 @@
 #   - apt's resolver (simulation only): installing both packages removes libmodbus5
 #     and libmodbus-dev but keeps Debian's mbpoll, and collectd-core and zabbix-agent
 #     install with librsmodbus5 satisfying their libmodbus5 dependency;
-#   - the extracted tree (dpkg -x into a scratch root): soname, exported symbols,
-#     stripped libraries (sizes reported), libmodbus.pc, man pages render;
+#   - the extracted tree (dpkg -x into a scratch root): the library is the
+#     profile-guided build (its code equals target/pgo/release's), soname, exported
+#     symbols, stripped libraries (sizes reported), libmodbus.pc, man pages render;
 #   - the examples compiled against the extracted root with PKG_CONFIG_SYSROOT_DIR
 #     and PKG_CONFIG_PATH, dynamically and statically (pkg-config --static), and run
 #     against each other over loopback and a pty pair;
@@ -31,6 +32,8 @@ mkdir -p "$WORK"
 CC=${CC:-gcc}
 MA=$(dpkg-architecture -qDEB_HOST_MULTIARCH)
 DEBS=$ROOT_DIR/target/debian
+# What debian/rules builds and installs (scripts/build-pgo.sh).
+BUILT=target/pgo/release
 
 # --- build ------------------------------------------------------------------------
 if [ "${1:-}" != "--no-build" ]; then
@@ -54,7 +57,7 @@ echo "       $(basename "$RUNTIME"): $(stat -c %s "$RUNTIME") bytes; $(basename 
 
 # --- control fields ------------------------------------------------------------------
 crate_version=$(sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -n 1)
-api=$(sed -n 's/^Version: *//p' target/release/libmodbus.pc)
+api=$(sed -n 's/^Version: *//p' $BUILT/libmodbus.pc)
 version="$api+rs$crate_version"
 field() { dpkg-deb -f "$1" "$2"; }
 expect_field() {
@@ -138,7 +141,7 @@ if diff -u "$WORK/runtime.expected" "$WORK/runtime.files" >"$WORK/runtime.diff";
 else
     bad "librsmodbus5: file list" "$(cat "$WORK/runtime.diff")"
 fi
-nm -D --defined-only target/release/libmodbus.so | awk '{print $3}' | sort >"$WORK/exported"
+nm -D --defined-only $BUILT/libmodbus.so | awk '{print $3}' | sort >"$WORK/exported"
 {
     for h in modbus.h modbus-rtu.h modbus-tcp.h modbus-version.h; do echo "/usr/include/modbus/$h"; done
     echo "$L/libmodbus.so -> libmodbus.so.5.1.0"
@@ -178,19 +181,26 @@ so=$RL/libmodbus.so.5.1.0
 soname=$(objdump -p "$so" | awk '$1 == "SONAME" {print $2}')
 [ "$soname" = libmodbus.so.5 ] && ok "extracted libmodbus.so.5.1.0 has soname libmodbus.so.5" ||
     bad "extracted library soname" "got: $soname"
+# Stripping leaves the code alone: the same .text means the same build.
+text_of() { objcopy -O binary --only-section=.text "$1" "$WORK/text.bin" && md5sum <"$WORK/text.bin"; }
+if [ "$(text_of "$so")" = "$(text_of $BUILT/libmodbus.so)" ]; then
+    ok "the packaged library is the profile-guided build: its code equals $BUILT/libmodbus.so's"
+else
+    bad "the packaged library is the profile-guided build" "its .text differs from $BUILT/libmodbus.so's"
+fi
 nm -D --defined-only "$so" | awk '{print $3}' | sort >"$WORK/exported.pkg"
 if diff -q "$WORK/exported" "$WORK/exported.pkg" >/dev/null; then
-    ok "extracted library exports the $(wc -l <"$WORK/exported.pkg") symbols of target/release/libmodbus.so"
+    ok "extracted library exports the $(wc -l <"$WORK/exported.pkg") symbols of $BUILT/libmodbus.so"
 else
     bad "extracted library exports the built symbols" "$(diff "$WORK/exported" "$WORK/exported.pkg" | head)"
 fi
 if ! readelf -S "$so" | grep -q -e '\.symtab' -e '\.debug_'; then
-    ok "libmodbus.so.5.1.0 is stripped: $(stat -c %s "$so") bytes (target/release/libmodbus.so: $(stat -c %s target/release/libmodbus.so))"
+    ok "libmodbus.so.5.1.0 is stripped: $(stat -c %s "$so") bytes ($BUILT/libmodbus.so: $(stat -c %s $BUILT/libmodbus.so))"
 else
     bad "libmodbus.so.5.1.0 is stripped" "$(readelf -S "$so" | grep -e symtab -e debug_)"
 fi
 a=$RL/libmodbus.a
-a_before=$(stat -c %s target/release/libmodbus.a)
+a_before=$(stat -c %s $BUILT/libmodbus.a)
 a_after=$(stat -c %s "$a")
 extra=$(objdump -h "$a" 2>/dev/null | awk '$2 ~ /^\.(debug_|llvmbc|llvmcmd)/ {print $2}' | sort -u | tr '\n' ' ')
 if [ -z "$extra" ] && [ "$a_after" -lt "$a_before" ]; then

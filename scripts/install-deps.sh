@@ -3,7 +3,8 @@
 # libmodbus is the oracle of the differential tests; mbpoll is an unmodified
 # consumer of libmodbus5; debhelper and dpkg-dev build the .deb packages
 # (scripts/build-deb.sh). python3-venv holds the interoperability tests' pinned pymodbus
-# (scripts/run-interop-tests.sh, from PyPI).
+# (scripts/run-interop-tests.sh, from PyPI). At the end: llvm-profdata for
+# scripts/build-pgo.sh.
 set -euo pipefail
 packages=(gcc g++ make pkg-config binutils libmodbus-dev libmodbus5 socat mbpoll valgrind man-db
     python3 debhelper dpkg-dev python3-venv)
@@ -16,4 +17,19 @@ if [ ${#missing[@]} -gt 0 ]; then
     export DEBIAN_FRONTEND=noninteractive
     apt-get update -qq
     apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# llvm-profdata of rustc's own LLVM, for the profile-guided build (scripts/build-pgo.sh:
+# the Debian packages and the benchmark): rustup's llvm-tools component, else Debian's
+# llvm-N when it has rustc's version N.
+if command -v rustc >/dev/null; then
+    host=$(rustc -vV | sed -n 's/^host: //p')
+    llvm_major=$(rustc -vV | sed -n 's/^LLVM version: \([0-9]*\).*/\1/p')
+    if [ ! -x "$(rustc --print sysroot)/lib/rustlib/$host/bin/llvm-profdata" ] \
+        && ! command -v "llvm-profdata-$llvm_major" >/dev/null; then
+        echo "installing: llvm-profdata (LLVM $llvm_major)"
+        { command -v rustup >/dev/null && rustup component add llvm-tools >/dev/null 2>&1; } \
+            || apt-get install -y -qq --no-install-recommends "llvm-$llvm_major" >/dev/null \
+            || echo "install-deps.sh: no llvm-profdata for LLVM $llvm_major (scripts/build-pgo.sh needs it)" >&2
+    fi
 fi

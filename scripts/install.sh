@@ -4,7 +4,8 @@
 # debian/tmp); it is also the from-source install.
 #
 # Usage: scripts/install.sh [--prefix=DIR] [--libdir=DIR] [--includedir=DIR]
-#                           [--mandir=DIR] [--destdir=DIR] [--no-build] [--no-strip]
+#                           [--mandir=DIR] [--destdir=DIR] [--no-build] [--from=DIR]
+#                           [--no-strip]
 #   --prefix      default /usr/local
 #   --libdir      default PREFIX/lib (Debian: /usr/lib/x86_64-linux-gnu)
 #   --includedir  default PREFIX/include (headers go into INCLUDEDIR/modbus)
@@ -12,6 +13,8 @@
 #   --destdir     staging root prepended to every path (packaging); without it, and
 #                 as root, ldconfig runs at the end
 #   --no-build    use target/release as it is (no `cargo build --release`)
+#   --from=DIR    use the build in DIR as it is, e.g. target/pgo/release from
+#                 scripts/build-pgo.sh (debian/rules); implies --no-build
 #   --no-strip    keep the symbol tables and debug sections
 #
 # Installs LIBDIR/libmodbus.so.5.1.0 with the links libmodbus.so.5 and libmodbus.so,
@@ -28,6 +31,7 @@ includedir=
 mandir=
 destdir=
 build=1
+built=target/release
 do_strip=1
 for arg in "$@"; do
     case $arg in
@@ -37,6 +41,7 @@ for arg in "$@"; do
         --mandir=*) mandir=${arg#*=} ;;
         --destdir=*) destdir=${arg#*=} ;;
         --no-build) build=0 ;;
+        --from=*) built=${arg#*=}; build=0 ;;
         --no-strip) do_strip=0 ;;
         -h | --help)
             sed -n '2,/^# SPDX/p' "$0" | sed 's/^# \{0,1\}//'
@@ -55,13 +60,12 @@ mandir=${mandir:-$prefix/share/man}
 
 REAL_NAME=libmodbus.so.5.1.0
 SONAME=libmodbus.so.5
-built=target/release
 
 if [ "$build" = 1 ]; then
     cargo build --release
 fi
 for f in libmodbus.so libmodbus.a libmodbus.pc; do
-    [ -f "$built/$f" ] || { echo "install.sh: $built/$f missing; run cargo build --release" >&2; exit 1; }
+    [ -f "$built/$f" ] || { echo "install.sh: $built/$f missing; build it first" >&2; exit 1; }
 done
 soname=$(objdump -p "$built/libmodbus.so" | awk '$1 == "SONAME" {print $2}')
 if [ "$soname" != "$SONAME" ]; then

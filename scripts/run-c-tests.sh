@@ -21,7 +21,9 @@
 #   --only REGEX       only the tests whose name matches REGEX
 #   --skip-unit, --skip-mbpoll, --skip-scenarios
 #   --keep-going-logs  print every failing diff in full (default: first 40 lines)
-# Environment: MBTEST_OUT (default target/c-tests), MBTEST_PORT (first port tried, 15020)
+# Environment: MBTEST_OUT (default target/c-tests), MBTEST_PORT (first port tried, 15020),
+#   MBTEST_OURS_DIR (our library's directory, default target/release; the test command
+#   also runs Debian's unit tests against the profile-guided build, target/pgo/release)
 #
 # The last line is always "N passed, M failed"; the exit status is non-zero if M > 0.
 set -u
@@ -29,10 +31,10 @@ set -o pipefail
 
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 CT=$ROOT/c-tests
-OUT=${MBTEST_OUT:-$ROOT/target/c-tests}
+OUT=$(realpath -m "${MBTEST_OUT:-$ROOT/target/c-tests}")
 BIN=$OUT/bin
 LOGS=$OUT/logs
-OURS_DIR=$ROOT/target/release
+OURS_DIR=${MBTEST_OURS_DIR:-$ROOT/target/release}
 ALLOWED_FILE=$CT/allowed-differences.txt
 NORMALIZE=$CT/tools/normalize.awk
 
