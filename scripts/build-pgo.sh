@@ -27,10 +27,11 @@ done
 
 # A profile is read only by the LLVM major version that wrote its format.
 llvm_major=$(rustc -vV | sed -n 's/^LLVM version: \([0-9]*\).*/\1/p')
+host=$(rustc -vV | sed -n 's/^host: //p')
 [ -n "$llvm_major" ] || die "cannot tell rustc's LLVM version (rustc -vV)"
 profdata=${LLVM_PROFDATA:-}
 if [ -z "$profdata" ]; then
-    for candidate in "$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin/llvm-profdata" \
+    for candidate in "$(rustc --print sysroot)/lib/rustlib/$host/bin/llvm-profdata" \
         "$(command -v "llvm-profdata-$llvm_major" || true)"; do
         if [ -n "$candidate" ] && [ -x "$candidate" ]; then profdata=$candidate; break; fi
     done
@@ -40,17 +41,21 @@ or apt-get install llvm-$llvm_major, or set LLVM_PROFDATA"
 profdata_major=$("$profdata" --version | sed -n 's/.*LLVM version \([0-9]*\).*/\1/p')
 [ "$profdata_major" = "$llvm_major" ] || die "$profdata is LLVM $profdata_major, rustc's is LLVM $llvm_major"
 
+# With --target, RUSTFLAGS reach only the library and its dependencies, not the build
+# script, cbindgen and its own dependencies: those are neither instrumented (their runs
+# would add to the profile) nor rebuilt when the profile changes.
 raw=$out/profraw
+gen=$out/gen/$host/release
 rm -rf "$raw" "$out"/rsmodbus*.profdata
-echo "build-pgo.sh: 1/3 instrumented library ($out/gen)"
+echo "build-pgo.sh: 1/3 instrumented library ($gen)"
 RUSTFLAGS="${RUSTFLAGS:-} -Cprofile-generate=$raw" \
-    cargo build --release --locked --lib --quiet --target-dir "$out/gen"
+    cargo build --release --locked --lib --quiet --target "$host" --target-dir "$out/gen"
 
 echo "build-pgo.sh: 2/3 training run"
 # The programs are built against our own headers and linked with the instrumented
 # library, so that Debian's libmodbus-dev is not needed here.
-MB_CFLAGS="-I$PWD/include" MB_LDFLAGS="-L$out/gen/release" benches/build.sh "$out/bin"
-python3 benches/pgo-train.py "$out/bin" "$out/gen/release"
+MB_CFLAGS="-I$PWD/include" MB_LDFLAGS="-L$gen" benches/build.sh "$out/bin"
+python3 benches/pgo-train.py "$out/bin" "$gen"
 "$profdata" merge -o "$out/rsmodbus.profdata" "$raw"
 # Cargo rebuilds when RUSTFLAGS change, not when a file they name does: the profile's
 # name carries its hash.
@@ -59,7 +64,11 @@ mv "$out/rsmodbus.profdata" "$profile"
 
 echo "build-pgo.sh: 3/3 optimised library ($out/release)"
 RUSTFLAGS="${RUSTFLAGS:-} -Cprofile-use=$profile" \
-    cargo build --release --locked --lib --quiet --target-dir "$out"
+    cargo build --release --locked --lib --quiet --target "$host" --target-dir "$out/cargo"
+# DIR/release, where the other scripts look, is cargo's DIR/cargo/HOST/release. (Not
+# in cargo's own directory: there, release/ holds the build script's build.)
+[ -L "$out/release" ] || rm -rf "$out/release"
+ln -sfn "cargo/$host/release" "$out/release"
 for f in libmodbus.so libmodbus.so.5 libmodbus.a libmodbus.pc; do
     [ -e "$out/release/$f" ] || die "$out/release/$f missing after the build"
 done

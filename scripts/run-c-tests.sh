@@ -34,7 +34,7 @@ CT=$ROOT/c-tests
 OUT=$(realpath -m "${MBTEST_OUT:-$ROOT/target/c-tests}")
 BIN=$OUT/bin
 LOGS=$OUT/logs
-OURS_DIR=${MBTEST_OURS_DIR:-$ROOT/target/release}
+OURS_DIR=$(realpath -m "${MBTEST_OURS_DIR:-$ROOT/target/release}")
 ALLOWED_FILE=$CT/allowed-differences.txt
 NORMALIZE=$CT/tools/normalize.awk
 

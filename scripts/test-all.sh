@@ -55,7 +55,7 @@ ln -sf libmodbus.so target/release/libmodbus.so.5
 # over TCP): Debian's TCP unit tests run against it too, with it as client, server
 # and both. The package stage runs the examples and mbpoll on it, TCP and RTU.
 run pgo-build scripts/build-pgo.sh
-run pgo-unit env MBTEST_OURS_DIR="$PWD/target/pgo/release" MBTEST_OUT=target/c-tests-pgo \
+run pgo-unit env MBTEST_OURS_DIR=target/pgo/release MBTEST_OUT=target/c-tests-pgo \
     scripts/run-c-tests.sh --no-cargo --with-our-server --skip-mbpoll --skip-scenarios --only '^unit-test tcp$'
 [ -x scripts/run-server-tests.sh ] && run c-server scripts/run-server-tests.sh
 [ -x scripts/check-examples.sh ] && run examples scripts/check-examples.sh
