@@ -19,10 +19,9 @@ SPDX-License-Identifier: MIT OR Apache-2.0
 import os
 import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "c-tests", "common"))
-import harness  # noqa: E402
+# The benchmark's own helpers (with BENCH_PIN set, the training is pinned too).
+from bench import CASE_TITLES, PtyPair, harness, reap_client, start, wait_ready
 
-CASES = ["r125", "c2000", "w123", "wr121", "r1"]
 # Transactions per case and transport.
 COUNTS = {"tcp": int(os.environ.get("PGO_TCP_TX", "20000")), "rtu": int(os.environ.get("PGO_RTU_TX", "0"))}
 TIMEOUT = 120
@@ -32,21 +31,15 @@ def train(bin_dir, lib, transport, case, count):
     """One case: a server for exactly `count` replies and a client for `count` requests."""
     env = harness.env_for(lib)
     env.pop("BENCH_COUNTER", None)
-    pty = harness.PtyPair("rsmodbus-pgo-", 5) if transport == "rtu" else None
+    pty = PtyPair("rsmodbus-pgo-", 5) if transport == "rtu" else None
     try:
         where = pty.a if pty else "0"
-        server = harness.start([os.path.join(bin_dir, "mb-server"), transport, where, str(count)], env)
-        address = harness.wait_ready(server, f"mb-server {transport}", 10, lib)
-        client = harness.start([os.path.join(bin_dir, "bench-client"), transport, pty.b if pty else address, case,
-                                "-n", str(count), "-w", "0"], env)
-        for p, what in ((client, "bench-client"), (server, "mb-server")):
-            done = harness.wait_output(p, TIMEOUT)
-            if done is None:
-                raise RuntimeError(f"{what} {transport} {case}: no exit within {TIMEOUT} s (stopped)")
-            if p.returncode != 0:
-                raise RuntimeError(f"{what} {transport} {case}: exit {p.returncode}: {done[1].strip()}")
-            if what == "bench-client":
-                harness.check_libinfo(done[0], lib, what)
+        server = start([os.path.join(bin_dir, "mb-server"), transport, where, str(count)], env)
+        address = wait_ready(server, f"mb-server {transport}", 10, lib)
+        client = start([os.path.join(bin_dir, "bench-client"), transport, pty.b if pty else address, case,
+                        "-n", str(count), "-w", "0"], env)
+        reap_client(client, f"bench-client {transport} {case}", lib, TIMEOUT)
+        reap_client(server, f"mb-server {transport} {case}", None, TIMEOUT)
     finally:
         if pty:
             pty.close()
@@ -58,7 +51,7 @@ def main():
     bin_dir, lib_dir = (os.path.abspath(d) for d in sys.argv[1:])
     lib = f"ours:{lib_dir}"
     for transport in ("tcp", "rtu"):
-        for case in CASES if COUNTS[transport] > 0 else []:
+        for case in CASE_TITLES if COUNTS[transport] > 0 else []:
             train(bin_dir, lib, transport, case, COUNTS[transport])
             print(f"pgo-train: {transport} {case}: {COUNTS[transport]} transactions")
 

@@ -12,18 +12,17 @@
 # over TCP than `cargo build --release` (benches/README.md), with no code of its own.
 #
 # Usage: scripts/build-pgo.sh [DIR]      (default target/pgo)
+#        scripts/build-pgo.sh --find-profdata   (prints the llvm-profdata it would use;
+#                                               exit 1 without one: install-deps.sh)
 # Needs: llvm-profdata of the LLVM that rustc was built with ($LLVM_PROFDATA, rustup's
 # llvm-tools component, or Debian's llvm-N), gcc and python3.
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=$(realpath -m "${1:-target/pgo}")
 
 die() { echo "build-pgo.sh: $*" >&2; exit 1; }
 command -v cargo >/dev/null || export PATH="$HOME/.cargo/bin:$PATH"
-for tool in cargo rustc gcc python3; do
-    command -v "$tool" >/dev/null || die "$tool not found (scripts/install-deps.sh installs it)"
-done
+command -v rustc >/dev/null || die "rustc not found (rustup installs it)"
 
 # A profile is read only by the LLVM major version that wrote its format.
 llvm_major=$(rustc -vV | sed -n 's/^LLVM version: \([0-9]*\).*/\1/p')
@@ -40,6 +39,15 @@ fi
 or apt-get install llvm-$llvm_major, or set LLVM_PROFDATA"
 profdata_major=$("$profdata" --version | sed -n 's/.*LLVM version \([0-9]*\).*/\1/p')
 [ "$profdata_major" = "$llvm_major" ] || die "$profdata is LLVM $profdata_major, rustc's is LLVM $llvm_major"
+if [ "${1:-}" = --find-profdata ]; then
+    echo "$profdata"
+    exit 0
+fi
+
+out=$(realpath -m "${1:-target/pgo}")
+for tool in cargo gcc python3; do
+    command -v "$tool" >/dev/null || die "$tool not found (scripts/install-deps.sh installs it)"
+done
 
 # With --target, RUSTFLAGS reach only the library and its dependencies, not the build
 # script, cbindgen and its own dependencies: those are neither instrumented (their runs

@@ -20,13 +20,11 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 
 # llvm-profdata of rustc's own LLVM, for the profile-guided build (scripts/build-pgo.sh:
-# the Debian packages and the benchmark): rustup's llvm-tools component, else Debian's
-# llvm-N when it has rustc's version N.
+# the Debian packages and the benchmark), when build-pgo.sh finds none: rustup's
+# llvm-tools component, else Debian's llvm-N when it has rustc's version N.
 if command -v rustc >/dev/null; then
-    host=$(rustc -vV | sed -n 's/^host: //p')
-    llvm_major=$(rustc -vV | sed -n 's/^LLVM version: \([0-9]*\).*/\1/p')
-    if [ ! -x "$(rustc --print sysroot)/lib/rustlib/$host/bin/llvm-profdata" ] \
-        && ! command -v "llvm-profdata-$llvm_major" >/dev/null; then
+    if ! "$(dirname "$0")/build-pgo.sh" --find-profdata >/dev/null 2>&1; then
+        llvm_major=$(rustc -vV | sed -n 's/^LLVM version: \([0-9]*\).*/\1/p')
         echo "installing: llvm-profdata (LLVM $llvm_major)"
         { command -v rustup >/dev/null && rustup component add llvm-tools >/dev/null 2>&1; } \
             || apt-get install -y -qq --no-install-recommends "llvm-$llvm_major" >/dev/null \
