@@ -15,15 +15,14 @@
 #   --valgrind         also run every client scenario once under valgrind memcheck
 #                      loading ours (errors and definite leaks fail the test)
 #   --valgrind-only    only the valgrind runs (plus the builds)
-#   --with-our-server  also run Debian's unit tests with unit-test-server loading OUR
-#                      library (client=debian/server=ours and client=ours/server=ours)
 #   --no-cargo         do not run `cargo build --release` (use the existing build)
 #   --only REGEX       only the tests whose name matches REGEX
-#   --skip-unit, --skip-mbpoll, --skip-scenarios
+#   --skip-mbpoll, --skip-scenarios
 #   --keep-going-logs  print every failing diff in full (default: first 40 lines)
 # Environment: MBTEST_OUT (default target/c-tests), MBTEST_PORT (first port tried, 15020),
-#   MBTEST_OURS_DIR (our library's directory, default target/release; the test command
-#   also runs Debian's unit tests against the profile-guided build, target/pgo/release)
+#   MBTEST_OURS_DIR (our library's directory, default target/release)
+# Debian's own unit-test-client/server run in scripts/run-server-tests.sh (section 3),
+# every client x server library combination.
 #
 # The last line is always "N passed, M failed"; the exit status is non-zero if M > 0.
 set -u
@@ -46,8 +45,6 @@ STOP_GRACE=5
 ORACLE_ONLY=0
 VALGRIND=0
 VALGRIND_ONLY=0
-WITH_OUR_SERVER=0
-SKIP_UNIT=0
 SKIP_MBPOLL=0
 SKIP_SCEN=0
 FULL_DIFFS=0
@@ -57,8 +54,6 @@ suite_flag() {
     --oracle-only) ORACLE_ONLY=1 ;;
     --valgrind) VALGRIND=1 ;;
     --valgrind-only) VALGRIND=1; VALGRIND_ONLY=1 ;;
-    --with-our-server) WITH_OUR_SERVER=1 ;;
-    --skip-unit) SKIP_UNIT=1 ;;
     --skip-mbpoll) SKIP_MBPOLL=1 ;;
     --skip-scenarios) SKIP_SCEN=1 ;;
     --keep-going-logs) FULL_DIFFS=1 ;;
@@ -140,7 +135,6 @@ ensure_deps() {
 ALLOWED_TAGS=""
 declare -a SED_RULES=()
 declare -A SED_NAME=()
-declare -A UNIT_ALLOWED=()
 load_allowed() {
     local name kind rule reason
     while IFS='|' read -r name kind rule reason; do
@@ -148,7 +142,6 @@ load_allowed() {
         case "$kind" in
         tag) ALLOWED_TAGS="$ALLOWED_TAGS $name" ;;
         sed) SED_RULES+=("$rule"); SED_NAME[$name]=$rule ;;
-        unit) UNIT_ALLOWED[$name]=1 ;;
         *) log "bad kind '$kind' in $ALLOWED_FILE"; exit 2 ;;
         esac
     done <"$ALLOWED_FILE"
@@ -503,152 +496,6 @@ run_valgrind() {
     done
 }
 
-# ---------------------------------------------------------------- Debian's unit tests
-UNIT_DIR=
-UPORT=0
-prepare_unit_tests() {
-    UNIT_DIR=$OUT/unit
-    mkdir -p "$UNIT_DIR"
-    local ex=/usr/share/doc/libmodbus-dev/examples f
-    for f in unit-test-client.c unit-test-server.c unit-test.h; do
-        if [ -f "$ex/$f" ]; then
-            cp "$ex/$f" "$UNIT_DIR/$f"
-        elif [ -f "$ex/$f.gz" ]; then
-            gzip -dc "$ex/$f.gz" >"$UNIT_DIR/$f"
-        else
-            log "missing $ex/$f"
-            return 1
-        fi
-    done
-    local link0=$UNIT_DIR/ttyV0 link1=$UNIT_DIR/ttyV1
-    # The 3.1.6 programs hard-code port 1502 and /dev/ttyUSB0 (server) / ttyUSB1 (client).
-    sed -e "s#/dev/ttyUSB0#$link0#" -e "s/1502/$UPORT/g" "$UNIT_DIR/unit-test-server.c" >"$UNIT_DIR/uts.c"
-    sed -e "s#/dev/ttyUSB1#$link1#" -e "s/1502/$UPORT/g" "$UNIT_DIR/unit-test-client.c" >"$UNIT_DIR/utc.c"
-    # Checks that fail only in a documented 3.1.12 way are turned into
-    # "EXPECTED-3.1.12-DIFFERENCE: <name>" (see c-tests/tools/patch-unit-test-client.pl).
-    if ! perl "$CT/tools/patch-unit-test-client.pl" "$UNIT_DIR/utc.c"; then
-        log "patching unit-test-client.c failed (did Debian's file change?)"
-        return 1
-    fi
-    local mcf mlibs
-    mcf=$(pkg-config --cflags libmodbus)
-    mlibs=$(pkg-config --libs libmodbus)
-    # shellcheck disable=SC2086
-    gcc -O1 -g $mcf -I"$UNIT_DIR" -o "$UNIT_DIR/unit-test-server" "$UNIT_DIR/uts.c" $mlibs || return 1
-    # shellcheck disable=SC2086
-    gcc -O1 -g $mcf -I"$UNIT_DIR" -o "$UNIT_DIR/unit-test-client" "$UNIT_DIR/utc.c" $mlibs || return 1
-    return 0
-}
-
-# run_unit BACKEND CLIENT_LIB SERVER_LIB DIR -> sets UNIT_RC UNIT_OKS UNIT_DIFFS
-run_unit() {
-    local backend=$1 clib=$2 slib=$3 dir=$4
-    mkdir -p "$dir"
-    rm -f "$dir"/*
-    local socat_pid="" srv_pid=""
-    local preload=$BIN/libmbtest-libinfo.so
-    if [ "$backend" = rtu ]; then
-        socat_pair "$dir/socat.out" "$dir/socat.err" "$UNIT_DIR/ttyV0" "$UNIT_DIR/ttyV1" 10
-        socat_pid=$LAST_PID
-    fi
-    # shellcheck disable=SC2046
-    start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") LD_PRELOAD="$preload" \
-        MBTEST_LIBINFO="$dir/libinfo-server" "$UNIT_DIR/unit-test-server" "$backend"
-    srv_pid=$LAST_PID
-    if [ "$backend" = rtu ]; then
-        wait_pts_open "$srv_pid" 10
-        sleep 0.3
-    else
-        wait_listen "$UPORT" 10
-    fi
-    # shellcheck disable=SC2046
-    (cd "$dir" && exec timeout -k 5 120 $(lib_env "$clib") LD_PRELOAD="$preload" MBTEST_LIBINFO="$dir/libinfo-client" \
-        "$UNIT_DIR/unit-test-client" "$backend" >"$dir/client.out" 2>"$dir/client.err")
-    UNIT_RC=$?
-    stop_pid "$srv_pid"
-    stop_pid "$socat_pid"
-    # "4/6 1us response timeout" is a soft check upstream ("can fail on some
-    # platforms"): it is not counted, so that the OK counts are comparable.
-    UNIT_OKS=$(grep -a 'OK$' "$dir/client.out" | grep -avc '1us response timeout')
-    UNIT_DIFFS=$(grep -ao 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$dir/client.out" | awk '{print $2}' | sort | uniq -c | awk '{printf "%s%s(x%d)", sep, $2, $1; sep=","}')
-    UNIT_WHY=""
-    check_libinfo "$dir/libinfo-client" "$clib" || UNIT_WHY="client did not load $clib;"
-    check_libinfo "$dir/libinfo-server" "$slib" || UNIT_WHY="$UNIT_WHY server did not load $slib;"
-}
-
-declare -A UNIT_ORACLE_OKS=()
-run_unit_tests() {
-    section "Debian's unit-test-client/server (copied from libmodbus-dev examples at test time)"
-    UPORT=$(pick_port $((PORT + 10)))
-    if ! prepare_unit_tests; then
-        matrix_result "unit-test build" build FAIL
-        return
-    fi
-    matrix_result "unit-test build" build PASS
-    local backend combo
-    local combos=("debian debian")
-    if [ "$ORACLE_ONLY" = 1 ]; then
-        combos+=("debian debian")
-    else
-        combos+=("ours debian")
-        [ "$WITH_OUR_SERVER" = 1 ] && combos+=("debian ours" "ours ours")
-    fi
-    for backend in tcp tcppi rtu; do
-        local seen_oracle=0
-        for combo in "${combos[@]}"; do
-            local clib=${combo% *} slib=${combo#* }
-            local col="client=$clib/server=$slib"
-            local name="unit-test $backend"
-            if [ "$clib" = debian ] && [ "$slib" = debian ]; then
-                if [ $seen_oracle = 1 ]; then col="$col#2"; fi
-                seen_oracle=1
-            fi
-            selected "$name" || continue
-            if { [ "$clib" = ours ] || [ "$slib" = ours ]; } && [ "$OURS_AVAILABLE" = 0 ]; then
-                matrix_result "$name" "$col" FAIL "our library not built"
-                continue
-            fi
-            local dir=$LOGS/unit-$backend-client-${clib}-server-${slib}
-            [[ $col == *"#2" ]] && dir=$dir-2
-            run_unit "$backend" "$clib" "$slib" "$dir"
-            local pass_line=0
-            grep -aq "ALL TESTS PASS WITH SUCCESS" "$dir/client.out" && pass_line=1
-            local why=$UNIT_WHY
-            [ "$UNIT_RC" = 0 ] || why="$why rc=$UNIT_RC;"
-            [ $pass_line = 1 ] || why="$why no 'ALL TESTS PASS WITH SUCCESS' ($(grep -a -m1 'assertion error' "$dir/client.out" | tr -d '\n'));"
-            # Every EXPECTED-3.1.12-DIFFERENCE must be a named, allowed one, and none may
-            # appear when both sides are Debian's library.
-            local d
-            for d in $(grep -ao 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$dir/client.out" | awk '{print $2}' | sort -u); do
-                if [ "$clib" = debian ] && [ "$slib" = debian ]; then
-                    why="$why unexpected difference $d on the oracle;"
-                elif [ -z "${UNIT_ALLOWED[$d]:-}" ]; then
-                    why="$why difference $d not in allowed-differences.txt;"
-                fi
-            done
-            for d in $(grep -ao 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$dir/client.out" | awk '{print $2}' | sort -u); do
-                OBSERVED["unit:$d"]="${OBSERVED["unit:$d"]:-}${OBSERVED["unit:$d"]:+, }$name $col"
-            done
-            local ndiff
-            ndiff=$(grep -ac 'EXPECTED-3.1.12-DIFFERENCE' "$dir/client.out")
-            if [ "$clib" = debian ] && [ "$slib" = debian ]; then
-                UNIT_ORACLE_OKS[$backend]=$UNIT_OKS
-            elif [ -n "${UNIT_ORACLE_OKS[$backend]:-}" ] && [ $((UNIT_OKS + ndiff)) != "${UNIT_ORACLE_OKS[$backend]}" ]; then
-                why="$why $UNIT_OKS OK + $ndiff expected differences != ${UNIT_ORACLE_OKS[$backend]} OK of the oracle;"
-            fi
-            local detail="$UNIT_OKS OK"
-            [ -n "$UNIT_DIFFS" ] && detail="$detail; EXPECTED-3.1.12-DIFFERENCE: $UNIT_DIFFS"
-            if [ -z "$why" ]; then
-                matrix_result "$name" "$col" PASS "$detail"
-            else
-                matrix_result "$name" "$col" FAIL "$detail;$why see $dir"
-                grep -a -B3 -A1 'assertion error' "$dir/client.out" | head -n 10 | sed 's/^/    | /'
-            fi
-            grep -ao 'EXPECTED-3.1.12-DIFFERENCE: .*' "$dir/client.out" | sort | uniq -c | sed 's/^/    /'
-        done
-    done
-}
-
 # ---------------------------------------------------------------- mbpoll
 # Each case runs a list of mbpoll commands against one fresh mbtest-server.
 MBPOLL_CASES=(
@@ -780,7 +627,6 @@ log "ports: server $PORT, auxiliary (nothing listens) $AUXPORT; logs in $LOGS"
 
 if [ "$VALGRIND_ONLY" = 0 ]; then
     [ "$SKIP_SCEN" = 1 ] || run_scenarios
-    [ "$SKIP_UNIT" = 1 ] || run_unit_tests
     [ "$SKIP_MBPOLL" = 1 ] || run_mbpoll
 fi
 [ "$VALGRIND" = 1 ] && run_valgrind
@@ -795,9 +641,7 @@ if [ "$ORACLE_ONLY" = 0 ]; then
     section "allowed differences observed in this run (c-tests/allowed-differences.txt)"
     while IFS='|' read -r name kind rule reason; do
         case "$name" in '' | '#'*) continue ;; esac
-        key=$name
-        [ "$kind" = unit ] && key="unit:$name"
-        obs=${OBSERVED[$key]:-}
+        obs=${OBSERVED[$name]:-}
         # Each test name appears once per stream; keep it short.
         obs=$(tr ',' '\n' <<<"$obs" | sed 's/^ *//' | sort -u | paste -sd, - | sed 's/,/, /g')
         printf '  %-30s %-5s %s\n' "$name" "$kind" "${obs:-not observed}"

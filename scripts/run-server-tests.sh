@@ -20,17 +20,20 @@
 # Differences are allowed only when named in c-tests/server/allowed-differences.txt.
 #
 # usage: scripts/run-server-tests.sh [--no-cargo] [--no-valgrind] [--only REGEX]
-# Output goes to target/server-tests (logs/ for every run). The last line is
+# Environment: MBTEST_OURS_DIR (our library's directory, default target/release; the
+#   test command also runs section 3 against the profile-guided build, target/pgo/release),
+#   SRVTEST_OUT (default target/server-tests).
+# Output goes to SRVTEST_OUT (logs/ for every run). The last line is
 # "N passed, M failed"; the exit status is non-zero if M > 0.
 set -u
 set -o pipefail
 
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 SRC=$ROOT/c-tests/server
-OUT=${SRVTEST_OUT:-$ROOT/target/server-tests}
+OUT=$(realpath -m "${SRVTEST_OUT:-$ROOT/target/server-tests}")
 BIN=$OUT/bin
 LOGS=$OUT/logs
-OURS_DIR=$ROOT/target/release
+OURS_DIR=$(realpath -m "${MBTEST_OURS_DIR:-$ROOT/target/release}")
 ALLOWED=$SRC/allowed-differences.txt
 
 # shellcheck source=scripts/testlib.sh

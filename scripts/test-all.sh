@@ -50,14 +50,15 @@ run build cargo build --release
 ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/check-headers.sh ] && run headers scripts/check-headers.sh
 [ -x scripts/check-symbols.sh ] && run symbols scripts/check-symbols.sh
-[ -x scripts/run-c-tests.sh ] && run c-client scripts/run-c-tests.sh --valgrind --with-our-server
-# The profile-guided build is the one the packages ship (and the profile was trained
-# over TCP): Debian's TCP unit tests run against it too, with it as client, server
-# and both. The package stage runs the examples and mbpoll on it, TCP and RTU.
+[ -x scripts/run-c-tests.sh ] && run c-client scripts/run-c-tests.sh --valgrind
+# Debian's unit-test-client x unit-test-server, every library combination: section 3.
+[ -x scripts/run-server-tests.sh ] && run c-server scripts/run-server-tests.sh --no-cargo
+# The profile-guided build is the one the packages ship: Debian's unit tests run
+# against it too (TCP, TCP-PI and RTU; it as client, server and both). The package
+# stage runs the examples and mbpoll on it, TCP and RTU.
 run pgo-build scripts/build-pgo.sh
-run pgo-unit env MBTEST_OURS_DIR=target/pgo/release MBTEST_OUT=target/c-tests-pgo \
-    scripts/run-c-tests.sh --no-cargo --with-our-server --skip-mbpoll --skip-scenarios --only '^unit-test tcp$'
-[ -x scripts/run-server-tests.sh ] && run c-server scripts/run-server-tests.sh
+run pgo-unit env MBTEST_OURS_DIR=target/pgo/release SRVTEST_OUT=target/server-tests-pgo \
+    scripts/run-server-tests.sh --no-cargo --only '^unit-test '
 [ -x scripts/check-examples.sh ] && run examples scripts/check-examples.sh
 [ -x scripts/check-man.sh ] && run man scripts/check-man.sh
 [ -x scripts/check-package.sh ] && run package scripts/check-package.sh
