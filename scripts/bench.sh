@@ -3,6 +3,10 @@
 #
 #   scripts/bench.sh                 full mode (about 15 minutes)
 #   BENCH_QUICK=1 scripts/bench.sh   short mode (about 1-2 minutes)
+#   scripts/bench.sh --repeat N [CASE ...]
+#                                    the throughput of CASE (default wr121, TCP) in N
+#                                    runs with new processes each: how far a ratio
+#                                    moves between runs (benches/repeat.py)
 #
 # Prints Markdown tables (also written to target/bench/results.md): transactions/s
 # of every case over TCP loopback and an RTU pty pair, for our client, our server and
@@ -17,6 +21,12 @@
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 cd "$(dirname "$0")/.."
+program=(benches/bench.py)
+if [ "${1:-}" = --repeat ]; then
+    [ $# -ge 2 ] || { echo "usage: $0 --repeat N [CASE ...]" >&2; exit 2; }
+    shift
+    program=(benches/repeat.py "$@")
+fi
 scripts/install-deps.sh >/dev/null
 for tool in strace socat valgrind python3 gcc; do
     command -v "$tool" >/dev/null || { apt-get install -y -qq "$tool" >/dev/null; }
@@ -34,4 +44,4 @@ benches/build.sh target/bench
 # Measure a copy: a rebuild of the library during the run must not change it.
 mkdir -p target/bench/ours
 cp "$built/libmodbus.so" target/bench/ours/libmodbus.so.5
-BENCH_OURS_DIR=$PWD/target/bench/ours exec python3 benches/bench.py
+BENCH_OURS_DIR=$PWD/target/bench/ours exec python3 "${program[@]}"

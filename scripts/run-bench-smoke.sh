@@ -5,7 +5,8 @@
 # report has all its tables, and the targets judged on counts per transaction are met:
 # system calls and heap allocations, and instructions over TCP (on a pty, how the
 # bytes of a frame are split between reads depends on timing). Throughput verdicts
-# are printed, not judged: timing is never a pass/fail test here.
+# are printed, not judged: timing is never a pass/fail test here. Then two short runs
+# of the between-runs measurement (benches/repeat.py), whose report is checked too.
 #
 #   scripts/run-bench-smoke.sh    report in target/bench/smoke.md, log in target/bench/smoke.log
 #
@@ -22,11 +23,17 @@ if [ "$status" -ne 0 ]; then
     tail -n 20 target/bench/smoke.log
     echo "bench-smoke: scripts/bench.sh exited $status"
 fi
-python3 - "$report" <<'PY'
+# The between-runs measurement (scripts/bench.sh --repeat), two short runs on the
+# library bench.sh just measured.
+repeat_out=target/bench/smoke-repeat.txt
+BENCH_SECONDS=0.3 BENCH_OURS_DIR=$PWD/target/bench/ours python3 benches/repeat.py 2 r1 \
+    >"$repeat_out" 2>>target/bench/smoke.log || { status=$?; echo "bench-smoke: benches/repeat.py exited $status"; }
+python3 - "$report" "$repeat_out" <<'PY'
 import os, re, sys
 
 path = sys.argv[1]
 text = open(path).read() if os.path.exists(path) else ""
+repeat = open(sys.argv[2]).read() if os.path.exists(sys.argv[2]) else ""
 checks = []
 
 
@@ -62,6 +69,9 @@ for m in counted:
         print(f"INFO {target}: {verdict}")
     else:
         check(verdict == "met", f"{target}: {verdict}")
+check(len(re.findall(r"^  run [12]: ours/ours [0-9.]+x \(", repeat, re.M)) == 2, "repeat: two runs with their ratios")
+check(len(re.findall(r"^ +(ours/ours|waiting floor|data floor): mean [0-9.]+x, sd [0-9.]+, 95% CI of the mean ",
+                     repeat, re.M)) == 3, "repeat: mean, sd and CI over the runs for ours/ours and the two floors")
 failed = checks.count(False)
 print(f"bench-smoke: {len(checks) - failed} passed, {failed} failed")
 sys.exit(1 if failed else 0)
