@@ -41,6 +41,9 @@ def main():
         raise SystemExit(__doc__)
     runs = int(sys.argv[1])
     cases = sys.argv[2:] or ["wr121"]
+    unknown = [c for c in cases if c not in bench.CASE_TITLES]
+    if unknown:
+        raise SystemExit(f"unknown case(s) {' '.join(unknown)}: one of {' '.join(bench.CASE_TITLES)}")
     seconds = float(os.environ.get("BENCH_SECONDS", "10"))
     transports = os.environ.get("BENCH_TRANSPORTS", "tcp").split()
     if not os.path.exists(os.path.join(bench.OURS_DIR, "libmodbus.so.5")):
