@@ -21,12 +21,12 @@
 #     (c-tests/threads/mutex_cost.c, ours against Debian's lock-free libmodbus).
 #
 # What TSan does and does not prove here: it sees every access of the C program and of
-# our crate and of parking_lot (instrumented, its atomics give the happens-before edges),
+# our crate (instrumented; the context lock's atomics give the happens-before edges),
 # and the libc calls it intercepts; it does not see inside Rust's std (uninstrumented;
 # the library uses it for allocation and I/O wrappers only), and it only judges the
 # interleavings that happened in this run. helgrind/DRD are not used: they know
-# pthread primitives only, and parking_lot locks with atomics and futex calls, so every
-# access made under the lock would be reported. parking_lot's deadlock detection needs a
+# pthread primitives only, and the context lock (src/lock.rs) is atomics and futex calls,
+# so every access made under it would be reported. Deadlock detection would need a
 # checker thread inside the library (and its feature flag); the watchdog covers hangs.
 #
 # usage: scripts/run-thread-tests.sh [--no-cargo] [--no-tsan] [--long] [--ntx N]

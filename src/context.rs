@@ -2,12 +2,14 @@
 //! file descriptor. Creation and configuration rules follow libmodbus 3.1.12.
 
 use std::ffi::{CStr, CString};
+use std::sync::Arc;
 use std::time::Duration;
 
 use crate::core::frame::{Framing, MAX_ADU_LENGTH};
 use crate::core::limits::TCP_SLAVE;
 use crate::error::{Error, Result};
 use crate::stdio::{self, DebugSink};
+use crate::stop::Stop;
 
 /// `MODBUS_QUIRK_MAX_SLAVE`: accept slave ids 248..255.
 pub const QUIRK_MAX_SLAVE: u32 = 1 << 1;
@@ -162,6 +164,9 @@ pub struct Context {
     /// `s` is a TCP client socket this context connected (see [`ClientSocket`]);
     /// `None` for any other descriptor.
     pub client_socket: Option<ClientSocket>,
+    /// What a close from a signal handler or another thread needs without the lock
+    /// (see [`crate::stop`]); shared with the handle.
+    pub stop: Arc<Stop>,
 }
 
 /// A TCP client socket the context connected itself. Unlike libmodbus's, it is
@@ -219,6 +224,7 @@ impl Context {
             spare: SpareFrames::default(),
             line_nonblocking: false,
             client_socket: None,
+            stop: Arc::new(Stop::default()),
         }
     }
 
@@ -349,6 +355,22 @@ impl Context {
         self.s = fd;
         self.line_nonblocking = false;
         self.client_socket = None;
+        self.stop.set_fd(fd);
+    }
+
+    /// Gives up the descriptor (for the caller to close): -1 from now on, and no
+    /// stopper acts on its number any more (see [`Stop::set_fd`]).
+    pub fn release_descriptor(&mut self) -> i32 {
+        let fd = self.s;
+        self.set_descriptor(-1);
+        fd
+    }
+
+    /// A call must end now with EBADF: the context is being closed under it (see
+    /// [`crate::stop`]).
+    #[inline]
+    pub fn stopping(&self) -> bool {
+        self.stop.stopping()
     }
 
     /// `modbus_set_slave`.

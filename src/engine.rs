@@ -4,8 +4,6 @@
 
 use std::time::{Duration, Instant};
 
-use parking_lot::MutexGuard;
-
 use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{
@@ -15,11 +13,12 @@ use crate::core::frame::{
 use crate::core::request::{Request, next_tid};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result, strerror_modbus};
-use crate::transport::{self, rtu, tcp};
+use crate::lock::OwnerGuard;
+use crate::transport::{self, Ready, rtu, tcp};
 
 /// A locked context. Functions that may call back into the application (the custom
 /// RTS callback) take the guard so they can release the lock around the call.
-pub type Guard<'a> = MutexGuard<'a, Context>;
+pub type Guard<'a> = OwnerGuard<'a, Context>;
 
 /// One ADU buffer, large enough for any framing.
 pub type AduBuf = [u8; MAX_ADU_LENGTH];
@@ -99,8 +98,31 @@ fn flush_socket(ctx: &mut Context) -> Result<usize> {
     }
 }
 
-pub fn sleep_response_timeout(ctx: &Context) {
-    transport::sleep(ctx.response_timeout.duration());
+/// Sleeps the response timeout (error recovery); `Err(STOPPED)` as soon as the
+/// context is being closed under the call.
+pub fn sleep_response_timeout(ctx: &Context) -> Result<()> {
+    pause(ctx, ctx.response_timeout.duration())
+}
+
+/// Sleeps `d`, resuming after signals, and ends early with `Err(STOPPED)` when the
+/// context is being closed under the call (the wake-up descriptor of
+/// [`crate::stop`] ends the wait).
+pub fn pause(ctx: &Context, d: Duration) -> Result<()> {
+    let wake = ctx.stop.wake_fd();
+    let mut left = transport::to_timespec(d);
+    loop {
+        if ctx.stopping() {
+            return Err(Error::STOPPED);
+        }
+        match transport::wait_or_wake(-1, 0, wake, Some(&mut left)) {
+            Ok(Ready::TimedOut) => return Ok(()),
+            Ok(_) => ctx.stop.drain_wake(),
+            // EINTR: the kernel counted `left` down; anything else cannot happen
+            // with no descriptor of ours but an eventfd.
+            Err(e) if e.0 == libc::EINTR => {}
+            Err(_) => return Ok(()),
+        }
+    }
 }
 
 /// Drives the RTS line through the application's callback (with the context
@@ -113,15 +135,17 @@ pub fn set_rts(g: &mut Guard<'_>, on: bool) {
             let handle = g.handle_addr as *mut crate::ffi::Modbus;
             // SAFETY: the callback was registered by the application for this context
             // and receives the context pointer it registered it on, as in libmodbus.
-            MutexGuard::unlocked(g, || unsafe { callback(handle, on as libc::c_int) });
+            OwnerGuard::unlocked(g, || unsafe { callback(handle, on as libc::c_int) });
         }
         None => rtu::set_rts_line(g.s, on),
     }
 }
 
-fn sleep_us(us: i64) {
+/// The RTS sequence's sleeps (a stop cuts them short; the wait that follows the
+/// send then reports it).
+fn sleep_us(ctx: &Context, us: i64) {
     if us > 0 {
-        transport::sleep(std::time::Duration::from_micros(us as u64));
+        let _ = pause(ctx, Duration::from_micros(us as u64));
     }
 }
 
@@ -148,9 +172,9 @@ fn write_with_rts(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
     let Some(&RtuLink { rts, rts_delay, onebyte_time, .. }) = g.rtu() else { return transport::write(g.s, adu) };
     g.diag().err(format_args!("Sending request using RTS signal\n"));
     set_rts(g, rts == RTU_RTS_UP);
-    sleep_us(rts_delay as i64);
+    sleep_us(g, rts_delay as i64);
     let rc = transport::write(g.s, adu);
-    sleep_us(onebyte_time as i64 * adu.len() as i64 + rts_delay as i64);
+    sleep_us(g, onebyte_time as i64 * adu.len() as i64 + rts_delay as i64);
     set_rts(g, rts != RTU_RTS_UP);
     rc
 }
@@ -203,6 +227,9 @@ fn send_traced_or_encoded(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
 #[inline(never)]
 fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: Result<usize>) -> Result<usize> {
     loop {
+        if g.stopping() {
+            return Err(Error::STOPPED);
+        }
         match written {
             Ok(n) if n == wire.len() => return Ok(len),
             Ok(_) => return Err(Error::BAD_DATA),
@@ -213,10 +240,10 @@ fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: R
                 }
                 if matches!(e.0, libc::EBADF | libc::ECONNRESET | libc::EPIPE) {
                     close(g);
-                    sleep_response_timeout(g);
+                    sleep_response_timeout(g)?;
                     let _ = connect(g);
                 } else {
-                    sleep_response_timeout(g);
+                    sleep_response_timeout(g)?;
                     let _ = flush(g);
                 }
             }
@@ -236,11 +263,13 @@ pub enum Received {
 
 /// LINK recovery after a failed wait.
 fn recover_after_wait(ctx: &mut Context, e: Error) {
-    if ctx.error_recovery & RECOVERY_LINK == 0 {
+    if ctx.error_recovery & RECOVERY_LINK == 0 || ctx.stopping() {
         return;
     }
     if e == Error::TIMED_OUT {
-        sleep_response_timeout(ctx);
+        if sleep_response_timeout(ctx).is_err() {
+            return;
+        }
         let _ = flush(ctx);
     } else if e.0 == libc::EBADF {
         close(ctx);
@@ -250,7 +279,10 @@ fn recover_after_wait(ctx: &mut Context, e: Error) {
 
 /// LINK recovery after a failed read.
 fn recover_after_read(ctx: &mut Context, e: Error) {
-    if ctx.error_recovery & RECOVERY_LINK != 0 && matches!(e.0, libc::ECONNRESET | libc::ECONNREFUSED | libc::EBADF) {
+    if ctx.error_recovery & RECOVERY_LINK != 0
+        && !ctx.stopping()
+        && matches!(e.0, libc::ECONNRESET | libc::ECONNREFUSED | libc::EBADF)
+    {
         close(ctx);
         let _ = connect(ctx);
     }
@@ -435,6 +467,10 @@ fn receive_steps(
                 read_line(ctx.is_socket(), ctx.s, &mut buf[filled..end])
             }
         };
+        if ctx.stopping() {
+            flush_trace(ctx, &mut trace);
+            return Err(Error::STOPPED);
+        }
         match read {
             Ok(0) | Err(Error(libc::ECONNRESET)) => {
                 flush_trace(ctx, &mut trace);
@@ -482,7 +518,12 @@ fn receive_ascii(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Rec
                 recover_after_wait(ctx, e);
                 return Err(e);
             }
-            match read_line(ctx.is_socket(), ctx.s, &mut ctx.rx.buf) {
+            let read = read_line(ctx.is_socket(), ctx.s, &mut ctx.rx.buf);
+            if ctx.stopping() {
+                flush_trace(ctx, &mut trace);
+                return Err(Error::STOPPED);
+            }
+            match read {
                 Ok(0) | Err(Error(libc::ECONNRESET)) => {
                     flush_trace(ctx, &mut trace);
                     error_print(ctx, Error::CONN_RESET, Some("read"));
@@ -586,12 +627,20 @@ fn ascii_frame_is_whole(ctx: &Context, kind: MsgKind, frame: &[u8]) -> bool {
 
 /// Waits until the line is readable or the time in `budget` runs out (`None`:
 /// forever). The kernel counts `budget` down, so a later wait with the same value
-/// gets what is left, and a signal does not restart the timeout.
+/// gets what is left, and a signal does not restart the timeout. A close of the
+/// context from a signal handler or another thread ends it with `Err(STOPPED)`: a
+/// socket is shut down by the closer, a serial line's wait also watches the
+/// context's wake-up descriptor.
 fn wait_readable(ctx: &Context, mut budget: Option<&mut libc::timespec>) -> Result<()> {
+    let wake = if ctx.is_socket() { -1 } else { ctx.stop.wake_fd() };
     loop {
-        match transport::wait_counting_down(ctx.s, libc::POLLIN, budget.as_deref_mut()) {
-            Ok(true) => return Ok(()),
-            Ok(false) => return Err(Error::TIMED_OUT),
+        if ctx.stopping() {
+            return Err(Error::STOPPED);
+        }
+        match transport::wait_or_wake(ctx.s, libc::POLLIN, wake, budget.as_deref_mut()) {
+            Ok(Ready::Line) => return Ok(()),
+            Ok(Ready::TimedOut) => return Err(Error::TIMED_OUT),
+            Ok(Ready::Woken) => ctx.stop.drain_wake(),
             Err(e) if e.0 == libc::EINTR => ctx.diag().err(format_args!("A non blocked signal was caught\n")),
             Err(e) => return Err(e),
         }
@@ -829,8 +878,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
             Err(e)
         }
         Err(Rejection::Mismatch(e)) => {
-            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 {
-                sleep_response_timeout(ctx);
+            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 && sleep_response_timeout(ctx).is_ok() {
                 let _ = flush(ctx);
             }
             Err(e)
@@ -842,7 +890,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
             // errno first, then the flush, whose failed non-blocking read may
             // overwrite it: the order libmodbus has.
             transport::set_errno(e.0);
-            sleep_response_timeout(ctx);
+            sleep_response_timeout(ctx)?;
             let _ = flush(ctx);
             Err(Error::UNCHANGED)
         }
@@ -871,7 +919,7 @@ fn note_diagnostics(ctx: &mut Context, unsealed: &[u8]) {
 mod tests {
     use super::*;
     use crate::context::Timeout;
-    use parking_lot::Mutex;
+    use crate::lock::OwnerMutex as Mutex;
     use std::time::{Duration, Instant};
 
     /// A connected pair of stream sockets: (ours, peer).

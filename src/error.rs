@@ -56,6 +56,12 @@ impl Error {
     pub const INVALID: Error = Error(libc::EINVAL);
     pub const TIMED_OUT: Error = Error(libc::ETIMEDOUT);
     pub const CONN_RESET: Error = Error(libc::ECONNRESET);
+    /// The context was closed under the call (from a signal handler or another
+    /// thread; see `crate::stop`).
+    pub const STOPPED: Error = Error(libc::EBADF);
+    /// A call other than `modbus_close`, `modbus_free` and `modbus_get_socket` made
+    /// from a signal handler that interrupted a call of its thread on the same context.
+    pub const REENTERED: Error = Error(libc::EDEADLK);
     pub const CONN_REFUSED: Error = Error(libc::ECONNREFUSED);
     pub const NO_MEMORY: Error = Error(libc::ENOMEM);
     pub const NOT_SUPPORTED: Error = Error(libc::ENOTSUP);

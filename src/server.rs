@@ -80,7 +80,9 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
         Outcome::Respond { len, flush_first, suppressed, .. } => {
             if flush_first {
                 // The rest of a request libmodbus could not frame may still be arriving.
-                engine::sleep_response_timeout(g);
+                if let Err(e) = engine::sleep_response_timeout(g) {
+                    return (Err(e), Delivery::NotSent);
+                }
                 let _ = engine::flush(g);
             }
             if suppressed {

@@ -5,19 +5,20 @@ use std::ffi::{c_char, c_int, c_uint};
 use crate::context::{Context, Timeout};
 use crate::engine;
 use crate::error::{Error, strerror_modbus_c};
-use crate::ffi::{Modbus, fail, with_ctx};
+use crate::ffi::{Modbus, close_handle, fail, free_handle, with_ctx};
 
 /// Frees a context. NULL is a no-op. The connection is not closed (call
-/// `modbus_close` first), as in libmodbus.
+/// `modbus_close` first), as in libmodbus, unless a call is inside the context (a
+/// signal handler interrupted it, or another thread waits in it): then the context
+/// is closed first, the call fails with EBADF, and the memory is freed when the call
+/// has unwound.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context; it must not be used afterwards.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_free(ctx: *mut Modbus) {
-    if !ctx.is_null() {
-        // SAFETY: the caller hands back ownership of a context made by `into_handle`.
-        drop(unsafe { Box::from_raw(ctx) });
-    }
+    // SAFETY: the caller hands back ownership of a context made by `into_handle`.
+    unsafe { free_handle(ctx) }
 }
 
 /// Opens the serial line or TCP connection.
@@ -30,19 +31,17 @@ pub unsafe extern "C" fn modbus_connect(ctx: *mut Modbus) -> c_int {
     unsafe { with_ctx(ctx, |g| engine::connect(g).map(|()| 0)) }
 }
 
-/// Closes the connection. NULL is a no-op.
+/// Closes the connection. NULL is a no-op. Never waits for a call that waits on the
+/// line: from a signal handler that interrupted a call on this context, or from
+/// another thread while a call waits, the line is closed at once and that call fails
+/// with EBADF.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_close(ctx: *mut Modbus) {
     // SAFETY: forwarded caller contract.
-    unsafe {
-        with_ctx(ctx, |g| {
-            engine::close(g);
-            Ok(0)
-        })
-    };
+    unsafe { close_handle(ctx) }
 }
 
 /// Discards pending input. Returns the bytes discarded (TCP) or 0 (RTU).

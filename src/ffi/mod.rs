@@ -14,62 +14,46 @@ pub mod tcp;
 pub mod version;
 
 use std::ffi::{CStr, c_char, c_int};
-use std::ops::{Deref, DerefMut};
-use std::sync::atomic::{AtomicI32, Ordering};
-
-use parking_lot::Mutex;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
 
 use crate::context::Context;
-use crate::engine::Guard;
+use crate::engine::{self, Guard};
 use crate::error::{Error, Result};
+use crate::lock::{Entry, OwnerMutex, current_thread};
+use crate::stop::Stop;
 use crate::transport::set_errno;
 
-/// The opaque `modbus_t`. The context sits behind a mutex, so one context may be
-/// used from several threads (libmodbus contexts are not thread-safe); calls on it
-/// are serialised.
+/// The opaque `modbus_t`. The context sits behind a lock, so one context may be used
+/// from several threads (libmodbus contexts are not thread-safe); calls on it are
+/// serialised. What stopping a waiting call needs lives outside the lock, in
+/// [`Stop`]: `modbus_close` and `modbus_free` from a signal handler or another thread
+/// never wait for a call that waits on the line (see [`close_handle`]).
 pub struct Modbus {
-    ctx: Mutex<Context>,
-    /// The context's descriptor as the last call left it (see [`ContextLock`]):
-    /// `modbus_get_socket` reads it without waiting for a call another thread is
-    /// blocked in (libmodbus reads its field directly), so that a thread can, say,
-    /// `shutdown()` the socket a receive waits on.
-    socket: AtomicI32,
+    ctx: OwnerMutex<Context>,
+    stop: Arc<Stop>,
+    /// The application's reference (until `modbus_free`) plus one per call inside
+    /// the library: the last one out frees the handle, so a `modbus_free` from a
+    /// signal handler or another thread never frees it under a call.
+    refs: AtomicUsize,
 }
 
 impl Modbus {
-    /// Locks the context; the descriptor is published again when the lock ends.
-    pub fn lock(&self) -> ContextLock<'_> {
-        ContextLock { guard: self.ctx.lock(), socket: &self.socket }
+    /// Locks the context, waiting as long as it takes (tests; the exports go through
+    /// [`with_ctx`]).
+    pub fn lock(&self) -> Guard<'_> {
+        self.ctx.lock()
     }
 
-    /// The descriptor published by the last call that released the context.
+    /// The context's descriptor, read without the lock (`modbus_get_socket` answers
+    /// at once, even while another call waits, and in a signal handler).
     pub fn socket(&self) -> c_int {
-        self.socket.load(Ordering::Acquire)
+        self.stop.fd()
     }
-}
 
-/// The locked context of a [`Modbus`]; dropping it publishes the descriptor.
-pub struct ContextLock<'a> {
-    guard: Guard<'a>,
-    socket: &'a AtomicI32,
-}
-
-impl<'a> Deref for ContextLock<'a> {
-    type Target = Guard<'a>;
-    fn deref(&self) -> &Guard<'a> {
-        &self.guard
-    }
-}
-
-impl<'a> DerefMut for ContextLock<'a> {
-    fn deref_mut(&mut self) -> &mut Guard<'a> {
-        &mut self.guard
-    }
-}
-
-impl Drop for ContextLock<'_> {
-    fn drop(&mut self) {
-        self.socket.store(self.guard.s, Ordering::Release);
+    /// The stop state shared with the context.
+    pub fn stop(&self) -> &Stop {
+        &self.stop
     }
 }
 
@@ -77,8 +61,9 @@ impl Drop for ContextLock<'_> {
 pub fn into_handle(ctx: Result<Context>) -> *mut Modbus {
     match ctx {
         Ok(ctx) => {
-            let socket = AtomicI32::new(ctx.s);
-            let raw = Box::into_raw(Box::new(Modbus { ctx: Mutex::new(ctx), socket }));
+            let stop = Arc::clone(&ctx.stop);
+            let handle = Modbus { ctx: OwnerMutex::new(ctx), stop, refs: AtomicUsize::new(1) };
+            let raw = Box::into_raw(Box::new(handle));
             // SAFETY: `raw` was just created from a Box and is uniquely owned here.
             unsafe { (*raw).ctx.get_mut().handle_addr = raw as usize };
             raw
@@ -88,6 +73,92 @@ pub fn into_handle(ctx: Result<Context>) -> *mut Modbus {
             std::ptr::null_mut()
         }
     }
+}
+
+/// Takes a reference to the handle for the length of a call.
+///
+/// # Safety
+/// `ctx` must be NULL or a live handle.
+pub unsafe fn acquire<'a>(ctx: *mut Modbus) -> Option<&'a Modbus> {
+    // SAFETY: guaranteed by the caller.
+    let handle = unsafe { ctx.as_ref() }?;
+    handle.refs.fetch_add(1, SeqCst);
+    Some(handle)
+}
+
+/// Drops a reference; the last one frees the handle.
+///
+/// # Safety
+/// `ctx` must be a live handle on which the caller holds a reference, not used by the
+/// caller afterwards.
+pub unsafe fn release(ctx: *mut Modbus) {
+    // SAFETY: the caller's reference keeps the handle alive up to this decrement.
+    if unsafe { (*ctx).refs.fetch_sub(1, SeqCst) } == 1 {
+        // SAFETY: no reference is left: the application freed it and no call is in.
+        drop(unsafe { Box::from_raw(ctx) });
+    }
+}
+
+/// Closes the context of a handle whose lock is taken: by an interrupted call of
+/// this thread (we run in its signal handler: close without the lock, the call
+/// finishes the close as it unwinds), or by another thread's call (stop its waits,
+/// then close with the lock, which it gives up at once).
+fn close_busy(handle: &Modbus) {
+    if handle.ctx.holder() == current_thread() {
+        handle.stop.close_in_handler();
+        return;
+    }
+    handle.stop.begin_stop();
+    match handle.ctx.enter() {
+        Entry::Locked(mut g) => {
+            engine::close(&mut g);
+            handle.stop.note_close();
+            handle.stop.end_stop();
+        }
+        // The holder changed to this thread between the two looks: a handler of
+        // ours took the lock, so we are its interrupted call... which cannot hold
+        // the lock; handled as a handler's close all the same.
+        Entry::HeldByThisThread => {
+            handle.stop.end_stop();
+            handle.stop.close_in_handler();
+        }
+    }
+}
+
+/// `modbus_close`: at once when no call is inside; else see [`close_busy`].
+///
+/// # Safety
+/// `ctx` must be NULL or a live handle.
+pub unsafe fn close_handle(ctx: *mut Modbus) {
+    // SAFETY: guaranteed by the caller.
+    let Some(handle) = (unsafe { acquire(ctx) }) else { return };
+    match handle.ctx.try_lock() {
+        Some(mut g) => {
+            engine::close(&mut g);
+            handle.stop.note_close();
+        }
+        None => close_busy(handle),
+    }
+    // SAFETY: the reference taken above.
+    unsafe { release(ctx) };
+}
+
+/// `modbus_free`: when no call is inside, frees at once without closing, as
+/// libmodbus; when one is (a signal handler interrupted it, or another thread waits
+/// in it), closes first (see [`close_busy`]) and leaves the freeing to the last call
+/// out.
+///
+/// # Safety
+/// `ctx` must be NULL or a live handle, not used by the caller afterwards.
+pub unsafe fn free_handle(ctx: *mut Modbus) {
+    // SAFETY: guaranteed by the caller.
+    let Some(handle) = (unsafe { ctx.as_ref() }) else { return };
+    match handle.ctx.try_lock() {
+        Some(g) => drop(g),
+        None => close_busy(handle),
+    }
+    // SAFETY: the application's reference, given up here.
+    unsafe { release(ctx) };
 }
 
 /// Sets errno (unless the error says to leave it) and returns -1.
@@ -103,20 +174,48 @@ pub fn status(r: Result<c_int>) -> c_int {
     r.unwrap_or_else(fail)
 }
 
-/// Runs `f` on the locked context behind `ctx`; NULL gives -1/EINVAL.
+/// Runs `f` on the locked context behind `ctx`; NULL gives -1/EINVAL. From a signal
+/// handler that interrupted a call of its thread on the same context, -1/EDEADLK at
+/// once (waiting for the lock would never end). A call under which a signal handler
+/// closed the context finishes that close and fails with EBADF.
 ///
 /// # Safety
 /// `ctx` must be NULL or a pointer returned by a `modbus_new_*` function and not yet
 /// freed.
 pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Result<c_int>) -> c_int {
     // SAFETY: guaranteed by the caller.
-    let Some(handle) = (unsafe { ctx.as_ref() }) else {
+    let Some(handle) = (unsafe { acquire(ctx) }) else {
         return fail(Error::INVALID);
     };
-    let mut guard = handle.lock();
-    let r = f(&mut guard);
-    drop(guard);
+    let r = match handle.ctx.enter() {
+        Entry::Locked(mut g) => {
+            let r = f(&mut g);
+            match g.stop.take_handled() {
+                None => r,
+                Some(handled) => {
+                    finish_handler_close(&mut g, handled);
+                    Err(Error::STOPPED)
+                }
+            }
+        }
+        Entry::HeldByThisThread => Err(Error::REENTERED),
+    };
+    // SAFETY: the reference taken above; `handle` is not used after this.
+    unsafe { release(ctx) };
     status(r)
+}
+
+/// The rest of a close a signal handler made under the call that just ended:
+/// `handled` is the descriptor it closed (kept open on /dev/null), or -1 when it found
+/// none (the call was opening one): that one gets a whole close.
+fn finish_handler_close(g: &mut Guard<'_>, handled: i32) {
+    if g.s >= 0 && g.s == handled {
+        let fd = g.release_descriptor();
+        crate::transport::close(fd);
+    } else {
+        engine::close(g);
+    }
+    g.rx.clear();
 }
 
 /// A C string argument that may be NULL.

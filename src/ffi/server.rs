@@ -14,7 +14,7 @@ use crate::core::diagnostics::Diagnostics;
 use crate::core::reply::{Mapping, Table, request_extent};
 use crate::engine::Guard;
 use crate::error::{Error, Result};
-use crate::ffi::{Modbus, fail, status, with_ctx};
+use crate::ffi::{Modbus, fail, with_ctx};
 use crate::server_ext::ServerExt;
 use crate::transport::listen;
 
@@ -314,33 +314,53 @@ pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_in
 }
 
 /// Accepts one client on `*s` and makes it the context's socket (TCP contexts, and RTU
-/// framing over TCP). The context is not locked while waiting.
+/// framing over TCP). The context is not locked while waiting; a close of the context
+/// (from a signal handler or another thread) ends the wait with EBADF.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context; `s` NULL or a valid pointer.
 unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
     // SAFETY: guaranteed by the caller.
-    let Some(handle) = (unsafe { ctx.as_ref() }) else {
-        return fail(Error::INVALID);
-    };
-    if s.is_null() || !handle.lock().is_socket() {
-        return fail(Error::INVALID);
+    let checked = unsafe { with_ctx(ctx, |g| if s.is_null() || !g.is_socket() { Err(Error::INVALID) } else { Ok(0) }) };
+    if checked < 0 {
+        return -1;
     }
+    // SAFETY: `ctx` is live (the call above succeeded on it); the reference taken here
+    // keeps it so while the lock is not held.
+    let Some(handle) = (unsafe { crate::ffi::acquire(ctx) }) else { return fail(Error::INVALID) };
     // SAFETY: `s` is non-NULL and valid per the caller.
     let listen_fd = unsafe { *s };
-    let accepted = listen::accept(listen_fd);
-    let mut g = handle.lock();
-    status(match accepted {
-        Ok((fd, peer)) => {
-            g.set_descriptor(fd);
-            listen::report_accept(&mut g.diag(), peer.as_deref());
-            Ok(fd)
-        }
-        Err(e) => {
-            g.set_descriptor(-1);
-            Err(e)
-        }
-    })
+    let stop = handle.stop();
+    let closes = stop.closes();
+    stop.set_accepting(true);
+    let accepted = listen::accept(listen_fd, stop, closes);
+    stop.set_accepting(false);
+    // SAFETY: forwarded caller contract.
+    let rc = unsafe {
+        with_ctx(ctx, |g| match accepted {
+            Ok((fd, _)) if g.stop.closes() != closes => {
+                // Closed while the client was being accepted.
+                crate::transport::close(fd);
+                Err(Error::STOPPED)
+            }
+            Ok((fd, peer)) => {
+                g.set_descriptor(fd);
+                listen::report_accept(&mut g.diag(), peer.as_deref());
+                Ok(fd)
+            }
+            Err(e) => {
+                // As libmodbus: the context's socket is accept's -1, unless the
+                // context was closed while waiting (nothing left to change).
+                if g.stop.closes() == closes {
+                    g.set_descriptor(-1);
+                }
+                Err(e)
+            }
+        })
+    };
+    // SAFETY: the reference taken above.
+    unsafe { crate::ffi::release(ctx) };
+    rc
 }
 
 /// Accepts one client on the listening socket `*s`; the new socket becomes the

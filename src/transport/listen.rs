@@ -11,8 +11,9 @@ use std::mem::{size_of, zeroed};
 use crate::context::{Context, Link};
 use crate::core::Diag;
 use crate::error::{Error, Result};
+use crate::stop::Stop;
 use crate::transport::tcp::{AddrInfo, gai_error, inet_pton};
-use crate::transport::{close, last_error};
+use crate::transport::{Ready, close, last_error, wait_or_wake};
 
 unsafe extern "C" {
     /// POSIX `inet_ntop` (not bound by the libc crate).
@@ -158,19 +159,44 @@ fn peer_text(addr: &libc::sockaddr_storage) -> Option<String> {
 }
 
 /// Accepts one client on `listen_fd` (close-on-exec, blocking, no TCP_NODELAY, as
-/// libmodbus). Returns the new descriptor and the peer's address text.
-pub fn accept(listen_fd: i32) -> Result<(i32, Option<String>)> {
-    // SAFETY: all-zero is a valid sockaddr_storage.
-    let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
-    let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
-    // SAFETY: `addr`/`len` are live locals describing a buffer of `len` bytes.
-    let fd = unsafe {
-        libc::accept4(listen_fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len, libc::SOCK_CLOEXEC)
-    };
-    if fd < 0 {
-        return Err(last_error());
+/// libmodbus). Returns the new descriptor and the peer's address text. Signals do not
+/// end the wait (with `SA_RESTART` or without); a close of the context does
+/// (`stop.closes()` moves past `closes`): `Err(STOPPED)`.
+pub fn accept(listen_fd: i32, stop: &Stop, closes: u32) -> Result<(i32, Option<String>)> {
+    if listen_fd < 0 {
+        // What accept4 says (ppoll would skip a negative descriptor and wait on).
+        return Err(Error(libc::EBADF));
     }
-    Ok((fd, peer_text(&addr)))
+    let wake = stop.wake_fd();
+    loop {
+        if stop.closes() != closes {
+            return Err(Error::STOPPED);
+        }
+        match wait_or_wake(listen_fd, libc::POLLIN, wake, None) {
+            Ok(Ready::Line) => {}
+            Ok(_) => {
+                stop.drain_wake();
+                continue;
+            }
+            Err(e) if e.0 == libc::EINTR => continue,
+            Err(e) => return Err(e),
+        }
+        // SAFETY: all-zero is a valid sockaddr_storage.
+        let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
+        let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+        // SAFETY: `addr`/`len` are live locals describing a buffer of `len` bytes.
+        let fd = unsafe {
+            libc::accept4(listen_fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len, libc::SOCK_CLOEXEC)
+        };
+        if fd >= 0 {
+            return Ok((fd, peer_text(&addr)));
+        }
+        let e = last_error();
+        // Taken by another process first (a non-blocking listener), or a signal.
+        if e.0 != libc::EAGAIN && e.0 != libc::EINTR {
+            return Err(e);
+        }
+    }
 }
 
 /// Prints libmodbus 3.1.12's accept message.

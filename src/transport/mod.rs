@@ -44,16 +44,39 @@ pub fn wait(fd: i32, events: libc::c_short, timeout: Option<Duration>) -> Result
 /// timeout, every wait of one message shares the response timeout). Reusing the same
 /// value across waits therefore needs no clock reads in user space.
 pub fn wait_counting_down(fd: i32, events: libc::c_short, timeout: Option<&mut libc::timespec>) -> Result<bool> {
-    let mut pfd = libc::pollfd { fd, events, revents: 0 };
+    match wait_or_wake(fd, events, -1, timeout)? {
+        Ready::Line => Ok(true),
+        Ready::TimedOut | Ready::Woken => Ok(false),
+    }
+}
+
+/// What [`wait_or_wake`] saw.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ready {
+    /// `fd` has the events asked for (or an error or hang-up to report).
+    Line,
+    /// `wake` became readable first.
+    Woken,
+    TimedOut,
+}
+
+/// One `ppoll` on `fd` (skipped when negative, so that the call is a sleep) and, when
+/// `wake` is not negative, on `wake` for input; the kernel counts `timeout` down.
+/// `Err` carries the errno (EINTR included, for the caller to decide).
+pub fn wait_or_wake(fd: i32, events: libc::c_short, wake: i32, timeout: Option<&mut libc::timespec>) -> Result<Ready> {
+    let mut pfds =
+        [libc::pollfd { fd, events, revents: 0 }, libc::pollfd { fd: wake, events: libc::POLLIN, revents: 0 }];
+    let nfds = 1 + (wake >= 0) as usize;
     let ts_ptr = timeout.map_or(std::ptr::null_mut(), |t| t as *mut libc::timespec);
     // SAFETY: the raw ppoll system call (glibc's wrapper declares the timeout const,
-    // though the kernel updates it): `pfd` is one valid pollfd; `ts_ptr` is NULL or
-    // points at a live, writable timespec; no signal mask.
+    // though the kernel updates it): `pfds` holds `nfds` valid pollfds (a negative
+    // descriptor is ignored by the kernel); `ts_ptr` is NULL or points at a live,
+    // writable timespec; no signal mask.
     let rc = unsafe {
         libc::syscall(
             libc::SYS_ppoll,
-            &mut pfd as *mut libc::pollfd,
-            1 as libc::nfds_t,
+            pfds.as_mut_ptr(),
+            nfds as libc::nfds_t,
             ts_ptr,
             std::ptr::null::<libc::sigset_t>(),
             8usize,
@@ -61,9 +84,10 @@ pub fn wait_counting_down(fd: i32, events: libc::c_short, timeout: Option<&mut l
     };
     match rc {
         -1 => Err(last_error()),
-        0 => Ok(false),
-        _ if pfd.revents & libc::POLLNVAL != 0 => Err(Error(libc::EBADF)),
-        _ => Ok(true),
+        0 => Ok(Ready::TimedOut),
+        _ if pfds[0].revents & libc::POLLNVAL != 0 => Err(Error(libc::EBADF)),
+        _ if pfds[0].revents != 0 => Ok(Ready::Line),
+        _ => Ok(Ready::Woken),
     }
 }
 
@@ -112,9 +136,4 @@ pub fn write(fd: i32, buf: &[u8]) -> Result<usize> {
 pub fn close(fd: i32) {
     // SAFETY: closing a descriptor number has no memory-safety preconditions.
     unsafe { libc::close(fd) };
-}
-
-/// Sleeps the whole duration, resuming after signals.
-pub fn sleep(d: Duration) {
-    std::thread::sleep(d);
 }

@@ -106,6 +106,7 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
     // SAFETY: `saved` is a live termios.
     unsafe { libc::tcgetattr(fd, &mut saved) };
     link.saved_termios = Some(saved);
+    ctx.stop.save_line(&saved);
 
     let speed = speed_for(link.baud).unwrap_or_else(|| {
         diag.err(format_args!("WARNING Unknown baud rate {} (B9600 used)\n", link.baud));
@@ -129,12 +130,13 @@ pub fn close_line(ctx: &mut Context) {
     if ctx.s < 0 {
         return;
     }
+    ctx.stop.forget_line();
+    let fd = ctx.release_descriptor();
     if let Some(saved) = ctx.rtu().and_then(|l| l.saved_termios) {
         // SAFETY: `saved` is the termios read at connect time.
-        unsafe { libc::tcsetattr(ctx.s, libc::TCSANOW, &saved) };
+        unsafe { libc::tcsetattr(fd, libc::TCSANOW, &saved) };
     }
-    close(ctx.s);
-    ctx.set_descriptor(-1);
+    close(fd);
 }
 
 /// Discards both directions of the line (`tcflush(TCIOFLUSH)`).

@@ -211,9 +211,9 @@ pub fn set_receive_timeout(fd: i32, timeout: Duration) -> Result<()> {
 /// `modbus_close` for TCP: shut down both directions, then close.
 pub fn close_socket(ctx: &mut Context) {
     if ctx.s >= 0 {
+        let fd = ctx.release_descriptor();
         // SAFETY: shutdown on a descriptor number has no memory preconditions.
-        unsafe { libc::shutdown(ctx.s, libc::SHUT_RDWR) };
-        close(ctx.s);
-        ctx.set_descriptor(-1);
+        unsafe { libc::shutdown(fd, libc::SHUT_RDWR) };
+        close(fd);
     }
 }
