@@ -64,6 +64,8 @@ run pgo-unit env MBTEST_OURS_DIR=target/pgo/release SRVTEST_OUT=target/server-te
 [ -x scripts/check-package.sh ] && run package scripts/check-package.sh
 [ -x scripts/run-interop-tests.sh ] && run interop scripts/run-interop-tests.sh --no-cargo
 [ -x scripts/run-thread-tests.sh ] && run threads scripts/run-thread-tests.sh --no-cargo
+# Stopping a waiting call from a signal handler or another thread (issue 19).
+[ -x scripts/run-stop-tests.sh ] && run stop scripts/run-stop-tests.sh --no-cargo
 [ -x scripts/run-extended-tests.sh ] && run c-extended scripts/run-extended-tests.sh
 [ -x scripts/run-fault-tests.sh ] && run faults scripts/run-fault-tests.sh
 [ -x scripts/run-soak.sh ] && run soak scripts/run-soak.sh

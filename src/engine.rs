@@ -133,9 +133,19 @@ pub fn set_rts(g: &mut Guard<'_>, on: bool) {
     match link.custom_rts {
         Some(callback) => {
             let handle = g.handle_addr as *mut crate::ffi::Modbus;
+            // The handle must outlive the callback, which may free it (or a signal
+            // handler may, meanwhile): a reference held across it.
+            let stop = std::sync::Arc::clone(&g.stop);
+            stop.refs.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
             // SAFETY: the callback was registered by the application for this context
             // and receives the context pointer it registered it on, as in libmodbus.
             OwnerGuard::unlocked(g, || unsafe { callback(handle, on as libc::c_int) });
+            if stop.refs.fetch_sub(1, std::sync::atomic::Ordering::SeqCst) == 1 {
+                // `modbus_free` came meanwhile: the handle is ours to free, when this
+                // call releases the lock (see `OwnerGuard::release`).
+                stop.refs.store(1, std::sync::atomic::Ordering::SeqCst);
+                OwnerGuard::raise_flag(g);
+            }
         }
         None => rtu::set_rts_line(g.s, on),
     }

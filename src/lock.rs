@@ -6,28 +6,39 @@
 //! record their owner after taking the lock leave a window in which a handler sees the
 //! lock taken and no owner; here taking the lock and naming the owner are one
 //! compare-and-swap of the owner's thread id, so the answer is exact at every
-//! instruction. Waiting threads sleep on a futex sequence word.
+//! instruction.
+//!
+//! The word: the owner's thread id (a pointer, so its two low bits are free), bit 0
+//! set when threads may be sleeping on the word (a futex on its low 32 bits), bit 1 a
+//! flag the owner's own signal handler may raise for the owner to find when it
+//! unlocks ([`OwnerGuard::release`]). Locking and unlocking are one atomic
+//! instruction each when nobody waits, and unlocking touches no memory after the
+//! swap that frees the lock, so the lock may be freed by whoever takes it next.
 
 use std::cell::UnsafeCell;
 use std::ops::{Deref, DerefMut};
-use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering::SeqCst};
+use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
 
 /// The calling thread's id: `pthread_self`, a read of the thread pointer in glibc
-/// (no system call, usable in a signal handler), never 0 for a live thread.
+/// (no system call, usable in a signal handler), never 0 for a live thread and
+/// aligned far beyond 4.
 #[inline]
 pub fn current_thread() -> usize {
     // SAFETY: pthread_self has no preconditions.
-    unsafe { libc::pthread_self() as usize }
+    let me = unsafe { libc::pthread_self() } as usize;
+    debug_assert!(me != 0 && me & LOW_BITS == 0);
+    me
 }
+
+/// Threads may sleep on the word: the unlock wakes one.
+const CONTENDED: usize = 1;
+/// Raised by the owner's signal handler (see [`OwnerMutex::raise_flag`]).
+const FLAG: usize = 2;
+const LOW_BITS: usize = CONTENDED | FLAG;
 
 /// A mutual-exclusion lock over `T` that knows which thread holds it.
 pub struct OwnerMutex<T> {
-    /// 0 when free, else the holder's [`current_thread`].
-    owner: AtomicUsize,
-    /// Threads sleeping (or about to) in [`OwnerMutex::lock_slow`].
-    waiters: AtomicU32,
-    /// The futex word the waiters sleep on; bumped by each unlock that finds waiters.
-    seq: AtomicU32,
+    word: AtomicUsize,
     value: UnsafeCell<T>,
 }
 
@@ -42,19 +53,14 @@ unsafe impl<T: Send> Sync for OwnerMutex<T> {}
 pub enum Entry<'a, T> {
     /// The lock is ours now.
     Locked(OwnerGuard<'a, T>),
-    /// A call of this very thread holds it: we run inside a signal handler (or a
-    /// callback) that interrupted that call.
+    /// A call of this very thread holds it: we run inside a signal handler that
+    /// interrupted that call.
     HeldByThisThread,
 }
 
 impl<T> OwnerMutex<T> {
     pub const fn new(value: T) -> Self {
-        OwnerMutex {
-            owner: AtomicUsize::new(0),
-            waiters: AtomicU32::new(0),
-            seq: AtomicU32::new(0),
-            value: UnsafeCell::new(value),
-        }
+        OwnerMutex { word: AtomicUsize::new(0), value: UnsafeCell::new(value) }
     }
 
     pub fn get_mut(&mut self) -> &mut T {
@@ -65,12 +71,18 @@ impl<T> OwnerMutex<T> {
     #[inline]
     pub fn try_lock(&self) -> Option<OwnerGuard<'_, T>> {
         let me = current_thread();
-        self.owner.compare_exchange(0, me, SeqCst, SeqCst).ok().map(|_| OwnerGuard { lock: self })
+        self.word.compare_exchange(0, me, SeqCst, SeqCst).ok().map(|_| OwnerGuard { lock: self })
     }
 
     /// The thread holding the lock, or 0.
     pub fn holder(&self) -> usize {
-        self.owner.load(SeqCst)
+        self.word.load(SeqCst) & !LOW_BITS
+    }
+
+    /// Raises the flag that the holder's [`OwnerGuard::release`] returns. Only for a
+    /// signal handler of the holding thread (the holder cannot change under it).
+    pub fn raise_flag(&self) {
+        self.word.fetch_or(FLAG, SeqCst);
     }
 
     /// Takes the lock, waiting for another thread to release it; never waits for this
@@ -78,16 +90,18 @@ impl<T> OwnerMutex<T> {
     #[inline]
     pub fn enter(&self) -> Entry<'_, T> {
         let me = current_thread();
-        match self.owner.compare_exchange(0, me, SeqCst, SeqCst) {
+        match self.word.compare_exchange(0, me, SeqCst, SeqCst) {
             Ok(_) => Entry::Locked(OwnerGuard { lock: self }),
-            Err(holder) if holder == me => Entry::HeldByThisThread,
-            Err(_) => self.lock_slow(me),
+            Err(word) if word & !LOW_BITS == me => Entry::HeldByThisThread,
+            Err(_) => {
+                self.lock_slow(me);
+                Entry::Locked(OwnerGuard { lock: self })
+            }
         }
     }
 
     /// Takes the lock, waiting as long as it takes. Only for code that cannot run
-    /// while this thread holds the lock (tests, and `modbus_free` of a context no call
-    /// is inside).
+    /// while this thread holds the lock (tests).
     pub fn lock(&self) -> OwnerGuard<'_, T> {
         match self.enter() {
             Entry::Locked(g) => g,
@@ -95,55 +109,68 @@ impl<T> OwnerMutex<T> {
         }
     }
 
+    /// Waits for another thread to release the lock and takes it (marked contended:
+    /// others may still wait, and its unlock must wake them).
     #[cold]
-    fn lock_slow(&self, me: usize) -> Entry<'_, T> {
-        self.waiters.fetch_add(1, SeqCst);
+    fn lock_slow(&self, me: usize) {
+        let mut word = self.word.load(SeqCst);
         loop {
-            let seen = self.seq.load(SeqCst);
-            match self.owner.compare_exchange(0, me, SeqCst, SeqCst) {
-                Ok(_) => break,
-                // Only possible when a signal handler of this thread runs while this
-                // very wait is interrupted and took the lock itself: impossible, as
-                // a handler never keeps a context locked; checked all the same.
-                Err(holder) if holder == me => {
-                    self.waiters.fetch_sub(1, SeqCst);
-                    return Entry::HeldByThisThread;
+            if word == 0 {
+                match self.word.compare_exchange(0, me | CONTENDED, SeqCst, SeqCst) {
+                    Ok(_) => return,
+                    Err(now) => word = now,
                 }
-                Err(_) => futex_wait(&self.seq, seen),
+                continue;
             }
+            if word & CONTENDED == 0 {
+                if let Err(now) = self.word.compare_exchange(word, word | CONTENDED, SeqCst, SeqCst) {
+                    word = now;
+                    continue;
+                }
+                word |= CONTENDED;
+            }
+            futex_wait(&self.word, word);
+            word = self.word.load(SeqCst);
         }
-        self.waiters.fetch_sub(1, SeqCst);
-        Entry::Locked(OwnerGuard { lock: self })
     }
 
+    /// Releases the lock; returns the word it had.
     #[inline]
-    fn unlock(&self) {
-        self.owner.store(0, SeqCst);
-        if self.waiters.load(SeqCst) != 0 {
-            self.seq.fetch_add(1, SeqCst);
-            futex_wake(&self.seq);
+    fn unlock(&self) -> usize {
+        let word = self.word.swap(0, SeqCst);
+        if word & CONTENDED != 0 {
+            futex_wake(&self.word);
         }
+        word
     }
 }
 
-/// Sleeps while `word` holds `expected` (or until a wake or a signal).
-fn futex_wait(word: &AtomicU32, expected: u32) {
-    // SAFETY: FUTEX_WAIT_PRIVATE reads the live, aligned u32 behind `word`; no timeout.
+/// The address of the word's low 32 bits, which the futex calls watch.
+fn futex_addr(word: &AtomicUsize) -> *mut u32 {
+    let base = word.as_ptr().cast::<u32>();
+    if cfg!(target_endian = "big") && size_of::<usize>() == 8 { base.wrapping_add(1) } else { base }
+}
+
+/// Sleeps while the low 32 bits of `word` hold those of `expected` (or until a wake
+/// or a signal).
+fn futex_wait(word: &AtomicUsize, expected: usize) {
+    // SAFETY: FUTEX_WAIT_PRIVATE reads the live, aligned u32 inside `word`; no timeout.
     unsafe {
         libc::syscall(
             libc::SYS_futex,
-            word.as_ptr(),
+            futex_addr(word),
             libc::FUTEX_WAIT | libc::FUTEX_PRIVATE_FLAG,
-            expected,
+            expected as u32,
             std::ptr::null::<libc::timespec>(),
         )
     };
 }
 
-/// Wakes one thread sleeping on `word`.
-fn futex_wake(word: &AtomicU32) {
-    // SAFETY: FUTEX_WAKE_PRIVATE only uses the address of the live u32 as a key.
-    unsafe { libc::syscall(libc::SYS_futex, word.as_ptr(), libc::FUTEX_WAKE | libc::FUTEX_PRIVATE_FLAG, 1) };
+/// Wakes one thread sleeping on `word`. The kernel only uses the address as a key
+/// (a private futex), so the word may already be freed by the next owner.
+fn futex_wake(word: &AtomicUsize) {
+    // SAFETY: FUTEX_WAKE_PRIVATE does not access the memory at the address.
+    unsafe { libc::syscall(libc::SYS_futex, futex_addr(word), libc::FUTEX_WAKE | libc::FUTEX_PRIVATE_FLAG, 1) };
 }
 
 /// The locked value; dropping it releases the lock.
@@ -151,22 +178,32 @@ pub struct OwnerGuard<'a, T> {
     lock: &'a OwnerMutex<T>,
 }
 
-impl<T> OwnerGuard<'_, T> {
+impl<'a, T> OwnerGuard<'a, T> {
+    /// Releases the lock; true when the holder's signal handler raised the flag
+    /// ([`OwnerMutex::raise_flag`]) meanwhile. The lock is not touched afterwards.
+    pub fn release(self) -> bool {
+        let lock = self.lock;
+        std::mem::forget(self);
+        lock.unlock() & FLAG != 0
+    }
+
+    /// Raises the flag that [`OwnerGuard::release`] returns.
+    pub fn raise_flag(g: &Self) {
+        g.lock.raise_flag();
+    }
+
     /// Runs `f` with the lock released (so that `f` may call back into the library
-    /// with the same context), and takes it again afterwards.
+    /// with the same context), and takes it again afterwards. A flag raised before
+    /// is kept for the final release.
     pub fn unlocked<R>(g: &mut Self, f: impl FnOnce() -> R) -> R {
-        g.lock.unlock();
+        let flag = g.lock.unlock() & FLAG;
         let r = f();
         let me = current_thread();
-        match g.lock.owner.compare_exchange(0, me, SeqCst, SeqCst) {
-            Ok(_) => {}
-            Err(_) => {
-                if let Entry::HeldByThisThread = g.lock.lock_slow(me) {
-                    // `f` returned with the lock taken by a call of this thread:
-                    // a call left it locked, which no call does.
-                    panic!("context lock left taken by a callback");
-                }
-            }
+        if g.lock.word.compare_exchange(0, me, SeqCst, SeqCst).is_err() {
+            g.lock.lock_slow(me);
+        }
+        if flag != 0 {
+            g.lock.raise_flag();
         }
         r
     }
@@ -212,6 +249,16 @@ mod tests {
     }
 
     #[test]
+    fn the_flag_reaches_the_release_only() {
+        let m = OwnerMutex::new(());
+        let g = m.lock();
+        m.raise_flag();
+        assert_eq!(m.holder(), current_thread());
+        assert!(g.release());
+        assert!(!m.lock().release());
+    }
+
+    #[test]
     fn unlocked_lets_another_thread_in() {
         let m = Arc::new(OwnerMutex::new(0u32));
         let mut g = m.lock();
@@ -243,6 +290,6 @@ mod tests {
             t.join().unwrap();
         }
         assert_eq!(*m.lock(), 160_000);
-        assert_eq!(m.waiters.load(SeqCst), 0);
+        assert_eq!(m.word.load(SeqCst), 0);
     }
 }

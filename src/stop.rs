@@ -23,6 +23,10 @@ use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering::SeqCst};
 
 /// The stop state of one context (see the module documentation).
 pub struct Stop {
+    /// References to the handle that keep it from being freed: the application's
+    /// (until `modbus_free`), plus one per `modbus_tcp_accept` waiting unlocked and
+    /// per custom RTS callback running with the lock released. The last one out frees.
+    pub refs: AtomicU32,
     fd: AtomicI32,
     /// Stoppers shutting `fd` down right now: the descriptor may not be closed or
     /// replaced until they are done (its number could be reused under them).
@@ -51,6 +55,7 @@ unsafe impl Send for Stop {}
 impl Default for Stop {
     fn default() -> Self {
         Stop {
+            refs: AtomicU32::new(1),
             fd: AtomicI32::new(-1),
             shutting: AtomicU32::new(0),
             stoppers: AtomicU32::new(0),

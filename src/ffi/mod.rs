@@ -15,7 +15,7 @@ pub mod version;
 
 use std::ffi::{CStr, c_char, c_int};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
+use std::sync::atomic::Ordering::SeqCst;
 
 use crate::context::Context;
 use crate::engine::{self, Guard};
@@ -29,13 +29,15 @@ use crate::transport::set_errno;
 /// serialised. What stopping a waiting call needs lives outside the lock, in
 /// [`Stop`]: `modbus_close` and `modbus_free` from a signal handler or another thread
 /// never wait for a call that waits on the line (see [`close_handle`]).
+///
+/// The handle is freed when the last reference goes (`Stop::refs`): the
+/// application's, given up by `modbus_free`, and those of calls that run without the
+/// lock for a while. A `modbus_free` from a signal handler that interrupted a call on
+/// the context hands the application's reference to that call, through the lock
+/// word's flag (see [`unlock_call`]).
 pub struct Modbus {
     ctx: OwnerMutex<Context>,
     stop: Arc<Stop>,
-    /// The application's reference (until `modbus_free`) plus one per call inside
-    /// the library: the last one out frees the handle, so a `modbus_free` from a
-    /// signal handler or another thread never frees it under a call.
-    refs: AtomicUsize,
 }
 
 impl Modbus {
@@ -62,8 +64,7 @@ pub fn into_handle(ctx: Result<Context>) -> *mut Modbus {
     match ctx {
         Ok(ctx) => {
             let stop = Arc::clone(&ctx.stop);
-            let handle = Modbus { ctx: OwnerMutex::new(ctx), stop, refs: AtomicUsize::new(1) };
-            let raw = Box::into_raw(Box::new(handle));
+            let raw = Box::into_raw(Box::new(Modbus { ctx: OwnerMutex::new(ctx), stop }));
             // SAFETY: `raw` was just created from a Box and is uniquely owned here.
             unsafe { (*raw).ctx.get_mut().handle_addr = raw as usize };
             raw
@@ -75,14 +76,14 @@ pub fn into_handle(ctx: Result<Context>) -> *mut Modbus {
     }
 }
 
-/// Takes a reference to the handle for the length of a call.
+/// Takes a reference to the handle, for a call that waits without the lock.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live handle.
 pub unsafe fn acquire<'a>(ctx: *mut Modbus) -> Option<&'a Modbus> {
     // SAFETY: guaranteed by the caller.
     let handle = unsafe { ctx.as_ref() }?;
-    handle.refs.fetch_add(1, SeqCst);
+    handle.stop.refs.fetch_add(1, SeqCst);
     Some(handle)
 }
 
@@ -93,31 +94,46 @@ pub unsafe fn acquire<'a>(ctx: *mut Modbus) -> Option<&'a Modbus> {
 /// caller afterwards.
 pub unsafe fn release(ctx: *mut Modbus) {
     // SAFETY: the caller's reference keeps the handle alive up to this decrement.
-    if unsafe { (*ctx).refs.fetch_sub(1, SeqCst) } == 1 {
+    // SAFETY: as above.
+    let handle = unsafe { &*ctx };
+    if handle.stop.refs.fetch_sub(1, SeqCst) == 1 {
         // SAFETY: no reference is left: the application freed it and no call is in.
         drop(unsafe { Box::from_raw(ctx) });
     }
 }
 
-/// Closes the context of a handle whose lock is taken: by an interrupted call of
-/// this thread (we run in its signal handler: close without the lock, the call
-/// finishes the close as it unwinds), or by another thread's call (stop its waits,
-/// then close with the lock, which it gives up at once).
-fn close_busy(handle: &Modbus) {
-    if handle.ctx.holder() == current_thread() {
-        handle.stop.close_in_handler();
-        return;
+/// Releases the lock a call took on `ctx`; when a `modbus_free` handed the
+/// application's reference to this call meanwhile (the lock word's flag), gives it up,
+/// which may free the handle. Nothing of the handle is touched afterwards.
+///
+/// # Safety
+/// `g` must be the lock of the live handle `ctx`.
+unsafe fn unlock_call(ctx: *mut Modbus, g: Guard<'_>) {
+    if g.release() {
+        // SAFETY: the reference handed over with the flag.
+        unsafe { release(ctx) };
     }
+}
+
+/// Closes the context of a handle whose lock another thread holds: stops its waits,
+/// then closes with the lock, which the waiting call gives up at once.
+///
+/// # Safety
+/// `ctx` must be a live handle.
+unsafe fn close_under_other_thread(ctx: *mut Modbus) {
+    // SAFETY: guaranteed by the caller.
+    let handle = unsafe { &*ctx };
     handle.stop.begin_stop();
     match handle.ctx.enter() {
         Entry::Locked(mut g) => {
             engine::close(&mut g);
             handle.stop.note_close();
             handle.stop.end_stop();
+            // SAFETY: `g` is the lock of `ctx`.
+            unsafe { unlock_call(ctx, g) };
         }
-        // The holder changed to this thread between the two looks: a handler of
-        // ours took the lock, so we are its interrupted call... which cannot hold
-        // the lock; handled as a handler's close all the same.
+        // Cannot happen (the holder was another thread, and a handler of ours never
+        // keeps the lock); a handler's close all the same.
         Entry::HeldByThisThread => {
             handle.stop.end_stop();
             handle.stop.close_in_handler();
@@ -125,28 +141,32 @@ fn close_busy(handle: &Modbus) {
     }
 }
 
-/// `modbus_close`: at once when no call is inside; else see [`close_busy`].
+/// `modbus_close`. When no call is inside the context, an ordinary close; when a call
+/// of this thread is (we run in a signal handler that interrupted it), the close
+/// without the lock of `Stop::close_in_handler`, finished by that call as it unwinds;
+/// when another thread's call is, see [`close_under_other_thread`].
 ///
 /// # Safety
 /// `ctx` must be NULL or a live handle.
 pub unsafe fn close_handle(ctx: *mut Modbus) {
     // SAFETY: guaranteed by the caller.
-    let Some(handle) = (unsafe { acquire(ctx) }) else { return };
+    let Some(handle) = (unsafe { ctx.as_ref() }) else { return };
     match handle.ctx.try_lock() {
         Some(mut g) => {
             engine::close(&mut g);
             handle.stop.note_close();
+            // SAFETY: `g` is the lock of `ctx`.
+            unsafe { unlock_call(ctx, g) };
         }
-        None => close_busy(handle),
+        None if handle.ctx.holder() == current_thread() => handle.stop.close_in_handler(),
+        // SAFETY: `ctx` is live.
+        None => unsafe { close_under_other_thread(ctx) },
     }
-    // SAFETY: the reference taken above.
-    unsafe { release(ctx) };
 }
 
-/// `modbus_free`: when no call is inside, frees at once without closing, as
-/// libmodbus; when one is (a signal handler interrupted it, or another thread waits
-/// in it), closes first (see [`close_busy`]) and leaves the freeing to the last call
-/// out.
+/// `modbus_free`: when no call is inside, frees without closing, as libmodbus; when
+/// one is, closes first (as [`close_handle`]) and leaves the freeing to the last
+/// reference: from a signal handler, the interrupted call frees as it unwinds.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live handle, not used by the caller afterwards.
@@ -155,7 +175,13 @@ pub unsafe fn free_handle(ctx: *mut Modbus) {
     let Some(handle) = (unsafe { ctx.as_ref() }) else { return };
     match handle.ctx.try_lock() {
         Some(g) => drop(g),
-        None => close_busy(handle),
+        None if handle.ctx.holder() == current_thread() => {
+            handle.stop.close_in_handler();
+            handle.ctx.raise_flag();
+            return;
+        }
+        // SAFETY: `ctx` is live.
+        None => unsafe { close_under_other_thread(ctx) },
     }
     // SAFETY: the application's reference, given up here.
     unsafe { release(ctx) };
@@ -184,24 +210,25 @@ pub fn status(r: Result<c_int>) -> c_int {
 /// freed.
 pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Result<c_int>) -> c_int {
     // SAFETY: guaranteed by the caller.
-    let Some(handle) = (unsafe { acquire(ctx) }) else {
+    let Some(handle) = (unsafe { ctx.as_ref() }) else {
         return fail(Error::INVALID);
     };
     let r = match handle.ctx.enter() {
         Entry::Locked(mut g) => {
             let r = f(&mut g);
-            match g.stop.take_handled() {
+            let r = match g.stop.take_handled() {
                 None => r,
                 Some(handled) => {
                     finish_handler_close(&mut g, handled);
                     Err(Error::STOPPED)
                 }
-            }
+            };
+            // SAFETY: `g` is the lock of `ctx`; `handle` is not used after this.
+            unsafe { unlock_call(ctx, g) };
+            r
         }
         Entry::HeldByThisThread => Err(Error::REENTERED),
     };
-    // SAFETY: the reference taken above; `handle` is not used after this.
-    unsafe { release(ctx) };
     status(r)
 }
 
