@@ -43,9 +43,9 @@ run() {
 scripts/install-deps.sh || { echo "installing dependencies failed"; exit 1; }
 command -v bc >/dev/null || { apt-get install -y -qq bc >/dev/null 2>&1 || true; }
 
-run fmt cargo fmt --check
-run clippy cargo clippy --all-targets -- -D warnings
-run unit-tests cargo test --lib
+run fmt cargo fmt --all --check
+run clippy cargo clippy --workspace --all-targets -- -D warnings
+run unit-tests cargo test --workspace --lib
 run build cargo build --release
 ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/check-headers.sh ] && run headers scripts/check-headers.sh

@@ -17,14 +17,15 @@
 #[cfg(all(not(panic = "abort"), not(test)))]
 compile_error!("rsmodbus must be built with panic = \"abort\" (see the panic policy in src/lib.rs)");
 
+/// The protocol crate, under the name the library's modules use.
+pub use rsmodbus_proto as core;
+pub use rsmodbus_proto::{error, server_ext};
+
 pub mod context;
-pub mod core;
 pub mod engine;
-pub mod error;
 pub mod ffi;
 pub mod lock;
 pub mod server;
-pub mod server_ext;
 pub mod stdio;
 pub mod stop;
 pub mod transport;

@@ -213,7 +213,7 @@ def configured_diagnostics(c, transport):
     """Counters and event log after known traffic, decoded by pymodbus.
 
     Expected values follow the protocol and rsmodbus's documented rules
-    (src/core/diagnostics.rs): a frame counts on the bus when read, a request counts
+    (proto/src/diagnostics.rs): a frame counts on the bus when read, a request counts
     as a server message and logs a receive event (0x80, +0x20 in listen-only mode)
     before it is processed, and a send event (0x40, +0x01 for exceptions 1-3, +0x20 in
     listen-only mode) when done; the comm event counter counts requests completed

@@ -137,3 +137,26 @@ pub fn close(fd: i32) {
     // SAFETY: closing a descriptor number has no memory-safety preconditions.
     unsafe { libc::close(fd) };
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::error::errno;
+
+    #[test]
+    fn the_protocol_crates_errno_numbers_are_libcs() {
+        let pairs = [
+            (errno::EBADF, libc::EBADF),
+            (errno::ENOMEM, libc::ENOMEM),
+            (errno::EINVAL, libc::EINVAL),
+            (errno::EDEADLK, libc::EDEADLK),
+            (errno::ENOPROTOOPT, libc::ENOPROTOOPT),
+            (errno::ENOTSUP, libc::ENOTSUP),
+            (errno::ECONNRESET, libc::ECONNRESET),
+            (errno::ETIMEDOUT, libc::ETIMEDOUT),
+            (errno::ECONNREFUSED, libc::ECONNREFUSED),
+        ];
+        for (ours, libc) in pairs {
+            assert_eq!(ours, libc);
+        }
+    }
+}

@@ -3,10 +3,25 @@
 //! libmodbus reports every failure as `-1` (or NULL) plus an `errno` value: either a
 //! system code (`EINVAL`, `ETIMEDOUT`, ...) or one of its own codes above
 //! `MODBUS_ENOBASE`. [`Error`] is exactly that number, so the core can speak the C
-//! convention without knowing about the C layer, and the FFI maps it in one place
-//! (`crate::ffi::errno`).
+//! convention without knowing about the C layer, and the C layer sets it in one
+//! place. The system codes are Linux's numbers ([`errno`]): this crate has no libc,
+//! and the library crate checks them against its libc in a unit test.
 
 use core::fmt;
+
+/// The Linux `errno` numbers this crate names (asm-generic/errno*.h; the library's
+/// tests compare each with libc's).
+pub mod errno {
+    pub const EBADF: i32 = 9;
+    pub const ENOMEM: i32 = 12;
+    pub const EINVAL: i32 = 22;
+    pub const EDEADLK: i32 = 35;
+    pub const ENOPROTOOPT: i32 = 92;
+    pub const ENOTSUP: i32 = 95;
+    pub const ECONNRESET: i32 = 104;
+    pub const ETIMEDOUT: i32 = 110;
+    pub const ECONNREFUSED: i32 = 111;
+}
 
 /// libmodbus's base for its own error numbers ("random number to avoid errno conflicts").
 pub const MODBUS_ENOBASE: i32 = 112_345_678;
@@ -53,18 +68,18 @@ impl Error {
     /// Fail with -1 but leave errno as it is (libmodbus does this in a few places,
     /// e.g. receiving on a context that is not connected).
     pub const UNCHANGED: Error = Error(0);
-    pub const INVALID: Error = Error(libc::EINVAL);
-    pub const TIMED_OUT: Error = Error(libc::ETIMEDOUT);
-    pub const CONN_RESET: Error = Error(libc::ECONNRESET);
+    pub const INVALID: Error = Error(errno::EINVAL);
+    pub const TIMED_OUT: Error = Error(errno::ETIMEDOUT);
+    pub const CONN_RESET: Error = Error(errno::ECONNRESET);
     /// The context was closed under the call (from a signal handler or another
-    /// thread; see `crate::stop`).
-    pub const STOPPED: Error = Error(libc::EBADF);
+    /// thread; see the library's `stop` module).
+    pub const STOPPED: Error = Error(errno::EBADF);
     /// A call other than `modbus_close`, `modbus_free` and `modbus_get_socket` made
     /// from a signal handler that interrupted a call of its thread on the same context.
-    pub const REENTERED: Error = Error(libc::EDEADLK);
-    pub const CONN_REFUSED: Error = Error(libc::ECONNREFUSED);
-    pub const NO_MEMORY: Error = Error(libc::ENOMEM);
-    pub const NOT_SUPPORTED: Error = Error(libc::ENOTSUP);
+    pub const REENTERED: Error = Error(errno::EDEADLK);
+    pub const CONN_REFUSED: Error = Error(errno::ECONNREFUSED);
+    pub const NO_MEMORY: Error = Error(errno::ENOMEM);
+    pub const NOT_SUPPORTED: Error = Error(errno::ENOTSUP);
     pub const BAD_CRC: Error = Error(EMBBADCRC);
     pub const BAD_DATA: Error = Error(EMBBADDATA);
     pub const BAD_EXCEPTION: Error = Error(EMBBADEXC);

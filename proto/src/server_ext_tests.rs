@@ -3,10 +3,10 @@
 //! shape (short, long, wrong counts, out of range).
 
 use super::*;
-use crate::core::Recorded;
-use crate::core::ascii::lrc;
-use crate::core::crc::crc16;
-use crate::core::reply::{Table, Tables};
+use crate::Recorded;
+use crate::ascii::lrc;
+use crate::crc::crc16;
+use crate::reply::{Table, Tables};
 
 const T: Framing = Framing::Tcp;
 const R: Framing = Framing::Rtu;
@@ -232,7 +232,7 @@ fn unconfigured_functions_keep_libmodbus_answers() {
     // FC 07 unconfigured stays silent with ENOPROTOOPT, diagnostics or not.
     let mut e = with_diagnostics();
     let s = ask(&mut e, R, &[0x07]);
-    assert_eq!(s.answer.outcome, Outcome::Fail(Error(libc::ENOPROTOOPT)));
+    assert_eq!(s.answer.outcome, Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT)));
     assert!(s.silent());
     // ... and it counts as no response, not as a completed message.
     assert_eq!(counter(&mut e, 0x0F), 1);
@@ -986,7 +986,7 @@ fn truncated_and_empty_requests() {
 /// panic, no answer longer than the framing allows, only exceptions 1-3.
 #[test]
 fn random_requests_never_misbehave() {
-    let mut rng = crate::core::test_rng::XorShift::new(0x9E37_79B9_7F4A_7C15);
+    let mut rng = crate::test_rng::XorShift::new(0x9E37_79B9_7F4A_7C15);
     let mut next = || rng.next_u64();
     let mut e = files();
     e.enable_diagnostics(true);

@@ -1,10 +1,10 @@
 //! Client requests: argument checks and encoding, as libmodbus 3.1.12 does them.
 
-use crate::core::data::registers_to_be;
-use crate::core::frame::Framing;
-use crate::core::limits::*;
-use crate::core::{Diag, fc};
+use crate::data::registers_to_be;
 use crate::error::{Error, Result};
+use crate::frame::Framing;
+use crate::limits::*;
+use crate::{Diag, fc};
 
 /// A request a client can send. Addresses and counts are the C `int`s the caller
 /// gave; on the wire they are truncated to 16 bits as libmodbus does.
@@ -210,7 +210,7 @@ impl Request<'_> {
                 p + 2
             }
             Request::ReadDeviceId { read_code, object_id } => {
-                out[p] = crate::core::frame::MEI_READ_DEVICE_ID;
+                out[p] = crate::frame::MEI_READ_DEVICE_ID;
                 out[p + 1] = read_code;
                 out[p + 2] = object_id;
                 p + 3
@@ -227,8 +227,8 @@ pub fn next_tid(tid: u16) -> u16 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::Recorded;
-    use crate::core::frame::MAX_ADU_LENGTH;
+    use crate::Recorded;
+    use crate::frame::MAX_ADU_LENGTH;
 
     fn encode(framing: Framing, req: Request<'_>) -> Vec<u8> {
         let mut buf = [0u8; MAX_ADU_LENGTH];

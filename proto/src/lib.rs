@@ -1,19 +1,27 @@
-//! The sans-I/O protocol engine: pure functions over byte slices.
+//! rsmodbus-proto: the Modbus protocol of rsmodbus, without I/O.
 //!
-//! Nothing in here opens a socket, reads a clock or uses `unsafe`; time and I/O are
-//! the caller's business (`crate::transport`, `crate::engine`). Debug text that
-//! libmodbus would print is handed to a [`Diag`] sink so that tests can read it.
+//! Framing (RTU, ASCII, TCP; RTU over TCP is RTU framing on a stream), CRC and LRC,
+//! message lengths, request encoding, response checks, and the server's replies with
+//! every extension beyond libmodbus (diagnostics, files, FIFO, device
+//! identification). Pure functions over byte slices: nothing in here opens a
+//! socket, reads a clock, calls libc or uses `unsafe` (forbidden below); time and I/O
+//! are the library's business. Debug text that libmodbus would print is handed to a
+//! [`Diag`] sink so that tests can read it.
+
+#![forbid(unsafe_code)]
 
 pub mod ascii;
 pub mod confirm;
 pub mod crc;
 pub mod data;
 pub mod diagnostics;
+pub mod error;
 pub mod frame;
 pub mod reply;
 pub mod request;
 #[cfg(test)]
 mod seed_vectors;
+pub mod server_ext;
 #[cfg(test)]
 pub mod test_rng;
 

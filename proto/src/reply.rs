@@ -13,12 +13,12 @@
 //! the sleep-and-flush for "illegal number of values" and unknown functions, then the
 //! send, unless an RTU broadcast suppresses it.
 
-use crate::core::crc::{crc16, stored_crc};
-use crate::core::data::{registers_from_be, registers_to_be};
-use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind, data_length, extended_length, is_extended, meta_length};
-use crate::core::limits::*;
-use crate::core::{Diag, fc};
+use crate::crc::{crc16, stored_crc};
+use crate::data::{registers_from_be, registers_to_be};
 use crate::error::{Error, exception};
+use crate::frame::{Framing, MAX_ADU_LENGTH, MsgKind, data_length, extended_length, is_extended, meta_length};
+use crate::limits::*;
+use crate::{Diag, fc};
 
 /// The version libmodbus reports in the report-slave-id payload (`"LMB" + version`).
 pub const VERSION_STRING: &str = "3.1.12";
@@ -474,7 +474,7 @@ impl Server {
                 } else if let Some(first) = table.range(address, nb) {
                     let bits = &mut table.data[first..first + nb as usize];
                     match req.get(h + 6..h + 6 + bits.len().div_ceil(8)) {
-                        Some(packed) => crate::core::data::set_bits_from_bytes(bits, packed),
+                        Some(packed) => crate::data::set_bits_from_bytes(bits, packed),
                         None => {
                             for (k, bit) in bits.iter_mut().enumerate() {
                                 *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
@@ -541,7 +541,7 @@ impl Server {
             fc::READ_EXCEPTION_STATUS => {
                 // libmodbus through 3.1.12 answers nothing at all.
                 diag.err(format_args!("FIXME Not implemented\n"));
-                return Outcome::Fail(Error(libc::ENOPROTOOPT));
+                return Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT));
             }
             fc::MASK_WRITE_REGISTER => {
                 let table = mapping.registers();
@@ -623,8 +623,8 @@ impl Server {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core::Recorded;
-    use crate::core::crc::crc16;
+    use crate::Recorded;
+    use crate::crc::crc16;
     use crate::error::*;
 
     const T: Framing = Framing::Tcp;
@@ -755,7 +755,7 @@ mod tests {
 
     #[test]
     fn the_register_read_shortcut_answers_like_the_general_path() {
-        let mut rng = crate::core::test_rng::XorShift::new(0x5851_F42D_4C95_7F2D);
+        let mut rng = crate::test_rng::XorShift::new(0x5851_F42D_4C95_7F2D);
         let mut next = || rng.next_u64();
         let mut taken = 0;
         for round in 0..50_000 {
@@ -782,7 +782,7 @@ mod tests {
             };
             taken += 1;
             let mut out = [0u8; MAX_ADU_LENGTH];
-            let general = server.reply_general(&req, req_length, &mut fx.tables(), &mut crate::core::Silent, &mut out);
+            let general = server.reply_general(&req, req_length, &mut fx.tables(), &mut crate::Silent, &mut out);
             assert_eq!(fast, general, "{framing:?} {req:02x?} {req_length}");
             let Outcome::Respond { len, .. } = general else { unreachable!() };
             assert_eq!(fast_out[..len], out[..len], "{framing:?} {req:02x?}");
@@ -792,7 +792,7 @@ mod tests {
 
     #[test]
     fn pack_bits_matches_the_bit_by_bit_rule() {
-        let mut rng = crate::core::test_rng::XorShift::new(0x9E37_79B9_7F4A_7C15);
+        let mut rng = crate::test_rng::XorShift::new(0x9E37_79B9_7F4A_7C15);
         for round in 0..9_000 {
             let seed = rng.next_u64();
             // Short tables, then tables long enough for the 64-value blocks.
@@ -815,13 +815,13 @@ mod tests {
             let slow: Vec<u8> = bits.chunks(8).map(pack_unmasked).collect();
             assert_eq!(&fast[..n], &slow[..], "{bits:?}");
             let mut back = vec![0xAAu8; len];
-            crate::core::data::set_bits_from_bytes(&mut back, &slow);
+            crate::data::set_bits_from_bytes(&mut back, &slow);
             let expected: Vec<u8> = (0..len).map(|i| (slow[i / 8] >> (i % 8)) & 1).collect();
             assert_eq!(back, expected);
             // Fewer packed bytes than the bits asked for: the rest is left alone.
             let short = &slow[..slow.len() / 2];
             let mut back = vec![0xAAu8; len];
-            crate::core::data::set_bits_from_bytes(&mut back, short);
+            crate::data::set_bits_from_bytes(&mut back, short);
             let covered = (short.len() * 8).min(len);
             assert_eq!(back[..covered], expected[..covered]);
             assert!(back[covered..].iter().all(|&b| b == 0xAA));
@@ -1226,7 +1226,7 @@ mod tests {
         let s = run(T, req, &mut fx);
         assert_eq!(s.pdu(T)[..2], [0x11, 0x0B]);
         let s = run(T, &adu(T, 0xFF, &[0x07]), &mut fx);
-        assert_eq!(s.outcome, Outcome::Fail(Error(libc::ENOPROTOOPT)));
+        assert_eq!(s.outcome, Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT)));
         // A bare 7-byte header, and nothing at all: function 0 (unknown).
         let s = run(T, &req[..7], &mut fx);
         assert_exception(&s, T, 0, 1, true, "Unknown Modbus function code: 0x0\n");
@@ -1243,12 +1243,12 @@ mod tests {
         for framing in [T, R] {
             let mut fx = Fixture::unit_test();
             let s = exc(framing, &[0x07], &mut fx);
-            assert_eq!(s.outcome, Outcome::Fail(Error(libc::ENOPROTOOPT)));
+            assert_eq!(s.outcome, Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT)));
             assert_eq!(s.diag.err, "FIXME Not implemented\n");
             assert!(s.sent.is_empty());
             // Even as an RTU broadcast: the failure comes before the suppression.
             let s = run(framing, &adu(framing, 0, &[0x07]), &mut fx);
-            assert_eq!(s.outcome, Outcome::Fail(Error(libc::ENOPROTOOPT)));
+            assert_eq!(s.outcome, Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT)));
         }
     }
 
@@ -1535,7 +1535,7 @@ mod tests {
         assert_eq!(ext(R, true, &three_words, big), 12, "no length given: the CRC search, as modbus_receive frames it");
         // ASCII diagnostics: the received length when the caller gives it.
         let mut ascii = vec![1, 0x08, 0, 0, 1, 2, 3, 4];
-        ascii.push(crate::core::ascii::lrc(&ascii));
+        ascii.push(crate::ascii::lrc(&ascii));
         assert_eq!(ext(Framing::Ascii, true, &ascii, ascii.len()), 9);
         assert_eq!(ext(Framing::Ascii, true, &ascii, big), 7);
         assert_eq!(ext(Framing::Ascii, false, &ascii, ascii.len()), 3);
@@ -1546,7 +1546,7 @@ mod tests {
     /// libmodbus uses come out.
     #[test]
     fn random_requests_never_misbehave() {
-        let mut rng = crate::core::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);
+        let mut rng = crate::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);
         let mut next = || rng.next_u64();
         let functions = [0u8, 1, 2, 3, 4, 5, 6, 7, 8, 0x0F, 0x10, 0x11, 0x16, 0x17, 0x2B, 0x83];
         for round in 0..20_000 {

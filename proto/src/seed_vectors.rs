@@ -3,12 +3,12 @@
 //! the document prints, the framing of request and answer, the answer accepted for
 //! its request, and the same frames in ASCII form with their LRC.
 
-use crate::core::ascii;
-use crate::core::confirm::{self, Rejection};
-use crate::core::crc::crc16;
-use crate::core::frame::{Assembler, Framing, MsgKind, Progress};
-use crate::core::{Recorded, Silent};
+use crate::ascii;
+use crate::confirm::{self, Rejection};
+use crate::crc::crc16;
 use crate::error::{EMBXILADD, Error};
+use crate::frame::{Assembler, Framing, MsgKind, Progress};
+use crate::{Recorded, Silent};
 
 /// (request, answer) as printed, CRC included. Where the page lost a byte to its
 /// layout (FC 0F: the byte count of the request and the first CRC byte of the

@@ -21,7 +21,7 @@
 //! are not affected.
 //!
 //! Pure logic, like `core::reply`: the request is a byte slice, the answer is
-//! written into an ADU buffer, and the caller ([`crate::server`]) does the I/O,
+//! written into an ADU buffer, and the caller (the library's `server` module) does the I/O,
 //! then reports how it went with [`ServerExt::complete`] so that the diagnostics
 //! counters and the event log follow what really happened on the line.
 //!
@@ -32,12 +32,12 @@
 
 use std::collections::BTreeMap;
 
-use crate::core::diagnostics::{Delivery, Diagnostics, sub};
-use crate::core::frame::{Framing, MAX_ADU_LENGTH, MEI_READ_DEVICE_ID};
-use crate::core::limits::{BROADCAST_ADDRESS, MAX_PDU_LENGTH};
-use crate::core::reply::{Mapping, Outcome, QUIRK_REPLY_TO_BROADCAST, Server, exception_response};
-use crate::core::{Diag, fc};
+use crate::diagnostics::{Delivery, Diagnostics, sub};
 use crate::error::{Error, Result, exception};
+use crate::frame::{Framing, MAX_ADU_LENGTH, MEI_READ_DEVICE_ID};
+use crate::limits::{BROADCAST_ADDRESS, MAX_PDU_LENGTH};
+use crate::reply::{Mapping, Outcome, QUIRK_REPLY_TO_BROADCAST, Server, exception_response};
+use crate::{Diag, fc};
 
 /// Records per file: numbers 0..=9999.
 pub const MAX_FILE_RECORDS: usize = 10_000;

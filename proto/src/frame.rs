@@ -5,9 +5,9 @@
 //! three steps, exactly as libmodbus does (the MBAP length field is never trusted):
 //! see [`Assembler`].
 
-use crate::core::crc::{crc16, stored_crc};
-use crate::core::fc;
+use crate::crc::{crc16, stored_crc};
 use crate::error::{Error, Result};
+use crate::fc;
 
 /// Largest ADU of any framing (TCP: 7 + 253).
 pub const MAX_ADU_LENGTH: usize = 260;
@@ -44,7 +44,7 @@ impl Framing {
     pub const fn max_adu_length(self) -> usize {
         match self {
             Framing::Rtu => RTU_MAX_ADU_LENGTH,
-            Framing::Ascii => crate::core::ascii::MAX_DECODED,
+            Framing::Ascii => crate::ascii::MAX_DECODED,
             Framing::Tcp => TCP_MAX_ADU_LENGTH,
         }
     }
@@ -82,7 +82,7 @@ impl Framing {
                 len + 2
             }
             Framing::Ascii => {
-                buf[len] = crate::core::ascii::lrc(&buf[..len]);
+                buf[len] = crate::ascii::lrc(&buf[..len]);
                 len + 1
             }
             Framing::Tcp => {
@@ -349,7 +349,7 @@ impl Assembler {
     /// more word, up to the largest ADU.
     fn search_crc(&mut self, buf: &[u8]) -> Progress {
         let frame = &buf[..self.length];
-        let matches = crate::core::crc::stored_crc(frame) == Some(crate::core::crc::crc16(&frame[..frame.len() - 2]));
+        let matches = crate::crc::stored_crc(frame) == Some(crate::crc::crc16(&frame[..frame.len() - 2]));
         if matches || self.length + 2 > self.framing.max_adu_length() {
             self.crc_search = false;
             return Progress::Complete(self.length);
@@ -515,7 +515,7 @@ mod tests {
     /// the assembler would need more bytes, fail, or run its extended step.
     #[test]
     fn complete_length_agrees_with_the_assembler() {
-        let mut rng = crate::core::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);
+        let mut rng = crate::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);
         let mut next = || rng.next_u64();
         let mut whole = 0;
         for round in 0..60_000 {

@@ -1,9 +1,9 @@
 //! Client side: validating a response against the request that caused it
 //! (libmodbus's `check_confirmation`, 3.1.12 semantics).
 
-use crate::core::frame::Framing;
-use crate::core::{Diag, fc};
 use crate::error::{Error, exception};
+use crate::frame::Framing;
+use crate::{Diag, fc};
 
 /// Why a response was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -284,7 +284,7 @@ mod tests {
     #[test]
     fn the_fast_accept_agrees_with_the_full_check() {
         use super::*;
-        let mut rng = crate::core::test_rng::XorShift::new(0xD1B5_4A32_D192_ED03);
+        let mut rng = crate::test_rng::XorShift::new(0xD1B5_4A32_D192_ED03);
         let mut next = || rng.next_u64();
         let mut accepted = 0;
         for round in 0..100_000 {
@@ -319,7 +319,7 @@ mod tests {
             }
             if let Some(n) = accept_read(framing, &req, &rsp) {
                 accepted += 1;
-                let full = check_fully(framing, &req, &rsp, &mut crate::core::Silent);
+                let full = check_fully(framing, &req, &rsp, &mut crate::Silent);
                 assert_eq!(full, Ok(n), "{framing:?} req {req:02x?} rsp {rsp:02x?}");
             }
         }
@@ -327,10 +327,10 @@ mod tests {
     }
 
     use super::*;
-    use crate::core::Recorded;
-    use crate::core::frame::MAX_ADU_LENGTH;
-    use crate::core::request::Request;
+    use crate::Recorded;
     use crate::error::*;
+    use crate::frame::MAX_ADU_LENGTH;
+    use crate::request::Request;
 
     fn tcp_req(req: Request<'_>) -> Vec<u8> {
         let mut buf = [0u8; MAX_ADU_LENGTH];
@@ -350,7 +350,7 @@ mod tests {
 
     fn rtu(frame: &[u8]) -> Vec<u8> {
         let mut v = frame.to_vec();
-        v.extend(crate::core::crc::crc16(frame).to_le_bytes());
+        v.extend(crate::crc::crc16(frame).to_le_bytes());
         v
     }
 
@@ -491,7 +491,7 @@ mod tests {
         // Fuzz finding F3 (ASCII): byte count 0xFF with 11 bytes in the frame.
         let req = [0x11, 0x11, 0xDE];
         let mut rsp = vec![0x11, 0x11, 0xFF, 0xB4, 0xFF, b'L', b'M', b'B', b'3', b'.', b'1', b'.', b'1', b'2'];
-        rsp.push(crate::core::ascii::lrc(&rsp));
+        rsp.push(crate::ascii::lrc(&rsp));
         let refused = check(Framing::Ascii, &req, &rsp, &mut Recorded::default());
         assert_eq!(refused, Err(Rejection::Mismatch(Error::BAD_DATA)));
         rsp[2] = 11;
