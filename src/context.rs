@@ -49,8 +49,10 @@ impl Timeout {
     }
 }
 
-/// The application's RTS callback (`modbus_rtu_set_custom_rts`).
-pub type RtsCallback = unsafe extern "C" fn(ctx: *mut crate::ffi::Modbus, on: libc::c_int);
+/// The application's RTS callback (`modbus_rtu_set_custom_rts`), as the C layer
+/// wraps it: called with the line's new state, it calls the application's function
+/// with the context pointer it was registered on.
+pub type RtsHook = std::sync::Arc<dyn Fn(bool) + Send + Sync>;
 
 /// Serial line settings and state.
 pub struct RtuLink {
@@ -67,7 +69,7 @@ pub struct RtuLink {
     /// Microseconds to send one character at this speed and format.
     pub onebyte_time: i32,
     /// `None` means the built-in ioctl that drives the RTS line.
-    pub custom_rts: Option<RtsCallback>,
+    pub custom_rts: Option<RtsHook>,
     /// Set when a request for another slave was seen on a shared bus: its answer
     /// comes next and must be skipped.
     pub confirmation_to_ignore: bool,
@@ -141,8 +143,6 @@ pub struct Context {
     pub indication_timeout: Timeout,
     /// Last transaction id used (TCP).
     pub t_id: u16,
-    /// Address of the owning `modbus_t`, handed to a custom RTS callback.
-    pub handle_addr: usize,
     /// Read-ahead of the client side (see [`ReadAhead`]).
     pub rx: ReadAhead,
     /// The server answers function codes beyond libmodbus (set by the server
@@ -216,7 +216,6 @@ impl Context {
             byte_timeout: Timeout::new(0, 500_000),
             indication_timeout: Timeout::new(0, 0),
             t_id: 0,
-            handle_addr: 0,
             rx: ReadAhead::new(),
             serves_extended: false,
             diagnostics_sent: None,

@@ -12,7 +12,7 @@ use crate::core::frame::{
 };
 use crate::core::request::{Request, next_tid};
 use crate::core::{Diag, ascii};
-use crate::error::{Error, Result, strerror_modbus};
+use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
 use crate::transport::{self, Ready, rtu, tcp};
 
@@ -36,16 +36,7 @@ pub fn error_print(ctx: &Context, error: Error, context: Option<&str>) {
     }
 }
 
-/// `modbus_strerror` as an owned string.
-pub fn describe(errnum: i32) -> String {
-    match strerror_modbus(errnum) {
-        Some(s) => s.to_owned(),
-        None => {
-            // SAFETY: strerror returns a valid NUL-terminated string; we copy it at once.
-            unsafe { std::ffi::CStr::from_ptr(libc::strerror(errnum)) }.to_string_lossy().into_owned()
-        }
-    }
-}
+pub use crate::transport::describe;
 
 /// `modbus_connect`.
 pub fn connect(ctx: &mut Context) -> Result<()> {
@@ -130,16 +121,13 @@ pub fn pause(ctx: &Context, d: Duration) -> Result<()> {
 /// built-in ioctl.
 pub fn set_rts(g: &mut Guard<'_>, on: bool) {
     let Some(link) = g.rtu() else { return };
-    match link.custom_rts {
-        Some(callback) => {
-            let handle = g.handle_addr as *mut crate::ffi::Modbus;
+    match link.custom_rts.clone() {
+        Some(hook) => {
             // The handle must outlive the callback, which may free it (or a signal
             // handler may, meanwhile): a reference held across it.
             let stop = std::sync::Arc::clone(&g.stop);
             stop.refs.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-            // SAFETY: the callback was registered by the application for this context
-            // and receives the context pointer it registered it on, as in libmodbus.
-            OwnerGuard::unlocked(g, || unsafe { callback(handle, on as libc::c_int) });
+            OwnerGuard::unlocked(g, || hook(on));
             if stop.refs.fetch_sub(1, std::sync::atomic::Ordering::SeqCst) == 1 {
                 // `modbus_free` came meanwhile: the handle is ours to free, when this
                 // call releases the lock (see `OwnerGuard::release`).

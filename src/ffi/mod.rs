@@ -64,10 +64,7 @@ pub fn into_handle(ctx: Result<Context>) -> *mut Modbus {
     match ctx {
         Ok(ctx) => {
             let stop = Arc::clone(&ctx.stop);
-            let raw = Box::into_raw(Box::new(Modbus { ctx: OwnerMutex::new(ctx), stop }));
-            // SAFETY: `raw` was just created from a Box and is uniquely owned here.
-            unsafe { (*raw).ctx.get_mut().handle_addr = raw as usize };
-            raw
+            Box::into_raw(Box::new(Modbus { ctx: OwnerMutex::new(ctx), stop }))
         }
         Err(e) => {
             fail(e);

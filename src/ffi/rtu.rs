@@ -2,11 +2,13 @@
 
 use std::ffi::{c_char, c_int};
 
+use crate::context::RtsHook;
 use crate::context::{Context, RTU_RTS_DOWN, RTU_RTS_NONE, RTU_RTS_UP};
 use crate::engine::{self, Guard};
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, into_handle, opt_cstr, with_ctx};
 use crate::transport::rtu;
+use std::sync::Arc;
 
 /// Creates an RTU context for `device` ("/dev/ttyS0"...). `parity` is 'N', 'E' or
 /// 'O'. Returns NULL with EINVAL on a NULL/empty device, a zero baud rate or another
@@ -123,11 +125,18 @@ pub unsafe extern "C" fn modbus_rtu_set_custom_rts(
     ctx: *mut Modbus,
     set_rts: Option<unsafe extern "C" fn(ctx: *mut Modbus, on: c_int)>,
 ) -> c_int {
+    // The handle's address: a plain number, so that the hook may cross threads.
+    let handle = ctx as usize;
+    let hook = set_rts.map(|f| -> RtsHook {
+        // SAFETY: the application registered `f` for this context and it receives
+        // the context pointer it was registered on, as in libmodbus.
+        Arc::new(move |on: bool| unsafe { f(handle as *mut Modbus, on as c_int) })
+    });
     // SAFETY: forwarded caller contract.
     unsafe {
         with_rtu(ctx, |g| {
             if let Some(l) = g.rtu_mut() {
-                l.custom_rts = set_rts;
+                l.custom_rts = hook;
             }
             Ok(0)
         })

@@ -333,7 +333,7 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
     let stop = handle.stop();
     let closes = stop.closes();
     stop.set_accepting(true);
-    let accepted = listen::accept(listen_fd, stop, closes);
+    let accepted = listen::accept(listen_fd, stop.wake_fd(), &|| stop.closes() != closes);
     stop.set_accepting(false);
     // SAFETY: forwarded caller contract.
     let rc = unsafe {

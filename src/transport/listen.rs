@@ -11,7 +11,6 @@ use std::mem::{size_of, zeroed};
 use crate::context::{Context, Link};
 use crate::core::Diag;
 use crate::error::{Error, Result};
-use crate::stop::Stop;
 use crate::transport::tcp::{AddrInfo, gai_error, inet_pton};
 use crate::transport::{Ready, close, last_error, wait_or_wake};
 
@@ -160,22 +159,22 @@ fn peer_text(addr: &libc::sockaddr_storage) -> Option<String> {
 
 /// Accepts one client on `listen_fd` (close-on-exec, blocking, no TCP_NODELAY, as
 /// libmodbus). Returns the new descriptor and the peer's address text. Signals do not
-/// end the wait (with `SA_RESTART` or without); a close of the context does
-/// (`stop.closes()` moves past `closes`): `Err(STOPPED)`.
-pub fn accept(listen_fd: i32, stop: &Stop, closes: u32) -> Result<(i32, Option<String>)> {
+/// end the wait (with `SA_RESTART` or without); `closed()` does, checked at the start
+/// and whenever the eventfd `wake` (-1: none) is written: `Err(STOPPED)`.
+pub fn accept(listen_fd: i32, wake: i32, closed: &dyn Fn() -> bool) -> Result<(i32, Option<String>)> {
     if listen_fd < 0 {
         // What accept4 says (ppoll would skip a negative descriptor and wait on).
         return Err(Error(libc::EBADF));
     }
-    let wake = stop.wake_fd();
     loop {
-        if stop.closes() != closes {
+        if closed() {
             return Err(Error::STOPPED);
         }
         match wait_or_wake(listen_fd, libc::POLLIN, wake, None) {
             Ok(Ready::Line) => {}
             Ok(_) => {
-                stop.drain_wake();
+                let mut count = [0u8; 8];
+                let _ = super::read(wake, &mut count);
                 continue;
             }
             Err(e) if e.0 == libc::EINTR => continue,

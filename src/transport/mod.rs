@@ -11,6 +11,17 @@ use std::time::Duration;
 
 use crate::error::{Error, Result};
 
+/// `modbus_strerror` as an owned string.
+pub fn describe(errnum: i32) -> String {
+    match crate::error::strerror_modbus(errnum) {
+        Some(s) => s.to_owned(),
+        None => {
+            // SAFETY: strerror returns a valid NUL-terminated string; we copy it at once.
+            unsafe { std::ffi::CStr::from_ptr(libc::strerror(errnum)) }.to_string_lossy().into_owned()
+        }
+    }
+}
+
 /// The calling thread's errno.
 pub fn errno() -> i32 {
     std::io::Error::last_os_error().raw_os_error().unwrap_or(0)

@@ -97,7 +97,7 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
     let fd = unsafe { libc::open(link.device.as_ptr(), flags) };
     if fd < 0 {
         let e = last_error();
-        diag.err(format_args!("ERROR Can't open the device {} ({})\n", dev, crate::engine::describe(e.0)));
+        diag.err(format_args!("ERROR Can't open the device {} ({})\n", dev, crate::transport::describe(e.0)));
         return Err(e);
     }
     // SAFETY: all-zero is a valid termios; tcgetattr fills it (its result is ignored,
