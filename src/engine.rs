@@ -6,10 +6,7 @@ use std::time::{Duration, Instant};
 
 use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
 use crate::core::confirm::{self, Rejection};
-use crate::core::frame::{
-    Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, complete_length, length_after_function,
-    rtu_integrity,
-};
+use crate::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
 use crate::core::request::{Request, next_tid};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
@@ -349,14 +346,16 @@ fn receive_serial_request(ctx: &mut Context, buf: &mut [u8]) -> Result<Received>
     let mut filled = 0;
     if wait_readable(ctx, budget.as_mut()).is_ok() {
         filled = transport::read(ctx.s, &mut buf[..h + 1]).unwrap_or(0);
-        let rest = if filled == h + 1 {
-            length_after_function(ctx.framing, MsgKind::Indication, ctx.serves_extended, buf[h])
+        let total = if filled == h + 1 {
+            Assembler::new(ctx.framing, MsgKind::Indication)
+                .extended_requests(ctx.serves_extended)
+                .total_if_known(&buf[..h + 1])
         } else {
             None
         };
-        if let Some(rest) = rest.filter(|&rest| h + 1 + rest <= buf.len()) {
-            filled += read_if_queued(ctx, &mut buf[h + 1..h + 1 + rest]).unwrap_or(0);
-            if filled == h + 1 + rest {
+        if let Some(total) = total.filter(|&total| total <= buf.len()) {
+            filled += read_if_queued(ctx, &mut buf[h + 1..total]).unwrap_or(0);
+            if filled == total {
                 return check_integrity(ctx, &buf[..filled]);
             }
         }
@@ -379,13 +378,12 @@ fn receive_steps(
     let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
     let expecting = if kind == MsgKind::Confirmation { ctx.diagnostics_sent.take() } else { None };
     let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended).expecting(expecting);
-    let extended = kind == MsgKind::Confirmation || ctx.serves_extended;
     let mut trace = String::new();
     // Bytes in `buf`: those the assembler took, then (reading ahead) any after them.
     loop {
         if read_ahead && asm.is_empty() && filled > 0 {
             // The usual case: one read brought the whole message.
-            if let Some(len) = complete_length(ctx.framing, kind, extended, &buf[..filled]) {
+            if let Some(len) = asm.whole(&buf[..filled]) {
                 keep_unread(ctx, &buf[len..filled]);
                 if ctx.debug {
                     push_trace(&mut trace, &buf[..len]);
@@ -603,24 +601,12 @@ fn first_timeout(ctx: &Context, kind: MsgKind) -> Option<libc::timespec> {
 /// them. A frame is whole when it holds at least what the binary length rules ask
 /// for (the frame's own length stands in for the lengths a PDU does not carry).
 fn ascii_frame_is_whole(ctx: &Context, kind: MsgKind, frame: &[u8]) -> bool {
-    if frame.len() < 3 {
-        return false;
-    }
-    let mut asm = Assembler::new(Framing::Ascii, kind)
-        .extended_requests(ctx.serves_extended)
-        .expecting(Some(frame.len() - Framing::Ascii.checksum_length()));
-    loop {
-        let want = asm.wanted();
-        let upto = asm.len() + want;
-        if upto > frame.len() {
-            return false;
-        }
-        match asm.received(&frame[..upto], want) {
-            Ok(Progress::NeedMore(_)) => continue,
-            Ok(Progress::Complete(_)) => return true,
-            Err(_) => return false,
-        }
-    }
+    frame.len() >= 3
+        && Assembler::new(Framing::Ascii, kind)
+            .extended_requests(ctx.serves_extended)
+            .expecting(Some(frame.len() - Framing::Ascii.checksum_length()))
+            .whole(frame)
+            .is_some()
 }
 
 /// Waits until the line is readable or the time in `budget` runs out (`None`:
@@ -732,25 +718,9 @@ fn take_whole_indication(ctx: &mut Context, buf: &mut [u8]) -> Option<usize> {
         Ok(n) if n > 0 => n,
         _ => return None,
     };
-    let peeked = &peeked[..queued];
-    let len = match complete_length(ctx.framing, MsgKind::Indication, ctx.serves_extended, peeked) {
-        Some(len) => len,
-        None => {
-            // An extended function code: its length comes piece by piece.
-            let mut asm = Assembler::new(ctx.framing, MsgKind::Indication).extended_requests(ctx.serves_extended);
-            loop {
-                let next = asm.len() + asm.wanted();
-                if next > queued {
-                    return None;
-                }
-                match asm.received(&peeked[..next], asm.wanted()) {
-                    Ok(Progress::NeedMore(_)) => continue,
-                    Ok(Progress::Complete(len)) => break len,
-                    Err(_) => return None,
-                }
-            }
-        }
-    };
+    let len = Assembler::new(ctx.framing, MsgKind::Indication)
+        .extended_requests(ctx.serves_extended)
+        .whole(&peeked[..queued])?;
     // The request is queued whole, so this read returns all of it and nothing more.
     match transport::recv(ctx.s, buf.get_mut(..len)?, 0) {
         Ok(n) if n == len => Some(len),

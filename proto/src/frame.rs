@@ -111,186 +111,168 @@ pub enum MsgKind {
     Confirmation,
 }
 
-/// Bytes that follow the function code before the length of the data is known.
-pub fn meta_length(kind: MsgKind, function: u8) -> usize {
+/// How the bytes after a function code are laid out, as far as their length goes:
+/// one row of the function-code table ([`layout`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// This many bytes follow the function code.
+    Fixed(u8),
+    /// This many bytes follow the function code, the last of them a count of the
+    /// bytes after it.
+    Counted(u8),
+    /// A two-byte count of the bytes after it (FIFO queue responses).
+    Counted16,
+    /// At least this many bytes; the real length comes from outside the PDU (the
+    /// MBAP length on TCP, the request's length for a serial response, the frame's
+    /// delimiters on ASCII): diagnostics, and MEI types other than device
+    /// identification.
+    Known(u8),
+    /// A device-identification response: MEI type, read code, conformity, more
+    /// follows, next object, count, then `count` objects (id, length, value).
+    DeviceId,
+}
+
+/// The function-code table: the layout of `function`'s requests (`Indication`) or
+/// responses (`Confirmation`). `extended` frames the function codes beyond libmodbus
+/// by their own layouts; off, they are framed as libmodbus frames them (up to the
+/// function code for a request, one byte more for a response: its issues #340, #343,
+/// #493), so that a server not configured for them behaves exactly like libmodbus.
+/// Unknown function codes (and exception responses) are libmodbus's too.
+pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
+    use Layout::*;
     match kind {
         MsgKind::Indication => match function {
-            0x00..=fc::WRITE_SINGLE_REGISTER => 4,
-            fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS => 5,
-            fc::MASK_WRITE_REGISTER => 6,
-            fc::WRITE_AND_READ_REGISTERS => 9,
-            _ => 0,
+            0x00..=fc::WRITE_SINGLE_REGISTER => Fixed(4),
+            fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS => Counted(5),
+            fc::MASK_WRITE_REGISTER => Fixed(6),
+            fc::WRITE_AND_READ_REGISTERS => Counted(9),
+            fc::DIAGNOSTICS if extended => Known(4),
+            fc::READ_FILE_RECORD | fc::WRITE_FILE_RECORD if extended => Counted(1),
+            fc::READ_FIFO_QUEUE if extended => Fixed(2),
+            fc::ENCAPSULATED_INTERFACE if extended => Fixed(3),
+            _ => Fixed(0),
         },
         MsgKind::Confirmation => match function {
+            0x00..=fc::READ_INPUT_REGISTERS | fc::REPORT_SLAVE_ID | fc::WRITE_AND_READ_REGISTERS => Counted(1),
             fc::WRITE_SINGLE_COIL
             | fc::WRITE_SINGLE_REGISTER
             | fc::WRITE_MULTIPLE_COILS
-            | fc::WRITE_MULTIPLE_REGISTERS => 4,
-            fc::MASK_WRITE_REGISTER => 6,
-            _ => 1,
+            | fc::WRITE_MULTIPLE_REGISTERS => Fixed(4),
+            fc::MASK_WRITE_REGISTER => Fixed(6),
+            fc::DIAGNOSTICS if extended => Known(4),
+            fc::GET_COMM_EVENT_COUNTER if extended => Fixed(4),
+            fc::GET_COMM_EVENT_LOG | fc::READ_FILE_RECORD | fc::WRITE_FILE_RECORD if extended => Counted(1),
+            fc::READ_FIFO_QUEUE if extended => Counted16,
+            fc::ENCAPSULATED_INTERFACE if extended => DeviceId,
+            _ => Fixed(1),
         },
-    }
-}
-
-/// Bytes of data that follow the meta part, read from the byte count it carries.
-/// `msg` holds the header, the function code and the meta bytes.
-pub fn data_length(kind: MsgKind, header_length: usize, msg: &[u8]) -> usize {
-    let h = header_length;
-    let function = msg[h];
-    match kind {
-        MsgKind::Indication => match function {
-            fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS => msg[h + 5] as usize,
-            fc::WRITE_AND_READ_REGISTERS => msg[h + 9] as usize,
-            _ => 0,
-        },
-        MsgKind::Confirmation => match function {
-            0x00..=fc::READ_INPUT_REGISTERS | fc::REPORT_SLAVE_ID | fc::WRITE_AND_READ_REGISTERS => msg[h + 1] as usize,
-            _ => 0,
-        },
-    }
-}
-
-/// Whether [`data_length`] reads the meta bytes of this function code. When it does
-/// not, the data length is 0 whatever they hold, so the meta bytes and the checksum
-/// can be read as one piece: still never past the end of the message.
-pub const fn data_needs_meta(kind: MsgKind, function: u8) -> bool {
-    match kind {
-        MsgKind::Indication => {
-            matches!(function, fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS | fc::WRITE_AND_READ_REGISTERS)
-        }
-        MsgKind::Confirmation => {
-            matches!(function, 0x00..=fc::READ_INPUT_REGISTERS | fc::REPORT_SLAVE_ID | fc::WRITE_AND_READ_REGISTERS)
-        }
-    }
-}
-
-/// The bytes after the function code (meta bytes, data, checksum) when the function
-/// code alone tells how many: every libmodbus-framed message whose data length does
-/// not come from its meta bytes. `None` for the others and, when `extended`, for
-/// the extended function codes.
-pub fn length_after_function(framing: Framing, kind: MsgKind, extended: bool, function: u8) -> Option<usize> {
-    if (extended && is_extended(kind, function)) || data_needs_meta(kind, function) {
-        return None;
-    }
-    Some(meta_length(kind, function) + framing.checksum_length())
-}
-
-/// Function codes libmodbus does not frame (it reads only up to the function code
-/// for them, so their requests and responses were truncated: its issues #340, #343,
-/// #493). Their layouts come from the protocol; the helpers below give the length.
-pub const fn is_extended(kind: MsgKind, function: u8) -> bool {
-    match kind {
-        MsgKind::Indication => matches!(function, 0x08 | 0x14 | 0x15 | 0x18 | 0x2B),
-        MsgKind::Confirmation => matches!(function, 0x08 | 0x0B | 0x0C | 0x14 | 0x15 | 0x18 | 0x2B),
     }
 }
 
 /// `MEI_READ_DEVICE_ID`: the MEI type of FC 0x2B that carries device identification.
 pub const MEI_READ_DEVICE_ID: u8 = 0x0E;
 
-/// For an extended function code: the length of header + PDU as far as the first
-/// `msg.len()` bytes tell it. When the result equals `msg.len()` the PDU is whole;
-/// otherwise read up to the result and ask again. `known_total` is the length of
-/// header + PDU known from elsewhere, used only where the PDU itself has no length
-/// (FC 08 and MEI types other than device identification): 6 + the MBAP length field
-/// on TCP, or, for a response on a serial line, the length of the request it answers
-/// (every diagnostics answer is as long as its request).
-pub fn extended_length(kind: MsgKind, h: usize, msg: &[u8], known_total: Option<usize>) -> usize {
-    let mbap_total = known_total;
-    let fc_end = h + 1;
-    let at_least = |n: usize| n.max(msg.len());
-    // Bytes up to a one-byte count at `at`, then the counted bytes.
-    let counted8 = |at: usize| if msg.len() <= at { at + 1 } else { at + 1 + msg[at] as usize };
-    let by_mbap = |floor: usize| mbap_total.filter(|&t| t >= floor).unwrap_or(floor);
-    match (kind, msg[h]) {
-        (_, 0x08) => by_mbap(fc_end + 4),
-        (MsgKind::Confirmation, 0x0B) => fc_end + 4,
-        (MsgKind::Confirmation, 0x0C) | (_, 0x14) | (_, 0x15) => counted8(fc_end),
-        (MsgKind::Indication, 0x18) => fc_end + 2,
-        (MsgKind::Confirmation, 0x18) => {
-            if msg.len() < fc_end + 2 {
-                fc_end + 2
-            } else {
-                fc_end + 2 + (((msg[fc_end] as usize) << 8) | msg[fc_end + 1] as usize)
-            }
-        }
-        (MsgKind::Indication, 0x2B) => fc_end + 3,
-        (MsgKind::Confirmation, 0x2B) => {
-            if msg.len() <= fc_end {
-                return fc_end + 1;
-            }
-            if msg[fc_end] != MEI_READ_DEVICE_ID {
-                return by_mbap(fc_end + 1);
-            }
-            // MEI type, read code, conformity, more follows, next object, count.
-            let objects_at = fc_end + 6;
-            if msg.len() < objects_at {
-                return objects_at;
-            }
-            let mut pos = objects_at;
-            for _ in 0..msg[objects_at - 1] {
-                if msg.len() < pos + 2 {
-                    return pos + 2;
-                }
-                pos += 2 + msg[pos + 1] as usize;
-                if msg.len() < pos {
-                    return pos;
-                }
-            }
-            pos
-        }
-        _ => at_least(fc_end),
-    }
-}
-
-/// The length of the message at the start of `bytes` when `bytes` already holds all
-/// of it and it is framed by libmodbus's three steps (function code, meta bytes, data
-/// and checksum): what an [`Assembler`] fed with `bytes` would complete at, computed in
-/// one go. `None` when the assembler must run: the message is not whole yet, its
-/// function code is an extended one ([`is_extended`], when `extended`), or it announces
-/// more than the framing's maximum ADU (an error the assembler reports).
-pub fn complete_length(framing: Framing, kind: MsgKind, extended: bool, bytes: &[u8]) -> Option<usize> {
-    let h = framing.header_length();
-    let function = *bytes.get(h)?;
-    if extended && is_extended(kind, function) {
-        return None;
-    }
-    let meta_end = h + 1 + meta_length(kind, function);
-    let head = bytes.get(..meta_end)?;
-    let total = meta_end + data_length(kind, h, head) + framing.checksum_length();
-    (total <= framing.max_adu_length() && total <= bytes.len()).then_some(total)
-}
-
-/// The three steps of reading one message.
+/// How one incoming message is framed: what [`message_length`] needs besides its bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Step {
-    Function,
-    Meta,
-    Data,
-    /// An extended function code, its length found piece by piece.
-    Extended,
+pub struct Rules {
+    pub framing: Framing,
+    pub kind: MsgKind,
+    /// Frame the function codes beyond libmodbus by their own layouts (see [`layout`]).
+    pub extended: bool,
+    /// The length of header + PDU known from elsewhere, for [`Layout::Known`]: on a
+    /// serial line, the request's length for its response (every diagnostics answer
+    /// is as long as its request), or an ASCII frame's decoded length. TCP uses the
+    /// MBAP length field instead.
+    pub known_total: Option<usize>,
 }
 
-/// Sans-I/O assembler of one incoming message.
-///
-/// The transport asks [`Assembler::wanted`] how many bytes to read at most, appends
-/// what it got to the buffer, and reports it with [`Assembler::received`]. It never
-/// asks for more than the message needs, so bytes of the next message stay in the
-/// kernel (this is how libmodbus frames RTU without silence detection).
-#[derive(Clone, Debug)]
-pub struct Assembler {
-    framing: Framing,
-    kind: MsgKind,
-    /// Frame the function codes beyond libmodbus whole (see [`is_extended`]).
-    extended: bool,
-    /// Length of header + PDU known from the request (see [`extended_length`]).
-    known_total: Option<usize>,
-    /// An RTU diagnostics request whose CRC did not match at its shortest length:
-    /// reading on, two bytes (one data word) at a time.
-    crc_search: bool,
-    step: Step,
-    length: usize,
-    wanted: usize,
+impl Rules {
+    /// Libmodbus's framing, with the extended responses read whole (a client).
+    pub const fn new(framing: Framing, kind: MsgKind) -> Self {
+        Rules { framing, kind, extended: matches!(kind, MsgKind::Confirmation), known_total: None }
+    }
+
+    /// An RTU diagnostics request on a server that answers it: nothing in it tells
+    /// its length ("return query data" may carry any number of words), so it ends
+    /// where its CRC matches, one word after the other.
+    pub fn searches_crc(&self, msg: &[u8]) -> bool {
+        self.framing == Framing::Rtu
+            && self.kind == MsgKind::Indication
+            && self.extended
+            && msg.get(self.framing.header_length()) == Some(&fc::DIAGNOSTICS)
+    }
+}
+
+/// What the first bytes of a message tell of its length.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Length {
+    /// The whole message (header, PDU, checksum) is this long.
+    Total(usize),
+    /// Nothing more can be told before this many bytes are there.
+    Need(usize),
+}
+
+/// The message-length function: how long the message that starts `msg` is, as far
+/// as its first `msg.len()` bytes tell, from the function-code table ([`layout`]).
+/// Lengths come from the content, as libmodbus computes them (the MBAP length field
+/// is only used where the PDU has no length of its own). Every reader of messages
+/// asks this one function: the [`Assembler`], [`Assembler::whole`], the server's
+/// `request_extent`.
+#[inline]
+pub fn message_length(rules: Rules, msg: &[u8]) -> Length {
+    let h = rules.framing.header_length();
+    let checksum = rules.framing.checksum_length();
+    let Some(&function) = msg.get(h) else { return Length::Need(h + 1) };
+    let fc_end = h + 1;
+    let pdu_end = match layout(rules.kind, rules.extended, function) {
+        Layout::Fixed(n) => fc_end + n as usize,
+        Layout::Counted(n) => {
+            let meta_end = fc_end + n as usize;
+            match msg.get(meta_end - 1) {
+                Some(&count) if n > 0 => meta_end + count as usize,
+                _ => return Length::Need(meta_end),
+            }
+        }
+        Layout::Counted16 => match msg.get(fc_end..fc_end + 2) {
+            Some(&[hi, lo]) => fc_end + 2 + u16::from_be_bytes([hi, lo]) as usize,
+            _ => return Length::Need(fc_end + 2),
+        },
+        Layout::Known(min) => known_end(rules, msg, fc_end + min as usize),
+        Layout::DeviceId => match msg.get(fc_end) {
+            None => return Length::Need(fc_end + 1),
+            Some(&mei) if mei != MEI_READ_DEVICE_ID => known_end(rules, msg, fc_end + 1),
+            Some(_) => {
+                // MEI type, read code, conformity, more follows, next object, count.
+                let objects_at = fc_end + 6;
+                let Some(&count) = msg.get(objects_at - 1) else { return Length::Need(objects_at) };
+                let mut pos = objects_at;
+                for _ in 0..count {
+                    let Some(&len) = msg.get(pos + 1) else { return Length::Need(pos + 2) };
+                    pos += 2 + len as usize;
+                    if msg.len() < pos {
+                        return Length::Need(pos);
+                    }
+                }
+                pos
+            }
+        },
+    };
+    Length::Total(pdu_end + checksum)
+}
+
+/// The end of a PDU whose length comes from outside it ([`Layout::Known`]): the MBAP
+/// length on TCP, else `known_total`; never below `floor`.
+fn known_end(rules: Rules, msg: &[u8], floor: usize) -> usize {
+    let known = match (rules.framing, msg.get(4..6)) {
+        (Framing::Tcp, Some(&[hi, lo])) => Some(6 + u16::from_be_bytes([hi, lo]) as usize),
+        _ => rules.known_total,
+    };
+    known.filter(|&t| t >= floor).unwrap_or(floor)
+}
+
+/// The CRC of an RTU frame matches its content.
+pub fn crc_matches(frame: &[u8]) -> bool {
+    frame.len() >= 2 && stored_crc(frame) == Some(crc16(&frame[..frame.len() - 2]))
 }
 
 /// What the assembler knows after some bytes arrived.
@@ -302,6 +284,23 @@ pub enum Progress {
     Complete(usize),
 }
 
+/// Sans-I/O assembler of one incoming message.
+///
+/// The transport asks [`Assembler::wanted`] how many bytes to read at most, appends
+/// what it got to the buffer, and reports it with [`Assembler::received`]. It never
+/// asks for more than the message needs, so bytes of the next message stay in the
+/// kernel (this is how libmodbus frames RTU without silence detection). The lengths
+/// come from [`message_length`].
+#[derive(Clone, Debug)]
+pub struct Assembler {
+    rules: Rules,
+    /// An RTU diagnostics request whose PDU is whole: its CRC decides where it ends
+    /// (see [`Rules::searches_crc`]).
+    crc_search: bool,
+    length: usize,
+    wanted: usize,
+}
+
 impl Assembler {
     /// An assembler as libmodbus frames messages, except that responses of the
     /// function codes beyond libmodbus are read whole (libmodbus truncates them).
@@ -309,14 +308,9 @@ impl Assembler {
     /// code) unless [`Assembler::extended_requests`] says otherwise, so that a server
     /// not configured for them behaves exactly like libmodbus.
     pub fn new(framing: Framing, kind: MsgKind) -> Self {
-        let extended = kind == MsgKind::Confirmation;
         Assembler {
-            framing,
-            kind,
-            extended,
-            known_total: None,
+            rules: Rules::new(framing, kind),
             crc_search: false,
-            step: Step::Function,
             length: 0,
             wanted: framing.header_length() + 1,
         }
@@ -325,37 +319,23 @@ impl Assembler {
     /// The length of header + PDU the response to a diagnostics request must have
     /// (the request's own), for serial framings where the PDU carries no length.
     pub fn expecting(mut self, total: Option<usize>) -> Self {
-        self.known_total = total;
+        self.rules.known_total = total;
         self
-    }
-
-    /// True while an RTU diagnostics request is being extended in search of its CRC:
-    /// if the line goes quiet now, the frame ends here (and its CRC is bad).
-    pub fn searching_crc(&self) -> bool {
-        self.crc_search
     }
 
     /// Frames requests of the function codes beyond libmodbus whole, for a server
     /// configured to answer them.
     pub fn extended_requests(mut self, on: bool) -> Self {
-        if self.kind == MsgKind::Indication {
-            self.extended = on;
+        if self.rules.kind == MsgKind::Indication {
+            self.rules.extended = on;
         }
         self
     }
 
-    /// A diagnostics request on RTU has no length field: "return query data" may
-    /// carry any number of words. It ends where its CRC matches; until then read one
-    /// more word, up to the largest ADU.
-    fn search_crc(&mut self, buf: &[u8]) -> Progress {
-        let frame = &buf[..self.length];
-        let matches = crate::crc::stored_crc(frame) == Some(crate::crc::crc16(&frame[..frame.len() - 2]));
-        if matches || self.length + 2 > self.framing.max_adu_length() {
-            self.crc_search = false;
-            return Progress::Complete(self.length);
-        }
-        self.wanted = 2;
-        Progress::NeedMore(2)
+    /// True while an RTU diagnostics request is waiting for the CRC that ends it: if
+    /// the line goes quiet now, the frame ends here (and its CRC is bad).
+    pub fn searching_crc(&self) -> bool {
+        self.crc_search
     }
 
     /// Bytes received so far.
@@ -372,6 +352,33 @@ impl Assembler {
         self.wanted
     }
 
+    /// The length of the message `bytes` starts with, when `bytes` holds all of it:
+    /// what feeding `bytes` to this (fresh) assembler would complete at, in one go.
+    /// `None` when more bytes are needed, or the message announces more than the
+    /// framing's maximum (an error [`Assembler::received`] reports).
+    #[inline]
+    pub fn whole(&self, bytes: &[u8]) -> Option<usize> {
+        let max = self.rules.framing.max_adu_length();
+        let Length::Total(mut total) = message_length(self.rules, bytes) else { return None };
+        if self.rules.searches_crc(bytes) {
+            while total <= bytes.len() && !crc_matches(&bytes[..total]) && total + 2 <= max {
+                total += 2;
+            }
+        }
+        (total <= max && total <= bytes.len()).then_some(total)
+    }
+
+    /// The length of the whole message when its first bytes `head` already tell it
+    /// (no byte count or search needed); `None` otherwise.
+    pub fn total_if_known(&self, head: &[u8]) -> Option<usize> {
+        match message_length(self.rules, head) {
+            Length::Total(total) if !self.rules.searches_crc(head) && total <= self.rules.framing.max_adu_length() => {
+                Some(total)
+            }
+            _ => None,
+        }
+    }
+
     /// Accounts for `n` new bytes appended to `buf` (which holds the whole message so
     /// far). Fails with `EMBBADDATA` when the announced length exceeds the framing's
     /// maximum ADU: the caller's buffer is never written past that maximum.
@@ -382,77 +389,43 @@ impl Assembler {
         if self.wanted > 0 {
             return Ok(Progress::NeedMore(self.wanted));
         }
-        let h = self.framing.header_length();
-        if self.step == Step::Function && self.extended && is_extended(self.kind, buf[h]) {
-            self.step = Step::Extended;
-        }
-        if self.crc_search || self.step == Step::Extended {
-            return self.received_extended(buf);
-        }
-        self.received_in_steps(buf)
-    }
-
-    /// The three libmodbus steps: function code, meta bytes, data and checksum.
-    #[inline]
-    fn received_in_steps(&mut self, buf: &[u8]) -> Result<Progress> {
-        let h = self.framing.header_length();
-        if self.step == Step::Function {
-            let meta = meta_length(self.kind, buf[h]);
-            if meta != 0 && !data_needs_meta(self.kind, buf[h]) {
-                // No data: the meta bytes and the checksum end the message.
-                self.step = Step::Data;
-                self.wanted = meta + self.framing.checksum_length();
-                return Ok(Progress::NeedMore(self.wanted));
-            }
-            if meta != 0 {
-                self.step = Step::Meta;
-                self.wanted = meta;
-                return Ok(Progress::NeedMore(meta));
-            }
-            self.step = Step::Meta;
-        }
-        if self.step == Step::Meta {
-            let data = data_length(self.kind, h, &buf[..self.length]) + self.framing.checksum_length();
-            if self.length + data > self.framing.max_adu_length() {
-                return Err(Error::BAD_DATA);
-            }
-            self.step = Step::Data;
-            self.wanted = data;
-            if data > 0 {
-                return Ok(Progress::NeedMore(data));
-            }
-        }
-        Ok(Progress::Complete(self.length))
-    }
-
-    /// An extended function code (its length found piece by piece), or an RTU
-    /// diagnostics request searching for its CRC.
-    #[inline(never)]
-    fn received_extended(&mut self, buf: &[u8]) -> Result<Progress> {
-        let h = self.framing.header_length();
+        let msg = &buf[..self.length];
         if self.crc_search {
-            return Ok(self.search_crc(buf));
+            return Ok(self.search_crc(msg));
         }
-        let known = match self.framing {
-            Framing::Tcp => Some(6 + (((buf[4] as usize) << 8) | buf[5] as usize)),
-            _ => self.known_total,
-        };
-        let body = extended_length(self.kind, h, &buf[..self.length], known);
-        if body > self.length {
-            if body + self.framing.checksum_length() > self.framing.max_adu_length() {
-                return Err(Error::BAD_DATA);
+        let max = self.rules.framing.max_adu_length();
+        match message_length(self.rules, msg) {
+            Length::Need(need) => {
+                if need + self.rules.framing.checksum_length() > max {
+                    return Err(Error::BAD_DATA);
+                }
+                self.wanted = need - self.length;
+                Ok(Progress::NeedMore(self.wanted))
             }
-            self.wanted = body - self.length;
-            return Ok(Progress::NeedMore(self.wanted));
+            Length::Total(total) if total > max => Err(Error::BAD_DATA),
+            Length::Total(total) => {
+                self.crc_search = self.rules.searches_crc(msg);
+                if total > self.length {
+                    self.wanted = total - self.length;
+                    return Ok(Progress::NeedMore(self.wanted));
+                }
+                if self.crc_search {
+                    return Ok(self.search_crc(msg));
+                }
+                Ok(Progress::Complete(self.length))
+            }
         }
-        // The PDU is whole: only the checksum is left.
-        self.step = Step::Data;
-        self.wanted = self.framing.checksum_length();
-        self.crc_search = self.framing == Framing::Rtu && self.kind == MsgKind::Indication && buf[h] == fc::DIAGNOSTICS;
-        if self.wanted > 0 {
-            return Ok(Progress::NeedMore(self.wanted));
+    }
+
+    /// An RTU diagnostics request ends where its CRC matches; until then read one
+    /// more word, up to the largest ADU.
+    fn search_crc(&mut self, frame: &[u8]) -> Progress {
+        if crc_matches(frame) || self.length + 2 > self.rules.framing.max_adu_length() {
+            self.crc_search = false;
+            return Progress::Complete(self.length);
         }
-        Ok(Progress::Complete(self.length))
+        self.wanted = 2;
+        Progress::NeedMore(2)
     }
 }
 
@@ -510,11 +483,13 @@ mod tests {
         }
     }
 
-    /// `complete_length` is the assembler in one go: for pseudo-random byte strings of
-    /// every function code, it gives the assembler's length or declines (`None`) where
-    /// the assembler would need more bytes, fail, or run its extended step.
+    /// `Assembler::whole` is the assembler in one go, and `total_if_known` agrees with
+    /// it: for pseudo-random byte strings of every function code (the extended ones
+    /// included, and the RTU diagnostics search for its CRC), `whole` gives the
+    /// assembler's length or declines (`None`) exactly where the assembler would need
+    /// more bytes or fail.
     #[test]
-    fn complete_length_agrees_with_the_assembler() {
+    fn whole_agrees_with_the_assembler() {
         let mut rng = crate::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);
         let mut next = || rng.next_u64();
         let mut whole = 0;
@@ -522,6 +497,7 @@ mod tests {
             let framing = [Framing::Rtu, Framing::Tcp, Framing::Ascii][round % 3];
             let kind = if round % 2 == 0 { MsgKind::Indication } else { MsgKind::Confirmation };
             let extended = round % 5 != 0 || kind == MsgKind::Confirmation;
+            let expecting = (round % 7 == 0).then(|| (next() % 40) as usize);
             let len = (next() % 270) as usize;
             let mut bytes: Vec<u8> = (0..len).map(|_| next() as u8).collect();
             let h = framing.header_length();
@@ -532,25 +508,33 @@ mod tests {
                 bytes[h + 5] = (next() % 40) as u8; // byte counts that fit
                 bytes[h + 1] = (next() % 40) as u8;
             }
+            if framing == Framing::Tcp && len > 6 && next() % 2 == 0 {
+                bytes[4] = 0;
+                bytes[5] = (next() % 40) as u8; // MBAP lengths that fit
+            }
+            if framing == Framing::Rtu && len > h + 12 && next() % 3 == 0 {
+                // A CRC that matches somewhere (the diagnostics search stops there).
+                let end = h + 4 + 2 * (next() % 4) as usize;
+                let crc = crc16(&bytes[..end]).to_le_bytes();
+                bytes[end..end + 2].copy_from_slice(&crc);
+            }
+            let asm = || Assembler::new(framing, kind).extended_requests(extended).expecting(expecting);
             if len > h {
-                if let Some(rest) = length_after_function(framing, kind, extended, bytes[h]) {
-                    let whole = &bytes[..(h + 1 + rest).min(len)];
-                    let asm = Assembler::new(framing, kind).extended_requests(extended);
-                    let expected = (whole.len() == h + 1 + rest).then_some(Ok(h + 1 + rest));
-                    assert_eq!(feed_available(asm, whole), expected, "{framing:?} {kind:?} {bytes:02x?}");
+                if let Some(total) = asm().total_if_known(&bytes[..h + 1]) {
+                    let known = &bytes[..total.min(len)];
+                    let expected = (known.len() == total).then_some(Ok(total));
+                    assert_eq!(feed_available(asm(), known), expected, "{framing:?} {kind:?} {bytes:02x?}");
                 }
             }
-            let fast = complete_length(framing, kind, extended, &bytes);
-            let asm = Assembler::new(framing, kind).extended_requests(extended);
-            let uses_extended = len > h && extended && is_extended(kind, bytes[h]);
-            let slow = (len > 0).then(|| feed_available(asm, &bytes)).flatten();
+            let fast = asm().whole(&bytes);
+            let slow = (len > 0).then(|| feed_available(asm(), &bytes)).flatten();
             match fast {
                 Some(n) => {
                     whole += 1;
                     assert_eq!(slow, Some(Ok(n)), "{framing:?} {kind:?} {bytes:02x?}");
                 }
                 None => assert!(
-                    uses_extended || !matches!(slow, Some(Ok(_))),
+                    !matches!(slow, Some(Ok(_))),
                     "declined a whole message: {framing:?} {kind:?} {bytes:02x?} -> {slow:?}"
                 ),
             }
@@ -558,18 +542,35 @@ mod tests {
         assert!(whole > 10_000, "too few whole messages generated: {whole}");
     }
 
+    /// The function-code table as libmodbus frames messages (its
+    /// `compute_meta_length_after_function` and `compute_data_length_after_meta`),
+    /// written out independently: bytes after the function code before the data
+    /// length is known, and whether the last of them is a byte count.
     #[test]
-    fn data_needs_meta_is_exactly_where_data_length_reads_them() {
-        for kind in [MsgKind::Indication, MsgKind::Confirmation] {
-            for function in 0..=255u8 {
-                for h in [1, 7] {
-                    let mut msg = [0u8; 32];
-                    msg[h] = function;
-                    let zero = data_length(kind, h, &msg);
-                    msg[h + 1..].fill(0x5A);
-                    let filled = data_length(kind, h, &msg);
-                    assert_eq!(zero, 0, "{kind:?} {function:#x}");
-                    assert_eq!(filled != 0, data_needs_meta(kind, function), "{kind:?} {function:#x}");
+    fn the_table_is_libmodbus_s_where_libmodbus_frames() {
+        for function in 0..=255u8 {
+            let (meta, counted) = match function {
+                0x00..=0x06 => (4, false),
+                0x0F | 0x10 => (5, true),
+                0x16 => (6, false),
+                0x17 => (9, true),
+                _ => (0, false),
+            };
+            let expected = if counted { Layout::Counted(meta) } else { Layout::Fixed(meta) };
+            assert_eq!(layout(MsgKind::Indication, false, function), expected, "request {function:#x}");
+            let (meta, counted) = match function {
+                0x01..=0x04 | 0x11 | 0x17 | 0x00 => (1, true),
+                0x05 | 0x06 | 0x0F | 0x10 => (4, false),
+                0x16 => (6, false),
+                _ => (1, false),
+            };
+            let expected = if counted { Layout::Counted(meta) } else { Layout::Fixed(meta) };
+            assert_eq!(layout(MsgKind::Confirmation, false, function), expected, "response {function:#x}");
+            // Extended framing changes only the codes beyond libmodbus.
+            let beyond = matches!(function, 0x08 | 0x0B | 0x0C | 0x14 | 0x15 | 0x18 | 0x2B);
+            for kind in [MsgKind::Indication, MsgKind::Confirmation] {
+                if !beyond {
+                    assert_eq!(layout(kind, true, function), layout(kind, false, function), "{kind:?} {function:#x}");
                 }
             }
         }

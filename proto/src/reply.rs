@@ -13,10 +13,9 @@
 //! the sleep-and-flush for "illegal number of values" and unknown functions, then the
 //! send, unless an RTU broadcast suppresses it.
 
-use crate::crc::{crc16, stored_crc};
 use crate::data::{registers_from_be, registers_to_be};
 use crate::error::{Error, exception};
-use crate::frame::{Framing, MAX_ADU_LENGTH, MsgKind, data_length, extended_length, is_extended, meta_length};
+use crate::frame::{Framing, Length, MAX_ADU_LENGTH, MsgKind, Rules, crc_matches, message_length};
 use crate::limits::*;
 use crate::{Diag, fc};
 
@@ -154,55 +153,39 @@ pub fn request_extent<'a>(framing: Framing, extended: bool, bound: usize, prefix
     if cap <= h {
         return cap;
     }
-    let function = prefix(h + 1)[h];
-    if extended && function == fc::DIAGNOSTICS {
-        // Nothing in a diagnostics PDU tells its length ("return query data" may
-        // carry any number of words). An ASCII frame is delimited by its characters,
-        // so the received length is the request's; an RTU request ends where its
-        // CRC matches, one word at a time (as `modbus_receive` frames it).
-        // (A negative `req_length` gives no received length: ASCII then falls back
-        // to the one-word layout, while the RTU search is bounded by the ADU.)
-        match framing {
-            Framing::Ascii if bound != usize::MAX => return cap,
-            Framing::Ascii => {}
-            Framing::Rtu => {
-                let mut len = h + 1 + 4 + framing.checksum_length();
-                while len <= cap {
-                    let msg = prefix(len);
-                    if stored_crc(msg) == Some(crc16(&msg[..len - 2])) {
-                        return len;
-                    }
-                    len += 2;
-                }
-                return cap;
+    let rules = Rules { framing, kind: MsgKind::Indication, extended, known_total: None };
+    let head = prefix(h + 1);
+    if rules.searches_crc(head) {
+        // An RTU diagnostics request ends where its CRC matches, one word after the
+        // other (as `modbus_receive` frames it), bounded by the ADU.
+        let Length::Total(mut len) = message_length(rules, head) else { return cap };
+        while len <= cap {
+            if crc_matches(prefix(len)) {
+                return len;
             }
-            Framing::Tcp => {}
+            len += 2;
         }
-    }
-    if extended && is_extended(MsgKind::Indication, function) {
-        let mbap_total = (framing == Framing::Tcp).then(|| {
-            let head = prefix(h + 1);
-            6 + u16::from_be_bytes([head[4], head[5]]) as usize
-        });
-        let mut have = h + 1;
-        loop {
-            let want = extended_length(MsgKind::Indication, h, prefix(have), mbap_total);
-            if want <= have {
-                return (want + framing.checksum_length()).min(cap);
-            }
-            let want = want.min(cap);
-            if want <= have {
-                return cap;
-            }
-            have = want;
-        }
-    }
-    let len = h + 1 + meta_length(MsgKind::Indication, function);
-    if len > cap {
         return cap;
     }
-    let data = data_length(MsgKind::Indication, h, prefix(len));
-    (len + data + framing.checksum_length()).min(cap)
+    if extended && framing == Framing::Ascii && head[h] == fc::DIAGNOSTICS && bound != usize::MAX {
+        // An ASCII frame is delimited by its characters, so the received length is
+        // the request's. (A negative `req_length` gives no received length: the
+        // one-word layout then applies.)
+        return cap;
+    }
+    let mut have = h + 1;
+    loop {
+        match message_length(rules, prefix(have)) {
+            Length::Total(total) => return total.min(cap),
+            Length::Need(need) => {
+                let need = need.min(cap);
+                if need <= have {
+                    return cap;
+                }
+                have = need;
+            }
+        }
+    }
 }
 
 /// Expected length of a write request with a fixed size (05, 06: 5 bytes after the
