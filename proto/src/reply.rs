@@ -199,30 +199,7 @@ fn fixed_request_length(framing: Framing, after_header: usize) -> i64 {
 fn pack_bits(bits: &[u8], out: &mut [u8]) -> usize {
     let whole = bits.len() / 8;
     let (eights, rest) = bits.split_at(whole * 8);
-    let out_whole = &mut out[..whole];
-    // 64 values at a time, checked at once (sizes the compiler knows, so the loops
-    // unroll), then 8 at a time.
-    let blocks = whole / 8;
-    let (out_blocks, out_tail) = out_whole.split_at_mut(blocks * 8);
-    let (bit_blocks, bit_tail) = eights.split_at(blocks * 64);
-    for (packed, block) in out_blocks.chunks_exact_mut(8).zip(bit_blocks.chunks_exact(64)) {
-        let mut words = [0u64; 8];
-        let mut seen = 0;
-        for (word, eight) in words.iter_mut().zip(block.chunks_exact(8)) {
-            *word = u64::from_le_bytes(eight.try_into().unwrap_or_default());
-            seen |= *word;
-        }
-        if seen & !ONES == 0 {
-            for (byte, word) in packed.iter_mut().zip(words) {
-                *byte = gather_ones(word);
-            }
-        } else {
-            for (byte, eight) in packed.iter_mut().zip(block.chunks_exact(8)) {
-                *byte = pack_unmasked(eight);
-            }
-        }
-    }
-    for (byte, eight) in out_tail.iter_mut().zip(bit_tail.chunks_exact(8)) {
+    for (byte, eight) in out[..whole].iter_mut().zip(eights.chunks_exact(8)) {
         let word = u64::from_le_bytes(eight.try_into().unwrap_or_default());
         *byte = if word & !ONES == 0 { gather_ones(word) } else { pack_unmasked(eight) };
     }
@@ -272,48 +249,10 @@ impl Server {
         diag: &mut dyn Diag,
         out: &mut [u8; MAX_ADU_LENGTH],
     ) -> Outcome {
-        if let Some(outcome) = self.read_registers_at_once(req, req_length, mapping, out) {
-            return outcome;
-        }
         self.reply_general(req, req_length, mapping, diag, out)
     }
 
-    /// The most common request in few instructions: a valid read of holding or input
-    /// registers, not broadcast. `Some` only with the outcome and bytes
-    /// [`Server::reply_general`] gives (a unit test holds them to that); anything else,
-    /// errors included, goes the general way.
     #[inline]
-    fn read_registers_at_once(
-        &self,
-        req: &[u8],
-        req_length: i32,
-        mapping: &mut dyn Mapping,
-        out: &mut [u8; MAX_ADU_LENGTH],
-    ) -> Option<Outcome> {
-        let framing = self.framing;
-        let h = framing.header_length();
-        let head = req.get(..h + 5)?;
-        let (slave, function) = (head[h - 1], head[h]);
-        let is_read = matches!(function, fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS);
-        let address_covered = req_length < 0 || req_length as i64 >= (h + 3) as i64;
-        let broadcast = framing.is_serial() && slave as i32 == BROADCAST_ADDRESS;
-        if !is_read || !address_covered || broadcast {
-            return None;
-        }
-        let address = u16::from_be_bytes([head[h + 1], head[h + 2]]);
-        let nb = u16::from_be_bytes([head[h + 3], head[h + 4]]) as usize;
-        if !(1..=MAX_READ_REGISTERS as usize).contains(&nb) {
-            return None;
-        }
-        let table = if function == fc::READ_INPUT_REGISTERS { mapping.input_registers() } else { mapping.registers() };
-        let first = table.range(address, nb as i64)?;
-        let n = response_basis(framing, framing.response_tid(req), slave, function, out);
-        out[n] = (2 * nb) as u8;
-        registers_to_be(&table.data[first..first + nb], &mut out[n + 1..n + 1 + 2 * nb]);
-        Some(Outcome::Respond { len: n + 1 + 2 * nb, exception: None, flush_first: false, suppressed: false })
-    }
-
-    #[inline(never)]
     fn reply_general(
         &self,
         req: &[u8],
@@ -737,48 +676,11 @@ mod tests {
     // ---------------------------------------------------------------- FC 01 / 02
 
     #[test]
-    fn the_register_read_shortcut_answers_like_the_general_path() {
-        let mut rng = crate::test_rng::XorShift::new(0x5851_F42D_4C95_7F2D);
-        let mut next = || rng.next_u64();
-        let mut taken = 0;
-        for round in 0..50_000 {
-            let framing = [R, T, Framing::Ascii][round % 3];
-            let function = if next() % 2 == 0 { 3 } else { 4 };
-            let unit = [0u8, 1, 17, 255][(next() % 4) as usize];
-            let addr = (next() % 300) as u16;
-            let nb = (next() % 140) as u16;
-            let mut req = adu(framing, unit, &read_pdu(function, addr, nb));
-            if next() % 8 == 0 {
-                req.truncate((next() as usize) % req.len());
-            }
-            let req_length = match next() % 4 {
-                0 => -1,
-                1 => (next() % 20) as i32,
-                _ => req.len() as i32,
-            };
-            let quirks = if next() % 4 == 0 { QUIRK_REPLY_TO_BROADCAST } else { 0 };
-            let server = Server { framing, quirks };
-            let mut fx = if next() % 2 == 0 { Fixture::unit_test() } else { Fixture::zero_based(200) };
-            let mut fast_out = [0u8; MAX_ADU_LENGTH];
-            let Some(fast) = server.read_registers_at_once(&req, req_length, &mut fx.tables(), &mut fast_out) else {
-                continue;
-            };
-            taken += 1;
-            let mut out = [0u8; MAX_ADU_LENGTH];
-            let general = server.reply_general(&req, req_length, &mut fx.tables(), &mut crate::Silent, &mut out);
-            assert_eq!(fast, general, "{framing:?} {req:02x?} {req_length}");
-            let Outcome::Respond { len, .. } = general else { unreachable!() };
-            assert_eq!(fast_out[..len], out[..len], "{framing:?} {req:02x?}");
-        }
-        assert!(taken > 5_000, "too few reads taken the short way: {taken}");
-    }
-
-    #[test]
     fn pack_bits_matches_the_bit_by_bit_rule() {
         let mut rng = crate::test_rng::XorShift::new(0x9E37_79B9_7F4A_7C15);
         for round in 0..9_000 {
             let seed = rng.next_u64();
-            // Short tables, then tables long enough for the 64-value blocks.
+            // Short tables, then long ones.
             let len = (seed % [40, 300, 2001][round % 3]) as usize;
             let stray = (rng.next_u64() % (len as u64 + 1)) as usize;
             // Mostly 0/1 tables; sometimes unmasked values everywhere, or in one place
