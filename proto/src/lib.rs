@@ -14,6 +14,7 @@ pub mod ascii;
 pub mod confirm;
 pub mod crc;
 pub mod data;
+pub mod decode;
 pub mod diagnostics;
 pub mod error;
 pub mod frame;

@@ -5,6 +5,7 @@
 use std::ffi::{c_char, c_int};
 use std::slice;
 
+use crate::core::decode;
 use crate::core::frame::MAX_ADU_LENGTH;
 use crate::core::request::{
     MAX_DIAGNOSTICS_WORDS, MAX_FIFO_COUNT, MAX_FILE_READ_REGISTERS, MAX_FILE_RECORD, MAX_FILE_WRITE_REGISTERS, Request,
@@ -13,14 +14,22 @@ use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail, with_ctx};
 
-/// Sends `req` and returns the checked response with the offset of its PDU.
-fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Result<(usize, i32)> {
+/// Sends `req`; returns the checked response from its PDU on (in `rsp`) and the
+/// check's count.
+fn exchange<'r>(g: &mut Guard<'_>, req: &Request<'_>, rsp: &'r mut AduBuf) -> Result<(&'r [u8], i32)> {
     let done = engine::exchange(g, req, rsp)?;
-    Ok((g.framing.header_length(), done.count))
+    Ok((&rsp[g.framing.header_length()..], done.count))
 }
 
-fn be16(b: &[u8]) -> u16 {
-    u16::from_be_bytes([b[0], b[1]])
+/// Copies `values` into the C array `dest` of room for them.
+///
+/// # Safety
+/// `dest` must be valid for as many writes as `values` yields.
+unsafe fn copy_words(values: impl Iterator<Item = u16>, dest: *mut u16) {
+    for (i, v) in values.enumerate() {
+        // SAFETY: guaranteed by the caller.
+        unsafe { *dest.add(i) = v };
+    }
 }
 
 /// Reads the eight exception status outputs of a serial device (FC 07) into
@@ -37,8 +46,8 @@ pub unsafe extern "C" fn modbus_read_exception_status(ctx: *mut Modbus, status: 
     unsafe {
         with_ctx(ctx, |g| {
             let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (h, _) = exchange(g, &Request::ReadExceptionStatus, &mut rsp)?;
-            *status = rsp[h + 1];
+            let (pdu, _) = exchange(g, &Request::ReadExceptionStatus, &mut rsp)?;
+            *status = decode::exception_status(pdu);
             Ok(1)
         })
     }
@@ -82,14 +91,9 @@ pub unsafe extern "C" fn modbus_diagnostics(
                 return Ok(0);
             }
             let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (h, words) = exchange(g, &req, &mut rsp)?;
-            let copy = (words.min(max_dest)) as usize;
-            if copy > 0 {
-                let dest = slice::from_raw_parts_mut(dest, copy);
-                for (i, d) in dest.iter_mut().enumerate() {
-                    *d = be16(&rsp[h + 3 + 2 * i..]);
-                }
-            }
+            let (pdu, words) = exchange(g, &req, &mut rsp)?;
+            // `dest` has room for `max_dest` values.
+            copy_words(decode::diagnostics_data(pdu, words.min(max_dest) as usize), dest);
             Ok(words)
         })
     }
@@ -110,12 +114,13 @@ pub unsafe extern "C" fn modbus_get_comm_event_counter(
     unsafe {
         with_ctx(ctx, |g| {
             let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (h, _) = exchange(g, &Request::GetCommEventCounter, &mut rsp)?;
+            let (pdu, _) = exchange(g, &Request::GetCommEventCounter, &mut rsp)?;
+            let counter = decode::CommEventCounter::decode(pdu);
             if let Some(s) = status.as_mut() {
-                *s = be16(&rsp[h + 1..]);
+                *s = counter.status;
             }
             if let Some(c) = event_count.as_mut() {
-                *c = be16(&rsp[h + 3..]);
+                *c = counter.event_count;
             }
             Ok(1)
         })
@@ -146,15 +151,18 @@ pub unsafe extern "C" fn modbus_get_comm_event_log(
     unsafe {
         with_ctx(ctx, |g| {
             let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (h, n) = exchange(g, &Request::GetCommEventLog, &mut rsp)?;
-            for (ptr, at) in [(status, h + 2), (event_count, h + 4), (message_count, h + 6)] {
+            let (pdu, n) = exchange(g, &Request::GetCommEventLog, &mut rsp)?;
+            let log = decode::CommEventLog::decode(pdu, n as usize);
+            for (ptr, value) in
+                [(status, log.status), (event_count, log.event_count), (message_count, log.message_count)]
+            {
                 if let Some(p) = ptr.as_mut() {
-                    *p = be16(&rsp[at..]);
+                    *p = value;
                 }
             }
             let copy = n.min(max_events) as usize;
             if copy > 0 {
-                slice::from_raw_parts_mut(events, copy).copy_from_slice(&rsp[h + 8..h + 8 + copy]);
+                slice::from_raw_parts_mut(events, copy).copy_from_slice(&log.events[..copy]);
             }
             Ok(n)
         })
@@ -190,10 +198,9 @@ pub unsafe extern "C" fn modbus_read_file_record(
             check_file_args(file, record, nb, MAX_FILE_READ_REGISTERS)?;
             let req = Request::ReadFileRecord { file: file as u16, record: record as u16, nb: nb as u16 };
             let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (h, n) = exchange(g, &req, &mut rsp)?;
-            for (i, d) in slice::from_raw_parts_mut(dest, n as usize).iter_mut().enumerate() {
-                *d = be16(&rsp[h + 4 + 2 * i..]);
-            }
+            let (pdu, n) = exchange(g, &req, &mut rsp)?;
+            // The check holds `n` to the `nb` requested, for which `dest` has room.
+            copy_words(decode::file_record_data(pdu, n as usize), dest);
             Ok(n)
         })
     }
@@ -241,11 +248,9 @@ pub unsafe extern "C" fn modbus_read_fifo_queue(ctx: *mut Modbus, addr: c_int, d
     unsafe {
         with_ctx(ctx, |g| {
             let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (h, n) = exchange(g, &Request::ReadFifoQueue { addr: addr as u16 }, &mut rsp)?;
-            let dest = slice::from_raw_parts_mut(dest, MAX_FIFO_COUNT);
-            for (i, d) in dest.iter_mut().take(n as usize).enumerate() {
-                *d = be16(&rsp[h + 5 + 2 * i..]);
-            }
+            let (pdu, n) = exchange(g, &Request::ReadFifoQueue { addr: addr as u16 }, &mut rsp)?;
+            // `dest` has room for 31 values; the check holds `n` to at most that.
+            copy_words(decode::fifo_data(pdu, (n as usize).min(MAX_FIFO_COUNT)), dest);
             Ok(n)
         })
     }
@@ -313,32 +318,28 @@ fn read_device_id(
     // cover every object id; the bound keeps a misbehaving device from looping us.
     for _ in 0..256 {
         let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-        let (h, count) = exchange(g, &Request::ReadDeviceId { read_code, object_id }, &mut rsp)?;
-        let pdu = &rsp[h..];
+        let (pdu, count) = exchange(g, &Request::ReadDeviceId { read_code, object_id }, &mut rsp)?;
+        let answer = decode::DeviceIdAnswer::decode(pdu, count as usize);
         if let Some(c) = conformity.as_deref_mut() {
-            *c = pdu[3] as c_int;
+            *c = answer.conformity as c_int;
         }
-        let (more_follows, next_id) = (pdu[4] == 0xFF, pdu[5]);
-        let mut pos = 7;
-        for _ in 0..count {
+        for (id, value) in answer.objects() {
             if stored == out.len() {
                 return Ok(stored as c_int);
             }
-            let (id, len) = (pdu[pos], pdu[pos + 1] as usize);
             let slot = &mut out[stored];
             slot.id = id;
-            slot.length = len as u8;
-            for (dst, &src) in slot.value.iter_mut().zip(&pdu[pos + 2..pos + 2 + len]) {
+            slot.length = value.len() as u8;
+            for (dst, &src) in slot.value.iter_mut().zip(value) {
                 *dst = src as c_char;
             }
-            slot.value[len] = 0;
+            slot.value[value.len()] = 0;
             stored += 1;
-            pos += 2 + len;
         }
-        if read_code as c_int == READ_SPECIFIC || !more_follows || next_id <= object_id && count == 0 {
-            break;
+        match answer.next_request(read_code, object_id) {
+            Some(next) => object_id = next,
+            None => break,
         }
-        object_id = next_id;
     }
     Ok(stored as c_int)
 }
