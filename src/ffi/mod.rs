@@ -171,7 +171,12 @@ pub unsafe fn free_handle(ctx: *mut Modbus) {
     // SAFETY: guaranteed by the caller.
     let Some(handle) = (unsafe { ctx.as_ref() }) else { return };
     match handle.ctx.try_lock() {
-        Some(g) => drop(g),
+        Some(g) => {
+            drop(g);
+            // Not closed, as libmodbus; a `modbus_tcp_accept` waiting unlocked still
+            // ends (EBADF), and frees the handle as it leaves.
+            handle.stop.note_close();
+        }
         None if handle.ctx.holder() == current_thread() => {
             handle.stop.close_in_handler();
             handle.ctx.raise_flag();

@@ -358,8 +358,11 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
             }
         })
     };
+    let e = crate::transport::errno();
     // SAFETY: the reference taken above.
     unsafe { crate::ffi::release(ctx) };
+    // Freeing the handle (when a `modbus_free` came meanwhile) must not change errno.
+    crate::transport::set_errno(e);
     rc
 }
 
@@ -948,6 +951,48 @@ mod tests {
             let rc = libc::connect(fd, (&sa as *const libc::sockaddr_in).cast(), size_of::<libc::sockaddr_in>() as u32);
             assert_eq!(rc, 0);
             fd
+        }
+    }
+
+    /// `modbus_close` and `modbus_free` from another thread end a `modbus_tcp_accept`
+    /// that waits (it holds no lock while it waits) with EBADF, promptly; after the
+    /// free, the handle goes with the accept's return (valgrind in the C suites).
+    #[test]
+    fn accept_is_stopped_by_close_and_free_from_another_thread() {
+        for free in [false, true] {
+            let ctx = into_handle(Context::new_tcp(Some(c"127.0.0.1"), 0));
+            // SAFETY: a live handle, passed to the other thread as a number.
+            let mut lfd = unsafe { modbus_tcp_listen(ctx, 1) };
+            assert!(lfd >= 0);
+            let addr = ctx as usize;
+            let stopper = std::thread::spawn(move || {
+                std::thread::sleep(std::time::Duration::from_millis(200));
+                let started = std::time::Instant::now();
+                // SAFETY: the handle is live until this call.
+                unsafe {
+                    if free {
+                        modbus_free(addr as *mut Modbus);
+                    } else {
+                        crate::ffi::context::modbus_close(addr as *mut Modbus);
+                    }
+                }
+                started.elapsed()
+            });
+            let started = std::time::Instant::now();
+            // SAFETY: live handle (freed by the other thread only once this returns),
+            // a live local.
+            let rc = unsafe { modbus_tcp_accept(ctx, &mut lfd) };
+            let e = errno();
+            let waited = started.elapsed();
+            let took = stopper.join().unwrap();
+            assert_eq!((rc, e), (-1, libc::EBADF), "free: {free}");
+            assert!(waited < std::time::Duration::from_secs(2), "{waited:?}");
+            assert!(took < std::time::Duration::from_millis(100), "{took:?}");
+            if !free {
+                // SAFETY: the handle is live (only closed).
+                unsafe { modbus_free(ctx) };
+            }
+            close(lfd);
         }
     }
 
