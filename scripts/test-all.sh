@@ -45,7 +45,7 @@ command -v bc >/dev/null || { apt-get install -y -qq bc >/dev/null 2>&1 || true;
 
 run fmt cargo fmt --all --check
 run clippy cargo clippy --workspace --all-targets -- -D warnings
-run unit-tests cargo test --workspace --lib
+run unit-tests cargo test --workspace
 run build cargo build --release
 ln -sf libmodbus.so target/release/libmodbus.so.5
 [ -x scripts/check-headers.sh ] && run headers scripts/check-headers.sh
