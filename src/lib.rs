@@ -1,13 +1,19 @@
 //! rsmodbus: a memory-safe, binary drop-in replacement for libmodbus (`libmodbus.so.5`).
 //!
-//! Layers, from the wire up:
-//! - [`core`]: the sans-I/O protocol engine (framing, CRC, requests, response checks,
-//!   server replies). Pure functions over byte slices; no `unsafe`, no clock, no I/O.
+//! Layers, from the wire up (ARCHITECTURE.md has the whole picture):
+//! - [`core`]: the protocol crate `rsmodbus-proto` (framing, lengths, requests,
+//!   response checks and decoders, server replies). No `unsafe`, no clock, no I/O.
 //! - [`transport`]: file-descriptor I/O for serial lines and TCP (`poll`, never `select`).
 //! - [`context`] and [`engine`]: a `modbus_t` context and the libmodbus flows that drive
-//!   the core over a transport (send, receive, confirm, error recovery, debug trace).
+//!   the protocol over a transport (send, receive, confirm, error recovery, debug
+//!   trace); `server` (private) the server's receive and reply.
+//! - [`lock`] and `stop` (private): the context lock, whose word names its owner, and
+//!   what stopping a waiting call needs without it.
 //! - [`ffi`]: the exported C ABI, thin shims that check arguments and map errors to
 //!   `-1`/`NULL` plus `errno` in one place.
+//!
+//! Modules are public where a user of the crate needs them: the fuzz crate and the
+//! integration tests in tests/.
 //!
 //! # Panic policy
 //! The library is built with `panic = "abort"` (enforced below at compile time for
@@ -22,13 +28,14 @@ compile_error!("rsmodbus must be built with panic = \"abort\" (see the panic pol
 
 /// The protocol crate, under the name the library's modules use.
 pub use rsmodbus_proto as core;
-pub use rsmodbus_proto::{error, server_ext};
+pub use rsmodbus_proto::error;
+use rsmodbus_proto::server_ext;
 
 pub mod context;
 pub mod engine;
 pub mod ffi;
 pub mod lock;
-pub mod server;
-pub mod stdio;
-pub mod stop;
+mod server;
+mod stdio;
+mod stop;
 pub mod transport;
