@@ -144,8 +144,22 @@ impl Stop {
     /// Another thread is about to close the context while a call holds it: every
     /// wait of that call ends now (the socket is shut down, the wake-up descriptor
     /// written), and the calls fail with EBADF until [`Stop::end_stop`].
+    ///
+    /// Signals are blocked while `shutting` is raised: a handler of this thread that
+    /// closed the context itself would otherwise wait in [`Stop::set_fd`] for this
+    /// very frame, which cannot run before the handler returns.
     pub fn begin_stop(&self) {
         self.stoppers.fetch_add(1, SeqCst);
+        // SAFETY: sigset_t is plain data, filled by sigfillset; pthread_sigmask reads
+        // `all` and writes the old mask into `old`, both live locals.
+        let mut old: libc::sigset_t = unsafe { std::mem::zeroed() };
+        // SAFETY: as above.
+        let mut all: libc::sigset_t = unsafe { std::mem::zeroed() };
+        // SAFETY: as above.
+        unsafe {
+            libc::sigfillset(&mut all);
+            libc::pthread_sigmask(libc::SIG_BLOCK, &all, &mut old);
+        }
         self.shutting.fetch_add(1, SeqCst);
         let fd = self.fd.load(SeqCst);
         if fd >= 0 {
@@ -154,6 +168,8 @@ impl Stop {
             unsafe { libc::shutdown(fd, libc::SHUT_RDWR) };
         }
         self.shutting.fetch_sub(1, SeqCst);
+        // SAFETY: restores the mask saved above.
+        unsafe { libc::pthread_sigmask(libc::SIG_SETMASK, &old, std::ptr::null_mut()) };
         self.wake_waiters();
     }
 
