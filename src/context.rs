@@ -3,7 +3,6 @@
 
 use std::ffi::{CStr, CString};
 use std::sync::Arc;
-use std::time::Duration;
 
 use crate::core::frame::{Framing, MAX_ADU_LENGTH};
 use crate::core::limits::TCP_SLAVE;
@@ -16,38 +15,14 @@ pub const QUIRK_MAX_SLAVE: u32 = 1 << 1;
 /// `MODBUS_QUIRK_REPLY_TO_BROADCAST`: an RTU server answers slave 0 too.
 pub const QUIRK_REPLY_TO_BROADCAST: u32 = 1 << 2;
 
-/// `MODBUS_ERROR_RECOVERY_LINK` and `_PROTOCOL`.
-pub const RECOVERY_LINK: i32 = 1 << 1;
-pub const RECOVERY_PROTOCOL: i32 = 1 << 2;
+/// `MODBUS_ERROR_RECOVERY_LINK` and `_PROTOCOL`, and the timeouts: the session rules'.
+pub use crate::core::session::{RECOVERY_LINK, RECOVERY_PROTOCOL, Timeout, Timeouts};
 
 pub const RTU_RS232: i32 = 0;
 pub const RTU_RS485: i32 = 1;
 pub const RTU_RTS_NONE: i32 = 0;
 pub const RTU_RTS_UP: i32 = 1;
 pub const RTU_RTS_DOWN: i32 = 2;
-
-/// A timeout as the C API sets it: seconds and microseconds (0..=999999).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub struct Timeout {
-    pub sec: u32,
-    pub usec: u32,
-}
-
-impl Timeout {
-    pub const fn new(sec: u32, usec: u32) -> Self {
-        Timeout { sec, usec }
-    }
-    pub const fn is_zero(self) -> bool {
-        self.sec == 0 && self.usec == 0
-    }
-    pub fn duration(self) -> Duration {
-        Duration::new(self.sec as u64, self.usec * 1000)
-    }
-
-    pub fn timespec(self) -> libc::timespec {
-        libc::timespec { tv_sec: self.sec as libc::time_t, tv_nsec: self.usec as libc::c_long * 1000 }
-    }
-}
 
 /// The application's RTS callback (`modbus_rtu_set_custom_rts`), as the C layer
 /// wraps it: called with the line's new state, it calls the application's function
@@ -330,6 +305,12 @@ impl Context {
             Link::Rtu(r) => Some(r),
             _ => None,
         }
+    }
+
+    /// The three timeouts, for the session rules.
+    #[inline]
+    pub fn timeouts(&self) -> Timeouts {
+        Timeouts { response: self.response_timeout, byte: self.byte_timeout, indication: self.indication_timeout }
     }
 
     /// TCP (MBAP) framing.

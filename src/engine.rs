@@ -4,10 +4,11 @@
 
 use std::time::{Duration, Instant};
 
-use crate::context::{Context, Link, RECOVERY_LINK, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
+use crate::context::{Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
 use crate::core::request::{Request, next_tid};
+use crate::core::session::{self, Recovery, Wait};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
@@ -230,16 +231,17 @@ fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: R
             Ok(_) => return Err(Error::BAD_DATA),
             Err(e) => {
                 error_print(g, e, None);
-                if g.error_recovery & RECOVERY_LINK == 0 {
-                    return Err(e);
-                }
-                if matches!(e.0, libc::EBADF | libc::ECONNRESET | libc::EPIPE) {
-                    close(g);
-                    sleep_response_timeout(g)?;
-                    let _ = connect(g);
-                } else {
-                    sleep_response_timeout(g)?;
-                    let _ = flush(g);
+                match session::after_send(g.error_recovery, e) {
+                    Recovery::ReconnectAfterSleep => {
+                        close(g);
+                        sleep_response_timeout(g)?;
+                        let _ = connect(g);
+                    }
+                    Recovery::SleepFlush => {
+                        sleep_response_timeout(g)?;
+                        let _ = flush(g);
+                    }
+                    _ => return Err(e),
                 }
             }
         }
@@ -256,28 +258,27 @@ pub enum Received {
     Ignored(usize),
 }
 
-/// LINK recovery after a failed wait.
+/// LINK recovery after a failed wait (see `session::after_wait`).
 fn recover_after_wait(ctx: &mut Context, e: Error) {
-    if ctx.error_recovery & RECOVERY_LINK == 0 || ctx.stopping() {
+    if ctx.stopping() {
         return;
     }
-    if e == Error::TIMED_OUT {
-        if sleep_response_timeout(ctx).is_err() {
-            return;
+    match session::after_wait(ctx.error_recovery, e) {
+        // The sleep ends early when the context is being closed: then no flush.
+        Recovery::SleepFlush if sleep_response_timeout(ctx).is_ok() => {
+            let _ = flush(ctx);
         }
-        let _ = flush(ctx);
-    } else if e.0 == libc::EBADF {
-        close(ctx);
-        let _ = connect(ctx);
+        Recovery::Reconnect => {
+            close(ctx);
+            let _ = connect(ctx);
+        }
+        _ => {}
     }
 }
 
-/// LINK recovery after a failed read.
+/// LINK recovery after a failed read (see `session::after_read`).
 fn recover_after_read(ctx: &mut Context, e: Error) {
-    if ctx.error_recovery & RECOVERY_LINK != 0
-        && !ctx.stopping()
-        && matches!(e.0, libc::ECONNRESET | libc::ECONNREFUSED | libc::EBADF)
-    {
+    if !ctx.stopping() && session::after_read(ctx.error_recovery, e) == Recovery::Reconnect {
         close(ctx);
         let _ = connect(ctx);
     }
@@ -590,9 +591,9 @@ fn receive_ascii(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Rec
 /// The first wait of a receive: the response timeout for a confirmation, the
 /// indication timeout (0 = forever) for a request.
 fn first_timeout(ctx: &Context, kind: MsgKind) -> Option<libc::timespec> {
-    match kind {
-        MsgKind::Confirmation => Some(ctx.response_timeout.timespec()),
-        MsgKind::Indication => (!ctx.indication_timeout.is_zero()).then(|| ctx.indication_timeout.timespec()),
+    match ctx.timeouts().first_wait(kind) {
+        Wait::For(t) => Some(transport::timespec_of(t)),
+        Wait::Forever | Wait::Left => None,
     }
 }
 
@@ -681,8 +682,8 @@ fn read_within_response_timeout(
 /// that is 0, what is left of the current one.
 #[inline]
 fn rearm_after_bytes(ctx: &Context, budget: &mut Option<libc::timespec>) {
-    if !ctx.byte_timeout.is_zero() {
-        *budget = Some(ctx.byte_timeout.timespec());
+    if let Wait::For(t) = ctx.timeouts().after_bytes() {
+        *budget = Some(transport::timespec_of(t));
     }
 }
 
@@ -759,7 +760,7 @@ fn check_serial_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
     if ctx.framing == Framing::Ascii {
         if let Err((received, computed)) = ascii::check_lrc(frame) {
             diag.err(format_args!("ERROR LRC received 0x{received:0X} != LRC calculated 0x{computed:0X}\n"));
-            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 {
+            if session::after_bad_checksum(ctx.error_recovery) == Recovery::Flush {
                 ctx.rx.clear();
                 let _ = rtu::flush(ctx.s);
             }
@@ -775,7 +776,7 @@ fn check_serial_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
         RtuIntegrity::Ok => Ok(Received::Frame(frame.len())),
         RtuIntegrity::BadCrc(received, computed) => {
             diag.err(format_args!("ERROR CRC received 0x{received:0X} != CRC calculated 0x{computed:0X}\n"));
-            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 {
+            if session::after_bad_checksum(ctx.error_recovery) == Recovery::Flush {
                 let _ = rtu::flush(ctx.s);
             }
             Err(Error::BAD_CRC)
@@ -846,13 +847,15 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
             Err(e)
         }
         Err(Rejection::Mismatch(e)) => {
-            if ctx.error_recovery & RECOVERY_PROTOCOL != 0 && sleep_response_timeout(ctx).is_ok() {
+            if session::after_mismatch(ctx.error_recovery) == Recovery::SleepFlush
+                && sleep_response_timeout(ctx).is_ok()
+            {
                 let _ = flush(ctx);
             }
             Err(e)
         }
         Err(Rejection::Foreign(e)) => {
-            if ctx.error_recovery & RECOVERY_PROTOCOL == 0 {
+            if session::after_mismatch(ctx.error_recovery) == Recovery::None {
                 return Err(e);
             }
             // errno first, then the flush, whose failed non-blocking read may

@@ -13,8 +13,10 @@ use core::fmt;
 /// tests compare each with libc's).
 pub mod errno {
     pub const EBADF: i32 = 9;
+    pub const EAGAIN: i32 = 11;
     pub const ENOMEM: i32 = 12;
     pub const EINVAL: i32 = 22;
+    pub const EPIPE: i32 = 32;
     pub const EDEADLK: i32 = 35;
     pub const ENOPROTOOPT: i32 = 92;
     pub const ENOTSUP: i32 = 95;

@@ -23,6 +23,7 @@ pub mod request;
 #[cfg(test)]
 mod seed_vectors;
 pub mod server_ext;
+pub mod session;
 #[cfg(test)]
 pub mod test_rng;
 

@@ -38,6 +38,11 @@ pub fn last_error() -> Error {
     Error(errno())
 }
 
+/// A context timeout as the `timespec` the waits take.
+pub fn timespec_of(t: crate::core::session::Timeout) -> libc::timespec {
+    libc::timespec { tv_sec: t.sec as libc::time_t, tv_nsec: t.usec as libc::c_long * 1000 }
+}
+
 pub fn to_timespec(d: Duration) -> libc::timespec {
     libc::timespec { tv_sec: d.as_secs() as libc::time_t, tv_nsec: d.subsec_nanos() as libc::c_long }
 }
@@ -157,6 +162,8 @@ mod tests {
     fn the_protocol_crates_errno_numbers_are_libcs() {
         let pairs = [
             (errno::EBADF, libc::EBADF),
+            (errno::EAGAIN, libc::EAGAIN),
+            (errno::EPIPE, libc::EPIPE),
             (errno::ENOMEM, libc::ENOMEM),
             (errno::EINVAL, libc::EINVAL),
             (errno::EDEADLK, libc::EDEADLK),
