@@ -112,6 +112,15 @@ unsafe fn unlock_call(ctx: *mut Modbus, g: Guard<'_>) {
     }
 }
 
+/// The close itself, with the lock. A signal handler may close the context under it
+/// too: what it leaves is finished here, so that no later call fails for it.
+fn close_locked(g: &mut Guard<'_>) {
+    engine::close(g);
+    if let Some(handled) = g.stop.take_handled() {
+        finish_handler_close(g, handled);
+    }
+}
+
 /// Closes the context of a handle whose lock another thread holds: stops its waits,
 /// then closes with the lock, which the waiting call gives up at once.
 ///
@@ -123,7 +132,7 @@ unsafe fn close_under_other_thread(ctx: *mut Modbus) {
     handle.stop.begin_stop();
     match handle.ctx.enter() {
         Entry::Locked(mut g) => {
-            engine::close(&mut g);
+            close_locked(&mut g);
             handle.stop.note_close();
             handle.stop.end_stop();
             // SAFETY: `g` is the lock of `ctx`.
@@ -150,7 +159,7 @@ pub unsafe fn close_handle(ctx: *mut Modbus) {
     let Some(handle) = (unsafe { ctx.as_ref() }) else { return };
     match handle.ctx.try_lock() {
         Some(mut g) => {
-            engine::close(&mut g);
+            close_locked(&mut g);
             handle.stop.note_close();
             // SAFETY: `g` is the lock of `ctx`.
             unsafe { unlock_call(ctx, g) };
