@@ -1,7 +1,7 @@
 //! The state behind a `modbus_t *`: configuration, the link it talks over, and the
 //! file descriptor. Creation and configuration rules follow libmodbus 3.1.12.
 
-use std::ffi::{CStr, CString};
+use std::ffi::CStr;
 use std::sync::Arc;
 
 use crate::core::frame::{Framing, MAX_ADU_LENGTH};
@@ -18,48 +18,10 @@ pub const QUIRK_REPLY_TO_BROADCAST: u32 = 1 << 2;
 /// `MODBUS_ERROR_RECOVERY_LINK` and `_PROTOCOL`, and the timeouts: the session rules'.
 pub use crate::core::session::{RECOVERY_LINK, RECOVERY_PROTOCOL, Timeout, Timeouts};
 
-pub const RTU_RS232: i32 = 0;
-pub const RTU_RS485: i32 = 1;
-pub const RTU_RTS_NONE: i32 = 0;
-pub const RTU_RTS_UP: i32 = 1;
-pub const RTU_RTS_DOWN: i32 = 2;
-
-/// The application's RTS callback (`modbus_rtu_set_custom_rts`), as the C layer
-/// wraps it: called with the line's new state, it calls the application's function
-/// with the context pointer it was registered on.
-pub type RtsHook = std::sync::Arc<dyn Fn(bool) + Send + Sync>;
-
-/// Serial line settings and state.
-pub struct RtuLink {
-    pub device: CString,
-    pub baud: i32,
-    pub parity: u8,
-    pub data_bit: i32,
-    pub stop_bit: i32,
-    /// Terminal settings found at connect, restored at close.
-    pub saved_termios: Option<libc::termios>,
-    pub serial_mode: i32,
-    pub rts: i32,
-    pub rts_delay: i32,
-    /// Microseconds to send one character at this speed and format.
-    pub onebyte_time: i32,
-    /// `None` means the built-in ioctl that drives the RTS line.
-    pub custom_rts: Option<RtsHook>,
-    /// Set when a request for another slave was seen on a shared bus: its answer
-    /// comes next and must be skipped.
-    pub confirmation_to_ignore: bool,
-}
-
-pub struct TcpLink {
-    /// The address as given (IPv4 dotted quad), or "0" for any address.
-    pub ip: CString,
-    pub port: i32,
-}
-
-pub struct TcpPiLink {
-    pub node: CString,
-    pub service: CString,
-}
+/// The links a context talks over (transport settings), seen from the context.
+pub use crate::transport::link::{
+    Link, RTU_RS232, RTU_RS485, RTU_RTS_DOWN, RTU_RTS_NONE, RTU_RTS_UP, RtsHook, RtuLink, TcpLink, TcpPiLink,
+};
 
 /// Bytes a client read past the end of the response it was assembling. They are
 /// handed out before the line is read again, so reading ahead never changes what a
@@ -94,12 +56,6 @@ impl Default for ReadAhead {
     fn default() -> Self {
         Self::new()
     }
-}
-
-pub enum Link {
-    Rtu(RtuLink),
-    Tcp(TcpLink),
-    TcpPi(TcpPiLink),
 }
 
 /// One Modbus context.

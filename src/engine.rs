@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use crate::context::{Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
+use crate::context::{ClientSocket, Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
 use crate::core::request::{Request, next_tid};
@@ -12,6 +12,7 @@ use crate::core::session::{self, Recovery, Wait};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
+use crate::transport::tcp::ConnectError;
 use crate::transport::{self, Ready, rtu, tcp};
 
 /// A locked context. Functions that may call back into the application (the custom
@@ -36,22 +37,58 @@ pub fn error_print(ctx: &Context, error: Error, context: Option<&str>) {
 
 pub use crate::transport::describe;
 
-/// `modbus_connect`.
+/// `modbus_connect`: the transport opens the line, the context takes its descriptor.
 pub fn connect(ctx: &mut Context) -> Result<()> {
     ctx.rx.clear();
-    match ctx.link {
-        Link::Rtu(_) => rtu::connect(ctx),
-        Link::Tcp(_) => tcp::connect_ipv4(ctx),
-        Link::TcpPi(_) => tcp::connect_pi(ctx),
+    let mut diag = ctx.diag();
+    let timeout = ctx.response_timeout.duration();
+    let connected = match &mut ctx.link {
+        Link::Rtu(link) => {
+            let fd = rtu::open(link, &mut diag)?;
+            let configured = rtu::configure(fd, link, &mut diag);
+            if let Some(saved) = link.saved_termios {
+                ctx.stop.save_line(&saved);
+            }
+            if let Err(e) = configured {
+                transport::close(fd);
+                ctx.set_descriptor(-1);
+                return Err(e);
+            }
+            ctx.set_descriptor(fd);
+            ctx.line_nonblocking = true;
+            return Ok(());
+        }
+        Link::Tcp(link) => tcp::connect_ipv4(link, timeout, &mut diag),
+        Link::TcpPi(link) => tcp::connect_pi(link, timeout, &mut diag),
+    };
+    match connected {
+        Ok(c) => {
+            ctx.set_descriptor(c.fd);
+            ctx.client_socket = c.blocking.then(ClientSocket::default);
+            Ok(())
+        }
+        Err(ConnectError::Before(e)) => Err(e),
+        Err(ConnectError::During(e)) => {
+            ctx.set_descriptor(-1);
+            Err(e)
+        }
     }
 }
 
-/// `modbus_close`.
+/// `modbus_close`: the context gives up its descriptor (see `Context::release_descriptor`),
+/// the transport closes it (a serial line gets its saved settings back first).
 pub fn close(ctx: &mut Context) {
     ctx.rx.clear();
+    if ctx.s < 0 {
+        return;
+    }
     match ctx.link {
-        Link::Rtu(_) => rtu::close_line(ctx),
-        Link::Tcp(_) | Link::TcpPi(_) => tcp::close_socket(ctx),
+        Link::Rtu(_) => {
+            ctx.stop.forget_line();
+            let fd = ctx.release_descriptor();
+            rtu::close_line(fd, ctx.rtu().and_then(|l| l.saved_termios));
+        }
+        Link::Tcp(_) | Link::TcpPi(_) => tcp::close_socket(ctx.release_descriptor()),
     }
 }
 

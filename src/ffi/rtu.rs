@@ -74,7 +74,13 @@ unsafe fn with_rtu(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Result<c_
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_rtu_set_serial_mode(ctx: *mut Modbus, mode: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_rtu(ctx, |g| rtu::set_serial_mode(g, mode).map(|()| 0)) }
+    unsafe {
+        with_rtu(ctx, |g| {
+            let fd = g.s;
+            let Some(link) = g.rtu_mut() else { return Err(Error::INVALID) };
+            rtu::set_serial_mode(fd, link, mode).map(|()| 0)
+        })
+    }
 }
 
 /// # Safety

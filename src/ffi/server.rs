@@ -310,7 +310,7 @@ pub unsafe extern "C" fn modbus_reply_exception(ctx: *mut Modbus, req: *const u8
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| listen::listen_ipv4(g, nb_connection)) }
+    unsafe { with_ctx(ctx, |g| listen::listen_ipv4(&g.link, nb_connection, &mut g.diag())) }
 }
 
 /// Accepts one client on `*s` and makes it the context's socket (TCP contexts, and RTU
@@ -385,7 +385,7 @@ pub unsafe extern "C" fn modbus_tcp_accept(ctx: *mut Modbus, s: *mut c_int) -> c
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_pi_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| listen::listen_pi(g, nb_connection)) }
+    unsafe { with_ctx(ctx, |g| listen::listen_pi(&g.link, nb_connection, g.debug, &mut g.diag())) }
 }
 
 /// Accepts one client (IPv4 or IPv6) on the listening socket `*s`; the new socket

@@ -8,9 +8,9 @@
 use std::ffi::CStr;
 use std::mem::{size_of, zeroed};
 
-use crate::context::{Context, Link};
 use crate::core::Diag;
 use crate::error::{Error, Result};
+use crate::transport::link::Link;
 use crate::transport::tcp::{AddrInfo, gai_error, inet_pton};
 use crate::transport::{Ready, close, last_error, wait_or_wake};
 
@@ -47,8 +47,8 @@ fn bind_and_listen(fd: i32, addr: *const libc::sockaddr, len: libc::socklen_t, b
 
 /// `modbus_tcp_listen`: an IPv4 socket bound to the context's address and port.
 /// An address starting with '0' (NULL ip, "0.0.0.0", ...) means any address.
-pub fn listen_ipv4(ctx: &Context, nb_connection: i32) -> Result<i32> {
-    let Link::Tcp(link) = &ctx.link else { return Err(Error::INVALID) };
+pub fn listen_ipv4(link: &Link, nb_connection: i32, diag: &mut dyn Diag) -> Result<i32> {
+    let Link::Tcp(link) = link else { return Err(Error::INVALID) };
     // SAFETY: plain system call with integer arguments.
     let fd = unsafe { libc::socket(libc::PF_INET, libc::SOCK_STREAM | libc::SOCK_CLOEXEC, libc::IPPROTO_TCP) };
     if fd == -1 {
@@ -65,7 +65,7 @@ pub fn listen_ipv4(ctx: &Context, nb_connection: i32) -> Result<i32> {
         // SAFETY: `ip` is NUL-terminated and `sin_addr` is a live in_addr.
         let rc = unsafe { inet_pton(libc::AF_INET, link.ip.as_ptr(), (&mut sa.sin_addr as *mut libc::in_addr).cast()) };
         if rc <= 0 {
-            ctx.diag().err(format_args!("Invalid IP address: {}\n", link.ip.to_string_lossy()));
+            diag.err(format_args!("Invalid IP address: {}\n", link.ip.to_string_lossy()));
             close(fd);
             return Err(Error::UNCHANGED);
         }
@@ -76,8 +76,8 @@ pub fn listen_ipv4(ctx: &Context, nb_connection: i32) -> Result<i32> {
 }
 
 /// `perror(what)` through the C library, as libmodbus does in debug mode.
-fn perror(ctx: &Context, what: &CStr, e: Error) {
-    if ctx.debug {
+fn perror(debug: bool, what: &CStr, e: Error) {
+    if debug {
         crate::transport::set_errno(e.0);
         // SAFETY: `what` is NUL-terminated; perror only reads it.
         unsafe { libc::perror(what.as_ptr()) };
@@ -86,14 +86,14 @@ fn perror(ctx: &Context, what: &CStr, e: Error) {
 
 /// `modbus_tcp_pi_listen`: the first address of getaddrinfo(node, service) (passive,
 /// any family) that can be bound and listened on.
-pub fn listen_pi(ctx: &Context, nb_connection: i32) -> Result<i32> {
-    let Link::TcpPi(link) = &ctx.link else { return Err(Error::INVALID) };
+pub fn listen_pi(link: &Link, nb_connection: i32, debug: bool, diag: &mut dyn Diag) -> Result<i32> {
+    let Link::TcpPi(link) = link else { return Err(Error::INVALID) };
     let node = (!link.node.is_empty()).then_some(link.node.as_c_str());
     let service: &CStr = if link.service.is_empty() { c"502" } else { &link.service };
     let list = match AddrInfo::lookup(node, service, libc::AI_PASSIVE | libc::AI_ADDRCONFIG) {
         Ok(list) => list,
         Err(code) => {
-            ctx.diag().err(format_args!("Error returned by getaddrinfo: {}\n", gai_error(code)));
+            diag.err(format_args!("Error returned by getaddrinfo: {}\n", gai_error(code)));
             return Err(Error::CONN_REFUSED);
         }
     };
@@ -103,27 +103,27 @@ pub fn listen_pi(ctx: &Context, nb_connection: i32) -> Result<i32> {
         let fd = unsafe { libc::socket(ai.ai_family, ai.ai_socktype | libc::SOCK_CLOEXEC, ai.ai_protocol) };
         if fd < 0 {
             last = last_error();
-            perror(ctx, c"socket", last);
+            perror(debug, c"socket", last);
             continue;
         }
         if let Err(e) = set_reuseaddr(fd) {
             close(fd);
             last = e;
-            perror(ctx, c"setsockopt", e);
+            perror(debug, c"setsockopt", e);
             continue;
         }
         // SAFETY: `ai_addr` points at `ai_addrlen` bytes of the list we own.
         if unsafe { libc::bind(fd, ai.ai_addr, ai.ai_addrlen) } == -1 {
             last = last_error();
             close(fd);
-            perror(ctx, c"bind", last);
+            perror(debug, c"bind", last);
             continue;
         }
         // SAFETY: plain system call with integer arguments.
         if unsafe { libc::listen(fd, nb_connection) } == -1 {
             last = last_error();
             close(fd);
-            perror(ctx, c"listen", last);
+            perror(debug, c"listen", last);
             continue;
         }
         return Ok(fd);

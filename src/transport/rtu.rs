@@ -3,9 +3,9 @@
 
 use std::mem::zeroed;
 
-use crate::context::{Context, Link, RTU_RS232, RTU_RS485};
 use crate::core::Diag;
 use crate::error::{Error, Result};
+use crate::transport::link::{RTU_RS232, RTU_RS485, RtuLink};
 use crate::transport::{close, last_error};
 
 /// The termios speed for `baud`, or `None` when the rate is not in libmodbus's table
@@ -82,10 +82,9 @@ pub fn raw_termios(speed: libc::speed_t, parity: u8, data_bit: i32, stop_bit: i3
     tios
 }
 
-/// `modbus_connect` for RTU: open the device non-blocking and set raw mode.
-pub fn connect(ctx: &mut Context) -> Result<()> {
-    let mut diag = ctx.diag();
-    let Link::Rtu(link) = &mut ctx.link else { return Err(Error::INVALID) };
+/// `modbus_connect` for RTU, first half: open the device non-blocking (the message
+/// libmodbus prints, and its error message).
+pub fn open(link: &RtuLink, diag: &mut dyn Diag) -> Result<i32> {
     let dev = link.device.to_string_lossy().into_owned();
     diag.out(format_args!(
         "Opening {} at {} bauds ({}, {}, {})\n",
@@ -100,14 +99,19 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
         diag.err(format_args!("ERROR Can't open the device {} ({})\n", dev, crate::transport::describe(e.0)));
         return Err(e);
     }
+    Ok(fd)
+}
+
+/// `modbus_connect` for RTU, second half: save the line's settings in
+/// `link.saved_termios` (for close to restore) and set raw mode. On failure the
+/// caller closes `fd`.
+pub fn configure(fd: i32, link: &mut RtuLink, diag: &mut dyn Diag) -> Result<()> {
     // SAFETY: all-zero is a valid termios; tcgetattr fills it (its result is ignored,
     // as in libmodbus: on failure the zeroed settings are what close restores).
     let mut saved: libc::termios = unsafe { zeroed() };
     // SAFETY: `saved` is a live termios.
     unsafe { libc::tcgetattr(fd, &mut saved) };
     link.saved_termios = Some(saved);
-    ctx.stop.save_line(&saved);
-
     let speed = speed_for(link.baud).unwrap_or_else(|| {
         diag.err(format_args!("WARNING Unknown baud rate {} (B9600 used)\n", link.baud));
         libc::B9600
@@ -115,24 +119,14 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
     let tios = raw_termios(speed, link.parity, link.data_bit, link.stop_bit);
     // SAFETY: `tios` is a fully initialised termios.
     if unsafe { libc::tcsetattr(fd, libc::TCSANOW, &tios) } < 0 {
-        let e = last_error();
-        close(fd);
-        ctx.set_descriptor(-1);
-        return Err(e);
+        return Err(last_error());
     }
-    ctx.set_descriptor(fd);
-    ctx.line_nonblocking = true;
     Ok(())
 }
 
 /// `modbus_close` for RTU: restore the settings found at connect, then close.
-pub fn close_line(ctx: &mut Context) {
-    if ctx.s < 0 {
-        return;
-    }
-    ctx.stop.forget_line();
-    let fd = ctx.release_descriptor();
-    if let Some(saved) = ctx.rtu().and_then(|l| l.saved_termios) {
+pub fn close_line(fd: i32, saved: Option<libc::termios>) {
+    if let Some(saved) = saved {
         // SAFETY: `saved` is the termios read at connect time.
         unsafe { libc::tcsetattr(fd, libc::TCSANOW, &saved) };
     }
@@ -161,9 +155,7 @@ const TIOCSRS485: libc::c_ulong = 0x542F;
 
 /// `modbus_rtu_set_serial_mode` on Linux: flips SER_RS485_ENABLED, keeping the
 /// driver's other RS-485 flags.
-pub fn set_serial_mode(ctx: &mut Context, mode: i32) -> Result<()> {
-    let fd = ctx.s;
-    let Some(link) = ctx.rtu_mut() else { return Err(Error::INVALID) };
+pub fn set_serial_mode(fd: i32, link: &mut RtuLink, mode: i32) -> Result<()> {
     if mode != RTU_RS485 && mode != RTU_RS232 {
         return Err(Error::INVALID);
     }

@@ -6,9 +6,9 @@ use std::ffi::CStr;
 use std::mem::{size_of, zeroed};
 use std::time::Duration;
 
-use crate::context::{ClientSocket, Context, Link};
 use crate::core::Diag;
 use crate::error::{Error, Result};
+use crate::transport::link::{TcpLink, TcpPiLink};
 use crate::transport::{close, errno, last_error, set_option, wait};
 
 unsafe extern "C" {
@@ -67,21 +67,40 @@ fn parse_ipv4(ip: &CStr) -> Option<libc::in_addr> {
     (rc == 1).then_some(addr)
 }
 
-/// `modbus_connect` for a TCP (IPv4) context.
-pub fn connect_ipv4(ctx: &mut Context) -> Result<()> {
-    let Link::Tcp(link) = &ctx.link else { return Err(Error::INVALID) };
-    let (ip, port) = (link.ip.clone(), link.port);
-    let fd = new_socket(libc::AF_INET, 0)?;
+/// Why a connect failed: before a connection was tried (the context keeps its
+/// descriptor, as libmodbus), or in the trying (the context has none afterwards).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConnectError {
+    Before(Error),
+    During(Error),
+}
+
+/// A connected client socket: `blocking` when it could be switched to blocking (see
+/// the context's `ClientSocket`); otherwise it stays non-blocking and is used as
+/// libmodbus uses its socket.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Connected {
+    pub fd: i32,
+    pub blocking: bool,
+}
+
+/// `modbus_connect` for a TCP (IPv4) context, the handshake bounded by `timeout`.
+pub fn connect_ipv4(
+    link: &TcpLink,
+    timeout: Duration,
+    diag: &mut dyn Diag,
+) -> core::result::Result<Connected, ConnectError> {
+    let (ip, port) = (&link.ip, link.port);
+    let fd = new_socket(libc::AF_INET, 0).map_err(ConnectError::Before)?;
     if let Err(e) = set_ipv4_options(fd) {
         close(fd);
-        return Err(e);
+        return Err(ConnectError::Before(e));
     }
-    let mut diag = ctx.diag();
     diag.out(format_args!("Connecting to {}:{}\n", ip.to_string_lossy(), port));
-    let Some(in_addr) = parse_ipv4(&ip) else {
+    let Some(in_addr) = parse_ipv4(ip) else {
         diag.err(format_args!("Invalid IP address: {}\n", ip.to_string_lossy()));
         close(fd);
-        return Err(Error::UNCHANGED);
+        return Err(ConnectError::Before(Error::UNCHANGED));
     };
     // SAFETY: all-zero is a valid sockaddr_in.
     let mut sa: libc::sockaddr_in = unsafe { zeroed() };
@@ -89,15 +108,11 @@ pub fn connect_ipv4(ctx: &mut Context) -> Result<()> {
     sa.sin_port = (port as u16).to_be();
     sa.sin_addr = in_addr;
     let len = size_of::<libc::sockaddr_in>() as libc::socklen_t;
-    match connect_within(fd, (&sa as *const libc::sockaddr_in).cast(), len, ctx.response_timeout.duration()) {
-        Ok(()) => {
-            adopt_connected(ctx, fd);
-            Ok(())
-        }
+    match connect_within(fd, (&sa as *const libc::sockaddr_in).cast(), len, timeout) {
+        Ok(()) => Ok(made_blocking(fd)),
         Err(e) => {
             close(fd);
-            ctx.set_descriptor(-1);
-            Err(e)
+            Err(ConnectError::During(e))
         }
     }
 }
@@ -144,16 +159,18 @@ pub fn gai_error(code: i32) -> String {
 
 /// `modbus_connect` for a protocol-independent TCP context: the first address that
 /// connects wins.
-pub fn connect_pi(ctx: &mut Context) -> Result<()> {
-    let Link::TcpPi(link) = &ctx.link else { return Err(Error::INVALID) };
-    let (node, service) = (link.node.clone(), link.service.clone());
-    let mut diag = ctx.diag();
+pub fn connect_pi(
+    link: &TcpPiLink,
+    timeout: Duration,
+    diag: &mut dyn Diag,
+) -> core::result::Result<Connected, ConnectError> {
+    let (node, service) = (&link.node, &link.service);
     let node_arg = (!node.is_empty()).then_some(node.as_c_str());
-    let list = match AddrInfo::lookup(node_arg, &service, libc::AI_ADDRCONFIG) {
+    let list = match AddrInfo::lookup(node_arg, service, libc::AI_ADDRCONFIG) {
         Ok(list) => list,
         Err(code) => {
             diag.err(format_args!("Error returned by getaddrinfo: {}\n", gai_error(code)));
-            return Err(Error::CONN_REFUSED);
+            return Err(ConnectError::Before(Error::CONN_REFUSED));
         }
     };
     let mut last = Error::CONN_REFUSED;
@@ -173,30 +190,23 @@ pub fn connect_pi(ctx: &mut Context) -> Result<()> {
             continue;
         }
         diag.out(format_args!("Connecting to [{}]:{}\n", node.to_string_lossy(), service.to_string_lossy()));
-        match connect_within(fd, ai.ai_addr, ai.ai_addrlen, ctx.response_timeout.duration()) {
-            Ok(()) => {
-                adopt_connected(ctx, fd);
-                return Ok(());
-            }
+        match connect_within(fd, ai.ai_addr, ai.ai_addrlen, timeout) {
+            Ok(()) => return Ok(made_blocking(fd)),
             Err(e) => {
                 close(fd);
                 last = e;
             }
         }
     }
-    ctx.set_descriptor(-1);
-    Err(last)
+    Err(ConnectError::During(last))
 }
 
-/// Makes a freshly connected socket the context's, switched to blocking (see
-/// [`ClientSocket`]); if that fails it stays non-blocking and is used as libmodbus
-/// uses its socket.
-fn adopt_connected(ctx: &mut Context, fd: i32) {
+/// A freshly connected socket, switched to blocking when the kernel lets it.
+fn made_blocking(fd: i32) -> Connected {
     let mut nonblocking: libc::c_int = 0;
     // SAFETY: FIONBIO reads one live c_int.
     let rc = unsafe { libc::ioctl(fd, libc::FIONBIO, &mut nonblocking as *mut libc::c_int) };
-    ctx.set_descriptor(fd);
-    ctx.client_socket = (rc == 0).then(ClientSocket::default);
+    Connected { fd, blocking: rc == 0 }
 }
 
 /// Sets `SO_RCVTIMEO` (0 = none).
@@ -209,11 +219,8 @@ pub fn set_receive_timeout(fd: i32, timeout: Duration) -> Result<()> {
 }
 
 /// `modbus_close` for TCP: shut down both directions, then close.
-pub fn close_socket(ctx: &mut Context) {
-    if ctx.s >= 0 {
-        let fd = ctx.release_descriptor();
-        // SAFETY: shutdown on a descriptor number has no memory preconditions.
-        unsafe { libc::shutdown(fd, libc::SHUT_RDWR) };
-        close(fd);
-    }
+pub fn close_socket(fd: i32) {
+    // SAFETY: shutdown on a descriptor number has no memory preconditions.
+    unsafe { libc::shutdown(fd, libc::SHUT_RDWR) };
+    close(fd);
 }
