@@ -211,12 +211,12 @@ static const char *tios_str(const struct termios *t)
     return s;
 }
 
-/* ------------------------------------------------------------------ child */
+/* The checks of this process, child or harness (each is its own process: the child
+ * is exec'd). */
+static int passed, failed;
 
-static int c_passed, c_failed;
-
-static void c_check(int cond, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void c_check(int cond, const char *fmt, ...)
+static void check(int cond, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void check(int cond, const char *fmt, ...)
 {
     va_list ap;
     printf("%s", cond ? "ok   - " : "FAIL - ");
@@ -226,11 +226,13 @@ static void c_check(int cond, const char *fmt, ...)
     printf("\n");
     fflush(stdout);
     if (cond) {
-        c_passed++;
+        passed++;
     } else {
-        c_failed++;
+        failed++;
     }
 }
+
+/* ------------------------------------------------------------------ child */
 
 static void say(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void say(const char *fmt, ...)
@@ -386,8 +388,8 @@ static int wait_go(void)
 
 static int child_done(void)
 {
-    say("DONE %d %d", c_passed, c_failed);
-    return c_failed == 0 ? 0 : 1;
+    say("DONE %d %d", passed, failed);
+    return failed == 0 ? 0 : 1;
 }
 
 static int child_main(const char *cs, const char *role, const char *tr, const char *dev, int port)
@@ -414,7 +416,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
 
     ctx = make_ctx(tr, dev, client ? port : 0);
     if (ctx == NULL) {
-        c_check(0, "new context for %s: %s", tr, modbus_strerror(errno));
+        check(0, "new context for %s: %s", tr, modbus_strerror(errno));
         return child_done();
     }
     g_ctx = ctx;
@@ -451,7 +453,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
     if (serial) {
         obs_fd = open(dev, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
         if (obs_fd < 0 || tcgetattr(obs_fd, &tios_before) != 0) {
-            c_check(0, "open/tcgetattr %s: %s", dev, strerror(errno));
+            check(0, "open/tcgetattr %s: %s", dev, strerror(errno));
             return child_done();
         }
     }
@@ -460,7 +462,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         socklen_t alen = sizeof(a);
         listen_s = modbus_tcp_listen(ctx, 1);
         if (listen_s < 0 || getsockname(listen_s, (struct sockaddr *) &a, &alen) != 0) {
-            c_check(0, "modbus_tcp_listen: %s", modbus_strerror(errno));
+            check(0, "modbus_tcp_listen: %s", modbus_strerror(errno));
             return child_done();
         }
         say("PORT %d", ntohs(a.sin_port));
@@ -480,16 +482,16 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         pthread_join(helper_tid, NULL);
         say("RETURNED rc=%d errno=%s after %.3f s", rc, ename(rc == -1 ? e : 0), t1 - t0);
         if (!ours && !restart) {
-            c_check(rc == -1 && e == EINTR && t1 - g_t_signal < 0.5,
+            check(rc == -1 && e == EINTR && t1 - g_t_signal < 0.5,
                     "accept without SA_RESTART: -1 EINTR at the signal (rc %d, %s)", rc, ename(e));
             if (rc == -1 && e == EINTR) {
                 say("DIFF debian-accept-eintr: modbus_tcp_accept returns -1 EINTR at a "
                     "flag-only signal without SA_RESTART (ours keeps waiting)");
             }
         } else {
-            c_check(rc >= 0, "accept keeps waiting through the signal and accepts (rc %d, %s)", rc,
+            check(rc >= 0, "accept keeps waiting through the signal and accepts (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            c_check(g_flag && t1 > g_t_signal + 0.1,
+            check(g_flag && t1 > g_t_signal + 0.1,
                     "accept returned %.3f s after the signal (the client connects ~0.3 s after it)",
                     t1 - g_t_signal);
         }
@@ -508,14 +510,14 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         rc = modbus_tcp_accept(ctx, &listen_s);
     }
     if (rc < 0) {
-        c_check(0, "connect/accept: %s", modbus_strerror(errno));
+        check(0, "connect/accept: %s", modbus_strerror(errno));
         return child_done();
     }
     say("CONNECTED");
     if (serial) {
         struct termios during;
         tcgetattr(obs_fd, &during);
-        c_check(!tios_equal(&during, &tios_before),
+        check(!tios_equal(&during, &tios_before),
                 "modbus_connect changed the line's termios (so restoring it can be checked)");
     }
     {
@@ -555,31 +557,31 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
             : streq(cs, "thread-free") ? "modbus_free" : "signal");
 
         if (starts(cs, "term-") || streq(cs, "free-exit")) {
-            c_check(0, "the handler should have ended the process; the call returned instead");
+            check(0, "the handler should have ended the process; the call returned instead");
             return child_done();
         }
 
         if (streq(cs, "close-return")) {
-            c_check(rc == -1 && e == EBADF, "interrupted call: -1 EBADF (rc %d, %s)", rc,
+            check(rc == -1 && e == EBADF, "interrupted call: -1 EBADF (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            c_check(t1 - g_t_signal < 1.0, "returned %.3f s after the signal (< 1 s)",
+            check(t1 - g_t_signal < 1.0, "returned %.3f s after the signal (< 1 s)",
                     t1 - g_t_signal);
-            c_check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d now",
+            check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d now",
                     fds_before, mbt_count_fds());
             if (serial) {
                 tcgetattr(obs_fd, &tios_after);
-                c_check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
+                check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
                         tios_str(&tios_after), tios_str(&tios_before));
             }
             /* phase 2: the same context connects again and works */
             if (client) {
                 rc = modbus_connect(ctx);
-                c_check(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
+                check(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
                         rc == -1 ? modbus_strerror(errno) : "");
                 if (rc == 0 && wait_go() == 0) {
                     memset(regs, 0, sizeof(regs));
                     rc = modbus_read_registers(ctx, 0, 1, regs);
-                    c_check(rc == 1 && regs[0] == 0x2A,
+                    check(rc == 1 && regs[0] == 0x2A,
                             "then a transaction with an answering peer (rc %d%s%s, value %#x)", rc,
                             rc == -1 ? ", " : "", rc == -1 ? modbus_strerror(errno) : "", regs[0]);
                 }
@@ -587,96 +589,96 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
                 rc = 0;
                 if (serial) {
                     rc = modbus_connect(ctx);
-                    c_check(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
+                    check(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
                             rc == -1 ? modbus_strerror(errno) : "");
                 }
                 if (rc == 0 && wait_go() == 0) {
                     if (!serial) {
                         rc = modbus_tcp_accept(ctx, &listen_s);
-                        c_check(rc >= 0, "modbus_tcp_accept again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
+                        check(rc >= 0, "modbus_tcp_accept again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
                                 rc == -1 ? modbus_strerror(errno) : "");
                     }
                     if (rc >= 0) {
                         rc = modbus_receive(ctx, req);
-                        c_check(rc > 0, "then a request from the peer is received (rc %d%s%s)", rc,
+                        check(rc > 0, "then a request from the peer is received (rc %d%s%s)", rc,
                                 rc == -1 ? ", " : "", rc == -1 ? modbus_strerror(errno) : "");
                     }
                 }
             }
             modbus_close(ctx);
         } else if (starts(cs, "client-timeout") || starts(cs, "server-timeout")) {
-            c_check(g_flag, "the flag-only handler ran during the call");
-            c_check(rc == -1 && e == ETIMEDOUT, "-1 ETIMEDOUT (rc %d, %s)", rc,
+            check(g_flag, "the flag-only handler ran during the call");
+            check(rc == -1 && e == ETIMEDOUT, "-1 ETIMEDOUT (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            c_check(t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
+            check(t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
                     "after %.3f s: the timeout budget of 1 s, not restarted (0.9-1.5 s)", t1 - t0);
             modbus_close(ctx);
         } else if (starts(cs, "server-forever")) {
-            c_check(g_flag, "the flag-only handler ran during the call");
-            c_check(rc > 0, "still waiting after the signal, then the peer's request (rc %d, %s)",
+            check(g_flag, "the flag-only handler ran during the call");
+            check(rc > 0, "still waiting after the signal, then the peer's request (rc %d, %s)",
                     rc, ename(rc == -1 ? e : 0));
-            c_check(t1 - g_t_signal > 0.1, "returned %.3f s after the signal (the request comes "
+            check(t1 - g_t_signal > 0.1, "returned %.3f s after the signal (the request comes "
                     "~0.3 s after it)", t1 - g_t_signal);
             modbus_close(ctx);
         } else if (streq(cs, "thread-close")) {
             double limit = vg ? 2.0 : 0.1;
-            c_check(g_helper_call_s >= 0 && g_helper_call_s < limit,
+            check(g_helper_call_s >= 0 && g_helper_call_s < limit,
                     "modbus_close from another thread returned in %.3f ms (< %.0f ms)",
                     g_helper_call_s * 1e3, limit * 1e3);
             if (!ours && rc == -1 && e == ECONNRESET) {
-                c_check(1, "blocked call: -1 ECONNRESET (Debian: woken by shutdown(), recv "
+                check(1, "blocked call: -1 ECONNRESET (Debian: woken by shutdown(), recv "
                         "read the EOF before the descriptor was closed)");
                 say("DIFF debian-close-econnreset: the waiting call saw the shutdown's EOF "
                     "(ECONNRESET) before the close");
             } else {
-                c_check(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
+                check(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
                         ename(rc == -1 ? e : 0));
             }
-            c_check(t1 - g_t_signal < slack, "it returned %.3f s after modbus_close (< %.0f s)",
+            check(t1 - g_t_signal < slack, "it returned %.3f s after modbus_close (< %.0f s)",
                     t1 - g_t_signal, slack);
-            c_check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d now",
+            check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d now",
                     fds_before, mbt_count_fds());
             if (serial) {
                 tcgetattr(obs_fd, &tios_after);
-                c_check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
+                check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
                         tios_str(&tios_after), tios_str(&tios_before));
             }
         } else if (streq(cs, "thread-free")) {
             double limit = vg ? 2.0 : 0.1;
-            c_check(g_helper_call_s >= 0 && g_helper_call_s < limit,
+            check(g_helper_call_s >= 0 && g_helper_call_s < limit,
                     "modbus_free from another thread returned in %.3f ms (< %.0f ms)",
                     g_helper_call_s * 1e3, limit * 1e3);
-            c_check(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
+            check(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            c_check(t1 - g_t_signal < slack, "it returned %.3f s after modbus_free (< %.0f s)",
+            check(t1 - g_t_signal < slack, "it returned %.3f s after modbus_free (< %.0f s)",
                     t1 - g_t_signal, slack);
             say("NOTE descriptors: %d before connect, %d after modbus_free", fds_before,
                 mbt_count_fds());
             /* ctx is gone: never touched again */
             ctx = NULL;
         } else if (streq(cs, "handler-call")) {
-            c_check(h_sock == sock_before, "modbus_get_socket in the handler: %d (before: %d)",
+            check(h_sock == sock_before, "modbus_get_socket in the handler: %d (before: %d)",
                     h_sock, sock_before);
             if (ours) {
-                c_check(h_rc_slave == -1 && h_errno_slave == EDEADLK && h_slave_s < 0.1,
+                check(h_rc_slave == -1 && h_errno_slave == EDEADLK && h_slave_s < 0.1,
                         "modbus_set_slave in the handler: -1 EDEADLK at once (rc %d, %s, %.3f ms)",
                         h_rc_slave, ename(h_errno_slave), h_slave_s * 1e3);
-                c_check(h_rc_read == -1 && h_errno_read == EDEADLK && h_read_s < 0.1,
+                check(h_rc_read == -1 && h_errno_read == EDEADLK && h_read_s < 0.1,
                         "modbus_read_registers in the handler: -1 EDEADLK at once (rc %d, %s, "
                         "%.3f ms)",
                         h_rc_read, ename(h_errno_read), h_read_s * 1e3);
-                c_check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
+                check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
                         "the interrupted call goes on: -1 ETIMEDOUT after %.3f s (rc %d, %s; "
                         "0.9-1.5 s)",
                         t1 - t0, rc, ename(rc == -1 ? e : 0));
             } else {
-                c_check(h_rc_slave == 0, "modbus_set_slave in the handler: runs, rc %d (%s)",
+                check(h_rc_slave == 0, "modbus_set_slave in the handler: runs, rc %d (%s)",
                         h_rc_slave, ename(h_errno_slave));
-                c_check(h_rc_read == -1 && h_errno_read == ETIMEDOUT && h_read_s >= 0.9,
+                check(h_rc_read == -1 && h_errno_read == ETIMEDOUT && h_read_s >= 0.9,
                         "modbus_read_registers in the handler: runs, -1 ETIMEDOUT after the "
                         "response timeout (rc %d, %s, %.3f s)",
                         h_rc_read, ename(h_errno_read), h_read_s);
-                c_check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 1.5 && t1 - t0 <= 3.0,
+                check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 1.5 && t1 - t0 <= 3.0,
                         "the interrupted call: -1 ETIMEDOUT after %.3f s (its 1 s plus the "
                         "handler's; 1.5-3 s) (rc %d, %s)",
                         t1 - t0, rc, ename(rc == -1 ? e : 0));
@@ -687,7 +689,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
             }
             modbus_close(ctx);
         } else {
-            c_check(0, "unknown case %s", cs);
+            check(0, "unknown case %s", cs);
         }
     }
     if (ctx != NULL) {
@@ -704,26 +706,8 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
 
 /* ------------------------------------------------------------------ harness */
 
-static int h_passed, h_failed;
 static char h_summary[4096];
 static char h_test[256];
-
-static void h_check(int cond, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void h_check(int cond, const char *fmt, ...)
-{
-    va_list ap;
-    printf("%s", cond ? "ok   - " : "FAIL - ");
-    va_start(ap, fmt);
-    vprintf(fmt, ap);
-    va_end(ap);
-    printf("\n");
-    fflush(stdout);
-    if (cond) {
-        h_passed++;
-    } else {
-        h_failed++;
-    }
-}
 
 static void note(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void note(const char *fmt, ...)
@@ -960,7 +944,7 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
         a_fd = open(dev_a, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
         b_fd = open(dev_b, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
         if (a_fd < 0 || b_fd < 0 || tcgetattr(a_fd, &raw) != 0) {
-            h_check(0, "%s: open the pty pair %s %s: %s", h_test, dev_a, dev_b, strerror(errno));
+            check(0, "%s: open the pty pair %s %s: %s", h_test, dev_a, dev_b, strerror(errno));
             goto out;
         }
         /* the line's state before modbus_connect: raw at 9600 baud, surely not what
@@ -976,20 +960,20 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
     } else if (client) {
         lis = tcp_listen_any(&lport);
         if (lis < 0) {
-            h_check(0, "%s: listen on 127.0.0.1: %s", h_test, strerror(errno));
+            check(0, "%s: listen on 127.0.0.1: %s", h_test, strerror(errno));
             goto out;
         }
     }
 
     if (pipe2(to_child, O_CLOEXEC) != 0 || pipe2(from_child, O_CLOEXEC) != 0) {
-        h_check(0, "pipe: %s", strerror(errno));
+        check(0, "pipe: %s", strerror(errno));
         goto out;
     }
     {
         pid_t harness = getpid();
         pid = fork();
         if (pid < 0) {
-            h_check(0, "fork: %s", strerror(errno));
+            check(0, "fork: %s", strerror(errno));
             goto out;
         }
         if (pid == 0) {
@@ -1228,33 +1212,33 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
                      WEXITSTATUS(status) == 99 && vg ? " (valgrind found errors)" : "");
         }
         if (t_blocking == 0 && !killed) {
-            h_check(0, "%s: the child ended before it blocked: %s", h_test, what);
+            check(0, "%s: the child ended before it blocked: %s", h_test, what);
             note("ended before blocking: %s", what);
             goto out;
         }
         if (t_blocking == 0) {
-            h_check(0, "%s: the child never reached the blocking call (killed)", h_test);
+            check(0, "%s: the child never reached the blocking call (killed)", h_test);
             note("never blocked");
             goto out;
         }
-        h_check((expected >> got) & 1u, "%s: %s (expected: %s)", h_test, what, expected_str);
+        check((expected >> got) & 1u, "%s: %s (expected: %s)", h_test, what, expected_str);
         if (!((expected >> got) & 1u)) {
             note("%s, expected %s", what, expected_str);
         } else if (got == OUT_ABORT && !fortify_msg) {
-            h_check(0, "%s: the abort is not glibc's \"bit out of range 0 - FD_SETSIZE on "
+            check(0, "%s: the abort is not glibc's \"bit out of range 0 - FD_SETSIZE on "
                     "fd_set\"", h_test);
         } else if (diff_name != NULL && got != OUT_EXIT0) {
             printf("DIFF %s: %s\n", diff_name, diff_what);
             note("DIFF %s: %s", diff_name, what);
         }
         if (got == OUT_EXIT0 && !exit_in_handler) {
-            h_check(done_seen, "%s: the child's own checks ran to the end", h_test);
+            check(done_seen, "%s: the child's own checks ran to the end", h_test);
         }
         if (got == OUT_EXIT0 && streq(cs, "close-return")) {
-            h_check(phase2_seen, "%s: the context was used again after the close", h_test);
+            check(phase2_seen, "%s: the context was used again after the close", h_test);
         }
         if (child_passed + child_failed > 0 || (got == OUT_EXIT0 && !exit_in_handler)) {
-            h_check(child_failed == 0 && child_passed > 0,
+            check(child_failed == 0 && child_passed > 0,
                     "%s: the child's checks: %d passed, %d failed", h_test, child_passed,
                     child_failed);
         }
@@ -1263,18 +1247,18 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
             if (killed) {
                 /* already failed as a hang */
             } else if (t_signal > 0) {
-                h_check(got == OUT_EXIT0 && dt < limit,
+                check(got == OUT_EXIT0 && dt < limit,
                         "%s: exited %.3f s after the SIGTERM (< %.0f s)", h_test, dt, limit);
                 note("exit %.3f s after SIGTERM", dt);
             } else {
-                h_check(0, "%s: no SIGTERM was sent", h_test);
+                check(0, "%s: no SIGTERM was sent", h_test);
             }
             if (serial) {
                 tcgetattr(a_fd, &t_after);
-                h_check(have_during && !tios_equal(&t_during, &t_before),
+                check(have_during && !tios_equal(&t_during, &t_before),
                         "%s: modbus_connect changed the line's termios (%s)", h_test,
                         have_during ? tios_str(&t_during) : "?");
-                h_check(tios_equal(&t_after, &t_before),
+                check(tios_equal(&t_after, &t_before),
                         "%s: termios after the exit equals termios before connect (%s; before %s)",
                         h_test, tios_str(&t_after), tios_str(&t_before));
             }
@@ -1293,10 +1277,10 @@ out:
     if (b_fd >= 0) {
         close(b_fd);
     }
-    printf("RESULT %s %s%s%s%s\n", h_failed == 0 && h_passed > 0 ? "PASS" : "FAIL", h_test,
+    printf("RESULT %s %s%s%s%s\n", failed == 0 && passed > 0 ? "PASS" : "FAIL", h_test,
            h_summary[0] ? "  (" : "", h_summary, h_summary[0] ? ")" : "");
-    printf("%d passed, %d failed\n", h_passed, h_failed);
-    return h_failed == 0 && h_passed > 0 ? 0 : 1;
+    printf("%d passed, %d failed\n", passed, failed);
+    return failed == 0 && passed > 0 ? 0 : 1;
 }
 
 int main(int argc, char **argv)
