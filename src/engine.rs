@@ -35,7 +35,7 @@ pub fn error_print(ctx: &Context, error: Error, context: Option<&str>) {
     }
 }
 
-pub use crate::transport::describe;
+use crate::transport::describe;
 
 /// `modbus_connect`: the transport opens the line, the context takes its descriptor.
 pub fn connect(ctx: &mut Context) -> Result<()> {

@@ -53,18 +53,7 @@ pub fn to_timespec(d: Duration) -> libc::timespec {
 /// caller decides whether to retry).
 pub fn wait(fd: i32, events: libc::c_short, timeout: Option<Duration>) -> Result<bool> {
     let mut ts = timeout.map(to_timespec);
-    wait_counting_down(fd, events, ts.as_mut())
-}
-
-/// Like [`wait`], but the kernel writes the time left back into `timeout`, as
-/// Linux's `select` does with its `timeval` (libmodbus relies on that: with no byte
-/// timeout, every wait of one message shares the response timeout). Reusing the same
-/// value across waits therefore needs no clock reads in user space.
-pub fn wait_counting_down(fd: i32, events: libc::c_short, timeout: Option<&mut libc::timespec>) -> Result<bool> {
-    match wait_or_wake(fd, events, -1, timeout)? {
-        Ready::Line => Ok(true),
-        Ready::TimedOut | Ready::Woken => Ok(false),
-    }
+    Ok(wait_or_wake(fd, events, -1, ts.as_mut())? == Ready::Line)
 }
 
 /// What [`wait_or_wake`] saw.
@@ -78,7 +67,10 @@ pub enum Ready {
 }
 
 /// One `ppoll` on `fd` (skipped when negative, so that the call is a sleep) and, when
-/// `wake` is not negative, on `wake` for input; the kernel counts `timeout` down.
+/// `wake` is not negative, on `wake` for input. The kernel writes the time left back
+/// into `timeout`, as Linux's `select` does with its `timeval` (libmodbus relies on
+/// that: with no byte timeout, every wait of one message shares the response
+/// timeout), so reusing the same value across waits needs no clock reads.
 /// `Err` carries the errno (EINTR included, for the caller to decide).
 pub fn wait_or_wake(fd: i32, events: libc::c_short, wake: i32, timeout: Option<&mut libc::timespec>) -> Result<Ready> {
     let mut pfds =
