@@ -23,40 +23,8 @@ pub use crate::transport::link::{
     Link, RTU_RS232, RTU_RS485, RTU_RTS_DOWN, RTU_RTS_NONE, RTU_RTS_UP, RtsHook, RtuLink, TcpLink, TcpPiLink,
 };
 
-/// Bytes a client read past the end of the response it was assembling. They are
-/// handed out before the line is read again, so reading ahead never changes what a
-/// later receive sees; `modbus_flush`, close, connect and `modbus_set_socket` drop
-/// them along with the kernel's queue.
-pub struct ReadAhead {
-    pub buf: [u8; MAX_ADU_LENGTH],
-    pub start: usize,
-    pub end: usize,
-}
-
-impl ReadAhead {
-    pub const fn new() -> Self {
-        ReadAhead { buf: [0; MAX_ADU_LENGTH], start: 0, end: 0 }
-    }
-    pub fn available(&self) -> &[u8] {
-        &self.buf[self.start..self.end]
-    }
-    pub fn consume(&mut self, n: usize) {
-        self.start += n;
-        if self.start == self.end {
-            self.clear();
-        }
-    }
-    pub fn clear(&mut self) {
-        self.start = 0;
-        self.end = 0;
-    }
-}
-
-impl Default for ReadAhead {
-    fn default() -> Self {
-        Self::new()
-    }
-}
+/// Bytes read past a message, for the next receive (see [`ReadAhead`]).
+pub use crate::core::session::receive::ReadAhead;
 
 /// One Modbus context.
 pub struct Context {

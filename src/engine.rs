@@ -2,13 +2,14 @@
 //! the debug trace and LINK recovery, the receive loop with its three timeouts, and
 //! the client's request/confirmation exchange.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use crate::context::{ClientSocket, Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
 use crate::core::confirm::{self, Rejection};
-use crate::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
+use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::core::request::{Request, next_tid};
-use crate::core::session::{self, Recovery, Wait};
+use crate::core::session::receive::{Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Settings, Step};
+use crate::core::session::{self, Recovery, Timeout};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
@@ -286,53 +287,85 @@ fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: R
     }
 }
 
-/// What the receive loop got.
+/// What a receive got.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Received {
     /// A complete, valid message of this length.
     Frame(usize),
-    /// RTU: a valid frame addressed to another slave (libmodbus returns 0).
+    /// A valid serial frame addressed to another slave (libmodbus returns 0).
     Ignored(usize),
 }
 
-/// LINK recovery after a failed wait (see `session::after_wait`).
-fn recover_after_wait(ctx: &mut Context, e: Error) {
+/// Carries out the recovery a failure asks for (see `core::session`), unless the
+/// context is being closed under the call.
+fn recover(ctx: &mut Context, recovery: Recovery) {
     if ctx.stopping() {
         return;
     }
-    match session::after_wait(ctx.error_recovery, e) {
+    match recovery {
+        Recovery::None => {}
         // The sleep ends early when the context is being closed: then no flush.
-        Recovery::SleepFlush if sleep_response_timeout(ctx).is_ok() => {
-            let _ = flush(ctx);
+        Recovery::SleepFlush => {
+            if sleep_response_timeout(ctx).is_ok() {
+                let _ = flush(ctx);
+            }
         }
-        Recovery::Reconnect => {
+        // A bad checksum: the line's own flush, without `modbus_flush`'s trace.
+        Recovery::Flush => {
+            ctx.rx.clear();
+            let _ = rtu::flush(ctx.s);
+        }
+        Recovery::Reconnect | Recovery::ReconnectAfterSleep => {
             close(ctx);
+            if recovery == Recovery::ReconnectAfterSleep && sleep_response_timeout(ctx).is_err() {
+                return;
+            }
             let _ = connect(ctx);
         }
-        _ => {}
     }
 }
 
-/// LINK recovery after a failed read (see `session::after_read`).
-fn recover_after_read(ctx: &mut Context, e: Error) {
-    if !ctx.stopping() && session::after_read(ctx.error_recovery, e) == Recovery::Reconnect {
-        close(ctx);
-        let _ = connect(ctx);
+/// Below this response timeout a confirmation never reads under `SO_RCVTIMEO`, which
+/// could fire too late (see [`read_within`]).
+const RCVTIMEO_MIN_RESPONSE_TIMEOUT: Duration = Duration::from_millis(200);
+
+/// What the receive machine needs to know of the context.
+fn receive_settings(ctx: &mut Context, kind: MsgKind) -> Settings {
+    let socket = ctx.is_socket();
+    let confirmation = kind == MsgKind::Confirmation;
+    Settings {
+        framing: ctx.framing,
+        kind,
+        extended: ctx.serves_extended,
+        expecting: if confirmation { ctx.diagnostics_sent.take() } else { None },
+        timeouts: ctx.timeouts(),
+        recovery: ctx.error_recovery,
+        slave: ctx.slave,
+        read_ahead: confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore),
+        ascii_delimiter: match ctx.framing {
+            Framing::Ascii => {
+                ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter())
+            }
+            _ => b'\n',
+        },
+        line: LineCaps {
+            socket,
+            reads_without_waiting: socket || ctx.line_nonblocking,
+            timed_reads: confirmation
+                && ctx.client_socket.is_some()
+                && ctx.response_timeout.duration() >= RCVTIMEO_MIN_RESPONSE_TIMEOUT,
+        },
     }
 }
 
-/// libmodbus's `_modbus_receive_msg`: read one message, step by step. The first wait
-/// uses the response timeout (confirmation) or the indication timeout (0 = forever);
-/// later waits use a fresh byte timeout, or, when that is 0, what is left of the
-/// first one.
-///
-/// Fewer system calls than libmodbus, same observable behaviour:
-/// - a client reads ahead as much as the line has, keeping what lies past its
-///   response in the context's [`ReadAhead`](crate::context::ReadAhead) for the
-///   next receive (a client owns its line);
-/// - a TCP server peeks at what has arrived and, when it holds the whole request,
-///   takes exactly that request in one read; it never takes bytes past the request,
-///   so the application's own poll loop still sees pipelined requests.
+/// libmodbus's `_modbus_receive_msg`, for every framing and line: the one receive
+/// path. The session's machine (`core::session::receive`) decides every step; this
+/// loop carries each out with its system call and reports the result. What the
+/// machine asks for makes the system-call counts: a TCP client's response is one
+/// read under `SO_RCVTIMEO`; a TCP server peeks and takes a whole request in one
+/// read, never a byte past it; a serial line is waited on, then read without waiting
+/// until it is empty. A close of the context from a signal handler or another
+/// thread ends the receive after the step it interrupts, with `Error::STOPPED`.
 pub fn receive_msg(g: &mut Guard<'_>, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
     let ctx: &mut Context = g;
     let mut diag = ctx.diag();
@@ -344,322 +377,93 @@ pub fn receive_msg(g: &mut Guard<'_>, buf: &mut [u8], kind: MsgKind) -> Result<R
         diag.err(format_args!("ERROR The connection is not established.\n"));
         return Err(Error::UNCHANGED);
     }
-    if ctx.framing == Framing::Ascii {
-        return receive_ascii(ctx, buf, kind);
-    }
     debug_assert!(buf.len() >= ctx.framing.max_adu_length());
-    if ctx.is_socket() && kind == MsgKind::Indication && ctx.rx.available().is_empty() {
-        if let Some(len) = take_whole_indication(ctx, buf) {
-            if ctx.debug {
-                let mut trace = String::with_capacity(len * 4 + 1);
-                push_trace(&mut trace, &buf[..len]);
-                trace.push('\n');
-                flush_trace(ctx, &mut trace);
-            }
-            return check_integrity(ctx, &buf[..len]);
-        }
-    }
-    receive_otherwise(ctx, buf, kind)
-}
-
-/// Every receive but the socket server's fast path (kept apart so that the latter
-/// stays a short function).
-#[inline(never)]
-fn receive_otherwise(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
-    if ctx.line_nonblocking && kind == MsgKind::Indication && !ctx.debug && ctx.rx.available().is_empty() {
-        return receive_serial_request(ctx, buf);
-    }
-    receive_steps(ctx, buf, kind, 0, first_timeout(ctx, kind))
-}
-
-/// Serial server fast path: after the first wait, the slave and function code, then,
-/// when the function code alone tells the rest of the request's length (every
-/// request but FC 0F, 10, 17 and the extended ones), the rest in one read that does
-/// not wait. Each read takes no more than the request, as in the general loop, which
-/// carries on with the bytes read so far whenever a piece is not there yet (or the
-/// wait failed: it waits again, with what is left of the timeout, and reports).
-fn receive_serial_request(ctx: &mut Context, buf: &mut [u8]) -> Result<Received> {
-    let mut budget = first_timeout(ctx, MsgKind::Indication);
-    let h = ctx.framing.header_length();
-    let mut filled = 0;
-    if wait_readable(ctx, budget.as_mut()).is_ok() {
-        filled = transport::read(ctx.s, &mut buf[..h + 1]).unwrap_or(0);
-        let total = if filled == h + 1 {
-            Assembler::new(ctx.framing, MsgKind::Indication)
-                .extended_requests(ctx.serves_extended)
-                .total_if_known(&buf[..h + 1])
-        } else {
-            None
-        };
-        if let Some(total) = total.filter(|&total| total <= buf.len()) {
-            filled += read_if_queued(ctx, &mut buf[h + 1..total]).unwrap_or(0);
-            if filled == total {
-                return check_integrity(ctx, &buf[..filled]);
-            }
-        }
-        if filled > 0 {
-            rearm_after_bytes(ctx, &mut budget);
-        }
-    }
-    receive_steps(ctx, buf, MsgKind::Indication, filled, budget)
-}
-
-/// The general receive loop of RTU and TCP (see [`receive_msg`]); `buf[..filled]`
-/// holds bytes of the message already read, `budget` the time for the next wait.
-fn receive_steps(
-    ctx: &mut Context,
-    buf: &mut [u8],
-    kind: MsgKind,
-    mut filled: usize,
-    mut budget: Option<libc::timespec>,
-) -> Result<Received> {
-    let read_ahead = kind == MsgKind::Confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
-    let expecting = if kind == MsgKind::Confirmation { ctx.diagnostics_sent.take() } else { None };
-    let mut asm = Assembler::new(ctx.framing, kind).extended_requests(ctx.serves_extended).expecting(expecting);
-    let mut trace = String::new();
-    // Bytes in `buf`: those the assembler took, then (reading ahead) any after them.
+    let mut machine = Receiver::new(receive_settings(ctx, kind), transport::now());
     loop {
-        if read_ahead && asm.is_empty() && filled > 0 {
-            // The usual case: one read brought the whole message.
-            if let Some(len) = asm.whole(&buf[..filled]) {
-                keep_unread(ctx, &buf[len..filled]);
-                if ctx.debug {
-                    push_trace(&mut trace, &buf[..len]);
-                    trace.push('\n');
-                    flush_trace(ctx, &mut trace);
-                }
-                return check_integrity(ctx, &buf[..len]);
+        let result = match machine.step(buf, &mut ctx.rx) {
+            Step::Done(finished) => return finish(ctx, buf, finished),
+            Step::Peek { block } => {
+                let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
+                transport::recv(ctx.s, &mut ctx.rx.buf, flags)
             }
-        }
-        while asm.len() < filled {
-            let start = asm.len();
-            let n = asm.wanted().min(filled - start);
-            if ctx.debug {
-                push_trace(&mut trace, &buf[start..start + n]);
-            }
-            match asm.received(&buf[..start + n], n) {
-                Ok(Progress::NeedMore(_)) => {}
-                Ok(Progress::Complete(len)) => {
-                    keep_unread(ctx, &buf[len..filled]);
-                    if ctx.debug {
-                        trace.push('\n');
-                        flush_trace(ctx, &mut trace);
-                    }
-                    return check_integrity(ctx, &buf[..len]);
+            Step::Wait { until } => wait_readable(ctx, until).map(|()| 0),
+            Step::Read { dest, how } => {
+                let socket = ctx.is_socket();
+                let room = match dest {
+                    Dest::Message { from, to } => &mut buf[from..to],
+                    Dest::ReadAhead => &mut ctx.rx.buf[..],
+                };
+                match how {
+                    ReadHow::Ready if socket => transport::recv(ctx.s, room, 0),
+                    ReadHow::Ready => transport::read(ctx.s, room),
+                    ReadHow::Queued if socket => transport::recv(ctx.s, room, libc::MSG_DONTWAIT),
+                    ReadHow::Queued => transport::read(ctx.s, room),
+                    ReadHow::Within(timeout) => read_within(ctx.s, &mut ctx.client_socket, room, timeout),
                 }
-                Err(e) => {
-                    keep_unread(ctx, &buf[start + n..filled]);
-                    flush_trace(ctx, &mut trace);
-                    error_print(ctx, e, Some("too many data"));
-                    return Err(e);
-                }
-            }
-        }
-        let want = asm.wanted();
-        if !ctx.rx.available().is_empty() {
-            // Left over from an earlier read: take only what this message needs, so
-            // whatever stays behind keeps its order.
-            let n = want.min(ctx.rx.available().len());
-            buf[filled..filled + n].copy_from_slice(&ctx.rx.available()[..n]);
-            ctx.rx.consume(n);
-            filled += n;
-            continue;
-        }
-        if filled > 0 {
-            // Within a message the rest has usually arrived with its start: read it
-            // without waiting when the read cannot block, and wait only if it is
-            // not there yet.
-            let room = if read_ahead { &mut buf[filled..] } else { &mut buf[filled..filled + want] };
-            if let Some(n) = read_if_queued(ctx, room) {
-                filled += n;
-                rearm_after_bytes(ctx, &mut budget);
-                continue;
-            }
-        }
-        let end = if read_ahead { buf.len() } else { filled + want };
-        let mut read = None;
-        if filled == 0 && kind == MsgKind::Confirmation {
-            read = read_within_response_timeout(ctx, &mut buf[..end], &mut budget);
-        }
-        let read = match read {
-            Some(read) => read,
-            None => {
-                if let Err(e) = wait_readable(ctx, budget.as_mut()) {
-                    if e == Error::TIMED_OUT && asm.searching_crc() {
-                        // The diagnostics request ended without a matching CRC: a bad frame.
-                        if ctx.debug {
-                            trace.push('\n');
-                            flush_trace(ctx, &mut trace);
-                        }
-                        return check_integrity(ctx, &buf[..asm.len()]);
-                    }
-                    flush_trace(ctx, &mut trace);
-                    error_print(ctx, e, Some("select"));
-                    recover_after_wait(ctx, e);
-                    return Err(e);
-                }
-                read_line(ctx.is_socket(), ctx.s, &mut buf[filled..end])
             }
         };
         if ctx.stopping() {
-            flush_trace(ctx, &mut trace);
-            return Err(Error::STOPPED);
-        }
-        match read {
-            Ok(0) | Err(Error(libc::ECONNRESET)) => {
-                flush_trace(ctx, &mut trace);
-                error_print(ctx, Error::CONN_RESET, Some("read"));
-                recover_after_read(ctx, Error::CONN_RESET);
-                return Err(Error::CONN_RESET);
+            machine.stopped();
+        } else {
+            if result == Err(Error(libc::EINTR)) {
+                ctx.diag().err(format_args!("A non blocked signal was caught\n"));
             }
-            Ok(n) => filled += n,
-            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
-            Err(e) => {
-                flush_trace(ctx, &mut trace);
-                error_print(ctx, e, Some("read"));
-                recover_after_read(ctx, e);
-                return Err(e);
-            }
-        }
-        rearm_after_bytes(ctx, &mut budget);
-    }
-}
-
-/// Keeps bytes read past the end of a message for the next receive (the read-ahead
-/// buffer is empty whenever a read runs, so order is kept).
-fn keep_unread(ctx: &mut Context, rest: &[u8]) {
-    if !rest.is_empty() {
-        ctx.rx.buf[..rest.len()].copy_from_slice(rest);
-        ctx.rx.start = 0;
-        ctx.rx.end = rest.len();
-    }
-}
-
-/// The receive loop of Modbus ASCII: characters are read ahead (a frame ends at its
-/// CR LF, so nothing past it is consumed as part of it) and decoded into `buf`. The
-/// first wait uses the response or indication timeout, the later ones the byte
-/// timeout (1 s by default on ASCII contexts: the gap the protocol allows).
-fn receive_ascii(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
-    let mut budget = first_timeout(ctx, kind);
-    let delimiter = ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
-    let mut decoder = ascii::Decoder::with_delimiter(delimiter);
-    let mut trace = String::new();
-    loop {
-        if ctx.rx.available().is_empty() {
-            if let Err(e) = wait_readable(ctx, budget.as_mut()) {
-                flush_trace(ctx, &mut trace);
-                error_print(ctx, e, Some("select"));
-                recover_after_wait(ctx, e);
-                return Err(e);
-            }
-            let read = read_line(ctx.is_socket(), ctx.s, &mut ctx.rx.buf);
-            if ctx.stopping() {
-                flush_trace(ctx, &mut trace);
-                return Err(Error::STOPPED);
-            }
-            match read {
-                Ok(0) | Err(Error(libc::ECONNRESET)) => {
-                    flush_trace(ctx, &mut trace);
-                    error_print(ctx, Error::CONN_RESET, Some("read"));
-                    recover_after_read(ctx, Error::CONN_RESET);
-                    return Err(Error::CONN_RESET);
-                }
-                Ok(n) => ctx.rx.end = n,
-                Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => continue,
-                Err(e) => {
-                    flush_trace(ctx, &mut trace);
-                    error_print(ctx, e, Some("read"));
-                    recover_after_read(ctx, e);
-                    return Err(e);
-                }
-            }
-        }
-        let mut used = 0;
-        let mut outcome = None;
-        for &c in ctx.rx.available() {
-            used += 1;
-            let before = decoder.len();
-            match decoder.feed(c, buf) {
-                Ok(ascii::Step::NeedMore) => {
-                    if ctx.debug && decoder.len() > before {
-                        push_trace(&mut trace, &buf[before..decoder.len()]);
-                    }
-                }
-                Ok(ascii::Step::Complete(len)) => {
-                    outcome = Some(Ok(len));
-                    break;
-                }
-                Err(e) => {
-                    outcome = Some(Err(e));
-                    break;
-                }
-            }
-        }
-        ctx.rx.consume(used);
-        match outcome {
-            None => {
-                if decoder.in_frame() {
-                    rearm_after_bytes(ctx, &mut budget);
-                }
-            }
-            Some(Ok(len)) => {
-                if ctx.debug {
-                    trace.push('\n');
-                    flush_trace(ctx, &mut trace);
-                }
-                let received = check_integrity(ctx, &buf[..len])?;
-                if received == Received::Frame(len) && !ascii_frame_is_whole(ctx, kind, &buf[..len]) {
-                    // The characters ended before the content did (a byte count or a
-                    // layout asks for more): refuse it like an RTU frame cut short.
-                    error_print(ctx, Error::BAD_DATA, Some("frame too short"));
-                    return Err(Error::BAD_DATA);
-                }
-                return Ok(received);
-            }
-            Some(Err(e)) => {
-                flush_trace(ctx, &mut trace);
-                error_print(ctx, e, Some("invalid ASCII frame"));
-                return Err(e);
-            }
+            machine.done(result, transport::now);
         }
     }
 }
 
-/// The first wait of a receive: the response timeout for a confirmation, the
-/// indication timeout (0 = forever) for a request.
-fn first_timeout(ctx: &Context, kind: MsgKind) -> Option<libc::timespec> {
-    match ctx.timeouts().first_wait(kind) {
-        Wait::For(t) => Some(transport::timespec_of(t)),
-        Wait::Forever | Wait::Left => None,
+/// The end of a receive: the debug trace of the message (libmodbus prints its bytes
+/// as they arrive; printed at the end, the text is the same with fewer writes), the
+/// messages of a bad or foreign frame, the recovery.
+fn finish(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
+    if ctx.debug && (f.traced > 0 || f.ended) {
+        use std::fmt::Write as _;
+        let mut trace = String::with_capacity(f.traced * 4 + 1);
+        for b in &buf[..f.traced] {
+            let _ = write!(trace, "<{b:02X}>");
+        }
+        if f.ended {
+            trace.push('\n');
+        }
+        crate::stdio::out(format_args!("{trace}"));
     }
+    let mut diag = ctx.diag();
+    let result = match f.outcome {
+        Outcome::Frame(len) => Ok(Received::Frame(len)),
+        Outcome::Ignored { len, theirs, ours } => {
+            diag.out(format_args!("Request for slave {theirs} ignored (not {ours})\n"));
+            Ok(Received::Ignored(len))
+        }
+        Outcome::BadChecksum { lrc, received, computed } => {
+            let what = if lrc { "LRC" } else { "CRC" };
+            diag.err(format_args!("ERROR {what} received 0x{received:0X} != {what} calculated 0x{computed:0X}\n"));
+            Err(Error::BAD_CRC)
+        }
+        Outcome::Failed { error, site } => {
+            if site.is_some() {
+                error_print(ctx, error, site);
+            }
+            Err(error)
+        }
+    };
+    recover(ctx, f.recovery);
+    result
 }
 
-/// An ASCII frame ends at its delimiter whatever its content says; the checks after
-/// receiving rely on the content's own lengths, as RTU and TCP frames are read by
-/// them. A frame is whole when it holds at least what the binary length rules ask
-/// for (the frame's own length stands in for the lengths a PDU does not carry).
-fn ascii_frame_is_whole(ctx: &Context, kind: MsgKind, frame: &[u8]) -> bool {
-    frame.len() >= 3
-        && Assembler::new(Framing::Ascii, kind)
-            .extended_requests(ctx.serves_extended)
-            .expecting(Some(frame.len() - Framing::Ascii.checksum_length()))
-            .whole(frame)
-            .is_some()
-}
-
-/// Waits until the line is readable or the time in `budget` runs out (`None`:
-/// forever). The kernel counts `budget` down, so a later wait with the same value
-/// gets what is left, and a signal does not restart the timeout. A close of the
-/// context from a signal handler or another thread ends it with `Err(STOPPED)`: a
-/// socket is shut down by the closer, a serial line's wait also watches the
-/// context's wake-up descriptor.
-fn wait_readable(ctx: &Context, mut budget: Option<&mut libc::timespec>) -> Result<()> {
+/// Waits until the line is readable or the monotonic clock reaches `until` (`None`:
+/// forever); a signal does not restart the timeout. A close of the context from a
+/// signal handler or another thread ends it with `Err(STOPPED)`: a socket is shut
+/// down by the closer, a serial line's wait also watches the context's wake-up
+/// descriptor.
+fn wait_readable(ctx: &Context, until: Option<Duration>) -> Result<()> {
     let wake = if ctx.is_socket() { -1 } else { ctx.stop.wake_fd() };
     loop {
         if ctx.stopping() {
             return Err(Error::STOPPED);
         }
-        match transport::wait_or_wake(ctx.s, libc::POLLIN, wake, budget.as_deref_mut()) {
+        let mut left = until.map(|u| transport::to_timespec(u.saturating_sub(transport::now())));
+        match transport::wait_or_wake(ctx.s, libc::POLLIN, wake, left.as_mut()) {
             Ok(Ready::Line) => return Ok(()),
             Ok(Ready::TimedOut) => return Err(Error::TIMED_OUT),
             Ok(Ready::Woken) => ctx.stop.drain_wake(),
@@ -669,160 +473,23 @@ fn wait_readable(ctx: &Context, mut budget: Option<&mut libc::timespec>) -> Resu
     }
 }
 
-/// Below this response timeout a confirmation waits with `ppoll` only: `SO_RCVTIMEO`
-/// could fire too late (see [`read_within_response_timeout`]).
-const RCVTIMEO_MIN_RESPONSE_TIMEOUT: Duration = Duration::from_millis(200);
-
-/// The first wait of a confirmation on a client socket the context connected (see
-/// [`ClientSocket`](crate::context::ClientSocket)): the read itself, one system call
-/// where a poll and a read were two. `SO_RCVTIMEO` runs on the kernel's timer wheel,
-/// which may fire up to an eighth of the time plus a tick or two late, so it is set
-/// to 3/4 of the response timeout; when it fires (or a signal comes), `budget` gets
-/// the exact rest of the response timeout, measured on the monotonic clock, for the
-/// usual `ppoll`. The timeout therefore ends when libmodbus's `select` would.
-/// `None` when the caller is to wait as usual; otherwise the read's result.
-fn read_within_response_timeout(
-    ctx: &mut Context,
-    room: &mut [u8],
-    budget: &mut Option<libc::timespec>,
-) -> Option<Result<usize>> {
-    let timeout = ctx.response_timeout;
-    let socket = ctx.client_socket.as_mut()?;
-    if timeout.duration() < RCVTIMEO_MIN_RESPONSE_TIMEOUT {
-        return None;
-    }
-    if socket.rcvtimeo_for != Some(timeout) {
-        tcp::set_receive_timeout(ctx.s, timeout.duration() * 3 / 4).ok()?;
-        socket.rcvtimeo_for = Some(timeout);
-    }
-    let started = Instant::now();
-    let read = transport::recv(ctx.s, room, 0);
-    let rest_of_timeout = || Some(transport::to_timespec(timeout.duration().saturating_sub(started.elapsed())));
-    match read {
-        Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => {
-            if e.0 == libc::EINTR {
-                ctx.diag().err(format_args!("A non blocked signal was caught\n"));
+/// The first read of a confirmation on a client socket the context connected (see
+/// [`ClientSocket`]): the read itself waits, one system call where a wait and a read
+/// were two. `SO_RCVTIMEO` runs on the kernel's timer wheel, which may fire up to an
+/// eighth of the time plus a tick or two late, so it is set to 3/4 of the response
+/// timeout; when it fires (EAGAIN), the machine waits for the rest of the response
+/// timeout, which therefore ends when libmodbus's `select` would.
+fn read_within(fd: i32, socket: &mut Option<ClientSocket>, room: &mut [u8], timeout: Timeout) -> Result<usize> {
+    if let Some(socket) = socket.as_mut() {
+        if socket.rcvtimeo_for != Some(timeout) {
+            // Without the timer the read must not block: then it only looks.
+            if tcp::set_receive_timeout(fd, timeout.duration() * 3 / 4).is_err() {
+                return transport::recv(fd, room, libc::MSG_DONTWAIT);
             }
-            *budget = rest_of_timeout();
-            None
-        }
-        Ok(n) if n > 0 && ctx.byte_timeout.is_zero() => {
-            // No byte timeout: the rest of the message shares the response timeout.
-            *budget = rest_of_timeout();
-            Some(read)
-        }
-        _ => Some(read),
-    }
-}
-
-/// After bytes of a message arrived, the next wait gets a fresh byte timeout or, when
-/// that is 0, what is left of the current one.
-#[inline]
-fn rearm_after_bytes(ctx: &Context, budget: &mut Option<libc::timespec>) {
-    if let Wait::For(t) = ctx.timeouts().after_bytes() {
-        *budget = Some(transport::timespec_of(t));
-    }
-}
-
-/// A read that never blocks: bytes already queued on the line, or `None` (nothing
-/// there, an error, or a descriptor a read could block on) for the waiting path to
-/// handle as usual.
-fn read_if_queued(ctx: &Context, room: &mut [u8]) -> Option<usize> {
-    let got = if ctx.is_socket() {
-        transport::recv(ctx.s, room, libc::MSG_DONTWAIT)
-    } else if ctx.line_nonblocking {
-        transport::read(ctx.s, room)
-    } else {
-        return None;
-    };
-    got.ok().filter(|&n| n > 0)
-}
-
-/// One read from the line: `recv` on a socket, `read` on a serial line.
-fn read_line(socket: bool, fd: i32, buf: &mut [u8]) -> Result<usize> {
-    if socket { transport::recv(fd, buf, 0) } else { transport::read(fd, buf) }
-}
-
-/// Socket server fast path: peek at the queued bytes (blocking when the indication
-/// timeout is infinite) and, when they hold a whole request, take exactly that
-/// request. `None` when the slow path must run (nothing queued yet, a partial
-/// request, an oversized one, or an error it will report).
-fn take_whole_indication(ctx: &mut Context, buf: &mut [u8]) -> Option<usize> {
-    let flags = libc::MSG_PEEK | if ctx.indication_timeout.is_zero() { 0 } else { libc::MSG_DONTWAIT };
-    // Peek into the (empty) read-ahead buffer: the caller's buffer only ever receives
-    // the request.
-    let peeked = &mut ctx.rx.buf;
-    let queued = match transport::recv(ctx.s, peeked, flags) {
-        Ok(n) if n > 0 => n,
-        _ => return None,
-    };
-    let len = Assembler::new(ctx.framing, MsgKind::Indication)
-        .extended_requests(ctx.serves_extended)
-        .whole(&peeked[..queued])?;
-    // The request is queued whole, so this read returns all of it and nothing more.
-    match transport::recv(ctx.s, buf.get_mut(..len)?, 0) {
-        Ok(n) if n == len => Some(len),
-        _ => None,
-    }
-}
-
-fn push_trace(trace: &mut String, bytes: &[u8]) {
-    use std::fmt::Write as _;
-    for b in bytes {
-        let _ = write!(trace, "<{b:02X}>");
-    }
-}
-
-/// Prints the `<XX>` bytes collected so far (libmodbus prints them as they arrive;
-/// collecting them per message keeps the same text with fewer writes).
-fn flush_trace(ctx: &Context, trace: &mut String) {
-    if ctx.debug && !trace.is_empty() {
-        crate::stdio::out(format_args!("{trace}"));
-        trace.clear();
-    }
-}
-
-/// End of the receive loop: RTU frames must have a good CRC and be ours.
-#[inline]
-fn check_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
-    if ctx.framing == Framing::Tcp {
-        return Ok(Received::Frame(frame.len()));
-    }
-    check_serial_integrity(ctx, frame)
-}
-
-#[inline(never)]
-fn check_serial_integrity(ctx: &mut Context, frame: &[u8]) -> Result<Received> {
-    let mut diag = ctx.diag();
-    if ctx.framing == Framing::Ascii {
-        if let Err((received, computed)) = ascii::check_lrc(frame) {
-            diag.err(format_args!("ERROR LRC received 0x{received:0X} != LRC calculated 0x{computed:0X}\n"));
-            if session::after_bad_checksum(ctx.error_recovery) == Recovery::Flush {
-                ctx.rx.clear();
-                let _ = rtu::flush(ctx.s);
-            }
-            return Err(Error::BAD_CRC);
-        }
-        if frame[0] as i32 != ctx.slave && frame[0] != 0 {
-            diag.out(format_args!("Request for slave {} ignored (not {})\n", frame[0], ctx.slave));
-            return Ok(Received::Ignored(frame.len()));
-        }
-        return Ok(Received::Frame(frame.len()));
-    }
-    match rtu_integrity(frame, ctx.slave) {
-        RtuIntegrity::Ok => Ok(Received::Frame(frame.len())),
-        RtuIntegrity::BadCrc(received, computed) => {
-            diag.err(format_args!("ERROR CRC received 0x{received:0X} != CRC calculated 0x{computed:0X}\n"));
-            if session::after_bad_checksum(ctx.error_recovery) == Recovery::Flush {
-                let _ = rtu::flush(ctx.s);
-            }
-            Err(Error::BAD_CRC)
-        }
-        RtuIntegrity::OtherSlave(theirs, ours) => {
-            diag.out(format_args!("Request for slave {theirs} ignored (not {ours})\n"));
-            Ok(Received::Ignored(frame.len()))
+            socket.rcvtimeo_for = Some(timeout);
         }
     }
+    transport::recv(fd, room, 0)
 }
 
 /// The unit id a request goes to.

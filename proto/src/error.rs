@@ -12,6 +12,7 @@ use core::fmt;
 /// The Linux `errno` numbers this crate names (asm-generic/errno*.h; the library's
 /// tests compare each with libc's).
 pub mod errno {
+    pub const EINTR: i32 = 4;
     pub const EBADF: i32 = 9;
     pub const EAGAIN: i32 = 11;
     pub const ENOMEM: i32 = 12;

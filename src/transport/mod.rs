@@ -48,6 +48,16 @@ pub fn to_timespec(d: Duration) -> libc::timespec {
     libc::timespec { tv_sec: d.as_secs() as libc::time_t, tv_nsec: d.subsec_nanos() as libc::c_long }
 }
 
+/// The monotonic clock (`CLOCK_MONOTONIC`, the clock `ppoll` counts on), as the time
+/// since an unspecified start: the time the receive machine's deadlines are in.
+pub fn now() -> Duration {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a live, writable timespec; CLOCK_MONOTONIC always exists on
+    // Linux, so the call cannot fail.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
 /// Waits until `fd` has `events`, or `timeout` passes (`None`: forever).
 /// Returns `Ok(false)` on timeout; `Err` carries the errno (EINTR included, so the
 /// caller decides whether to retry).
@@ -154,6 +164,7 @@ mod tests {
     #[test]
     fn the_protocol_crates_errno_numbers_are_libcs() {
         let pairs = [
+            (errno::EINTR, libc::EINTR),
             (errno::EBADF, libc::EBADF),
             (errno::EAGAIN, libc::EAGAIN),
             (errno::EPIPE, libc::EPIPE),

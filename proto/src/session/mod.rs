@@ -2,11 +2,12 @@
 //! recovery follows a failure. The library's driver executes them (its waits, reads,
 //! sleeps, flushes and reconnects); here they are data, tested rule by rule.
 //!
-//! The first steps of the sans-I/O session: the receive routes of the driver still
-//! decide when to read and wait; they ask these rules what the waits and the
-//! recoveries are.
+//! [`receive`] is the receive of one message as a state machine: the driver
+//! executes its steps (peeks, waits, reads) and reports their results.
 
 use core::time::Duration;
+
+pub mod receive;
 
 use crate::error::{Error, errno};
 use crate::frame::MsgKind;

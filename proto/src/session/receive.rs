@@ -1,0 +1,585 @@
+//! Receiving one message, as a state machine without I/O.
+//!
+//! The driver asks [`Receiver::step`] what to do, does it (a peek, a wait, a read),
+//! and reports the result with [`Receiver::done`] (or [`Receiver::stopped`] when the
+//! context was closed under it). Time enters as an argument: the clock's reading when
+//! the receive starts, and a clock the machine reads only when it needs a new
+//! deadline. Every receive of every framing and line goes through this one machine:
+//!
+//! - **Timeouts.** The first wait ends at the response timeout (a confirmation) or
+//!   the indication timeout (an indication; zero: never). Once bytes of the message
+//!   are there, each wait ends a byte timeout after the last bytes came; with no byte
+//!   timeout, the first deadline stands. A wait that ends in a timeout fails the
+//!   receive with ETIMEDOUT, except while an RTU diagnostics request is searching for
+//!   its CRC: then the frame ends where the line went quiet.
+//! - **How much to read.** Never past the end of the message on a server or on a
+//!   client that must leave a late confirmation on the line (`read_ahead` off), so the
+//!   next message stays in the kernel; a client that owns its line reads all there
+//!   is, and what lies past the message waits in the [`ReadAhead`] buffer for the next
+//!   receive, which takes it before reading the line again.
+//! - **When to wait.** Once bytes came, the rest usually came with them: a line that
+//!   can be read without waiting is read so first, and waited on only when empty. A
+//!   socket server first peeks: when the whole request is queued it takes exactly
+//!   that in one read. A client socket with timed reads makes its first read a
+//!   blocking one the kernel ends (one system call where a wait and a read were two).
+//! - **Failures and their recovery** (see [`super::after_wait`] and friends): a
+//!   failed wait ("select"), a failed read or end of stream ("read", ECONNRESET), too
+//!   long a message ("too many data"), an ASCII frame that cannot be decoded or ends
+//!   too soon, a bad CRC or LRC, a frame for another slave (ignored, not an error).
+
+use core::time::Duration;
+
+use super::{Recovery, Timeout, Timeouts, Wait, after_bad_checksum, after_read, after_wait};
+use crate::ascii;
+use crate::error::{Error, Result, errno};
+use crate::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
+
+/// Bytes a client read past the end of the message it was assembling (or, on ASCII,
+/// characters not decoded yet). They are handed out before the line is read again,
+/// so reading ahead never changes what a later receive sees; a flush, close, connect
+/// or a new descriptor drops them along with the kernel's queue.
+#[derive(Clone, Debug)]
+pub struct ReadAhead {
+    pub buf: [u8; MAX_ADU_LENGTH],
+    pub start: usize,
+    pub end: usize,
+}
+
+impl ReadAhead {
+    pub const fn new() -> Self {
+        ReadAhead { buf: [0; MAX_ADU_LENGTH], start: 0, end: 0 }
+    }
+
+    pub fn available(&self) -> &[u8] {
+        &self.buf[self.start..self.end]
+    }
+
+    pub fn consume(&mut self, n: usize) {
+        self.start += n;
+        if self.start == self.end {
+            self.clear();
+        }
+    }
+
+    pub fn clear(&mut self) {
+        self.start = 0;
+        self.end = 0;
+    }
+
+    /// Keeps `rest` (read past a message while this buffer was empty).
+    fn keep(&mut self, rest: &[u8]) {
+        if !rest.is_empty() {
+            debug_assert!(self.available().is_empty());
+            self.buf[..rest.len()].copy_from_slice(rest);
+            self.start = 0;
+            self.end = rest.len();
+        }
+    }
+}
+
+impl Default for ReadAhead {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// What the line under a receive can do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct LineCaps {
+    /// A stream socket: it can be peeked at.
+    pub socket: bool,
+    /// A read never blocks (a socket with `MSG_DONTWAIT`, a serial line opened
+    /// non-blocking), so the line can be read to see whether bytes are there.
+    pub reads_without_waiting: bool,
+    /// A blocking read ends by itself within a kernel timeout set from the response
+    /// timeout (a client socket the context connected, when that timeout is long
+    /// enough for the kernel's timer to be exact enough).
+    pub timed_reads: bool,
+}
+
+/// Everything a receive needs to know of its context.
+#[derive(Clone, Copy, Debug)]
+pub struct Settings {
+    pub framing: Framing,
+    pub kind: MsgKind,
+    /// The server answers the function codes beyond libmodbus: their requests are
+    /// framed whole (see [`crate::frame::layout`]).
+    pub extended: bool,
+    /// The length (header + PDU) of the diagnostics request this confirmation
+    /// answers, on a serial framing.
+    pub expecting: Option<usize>,
+    pub timeouts: Timeouts,
+    /// `MODBUS_ERROR_RECOVERY_*` bits.
+    pub recovery: i32,
+    /// The context's slave (-1: unset); serial frames for others are ignored.
+    pub slave: i32,
+    /// Read all the line has, keeping what lies past the message (a client that owns
+    /// its line); off, never read past the message.
+    pub read_ahead: bool,
+    /// The character after CR that ends an ASCII frame.
+    pub ascii_delimiter: u8,
+    pub line: LineCaps,
+}
+
+/// Where a read puts its bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dest {
+    /// `msg[from..to]`.
+    Message { from: usize, to: usize },
+    /// The whole of the (empty) read-ahead buffer: ASCII characters.
+    ReadAhead,
+}
+
+/// How a read runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReadHow {
+    /// The line is known to be readable (a wait said so, or a peek saw the bytes).
+    Ready,
+    /// Take what is queued, never wait: nothing there (or any failure) sends the
+    /// receive to a wait, which reports.
+    Queued,
+    /// A blocking read that the kernel ends before this timeout does (the driver
+    /// sets the socket's receive timeout from it); when it ends empty, a wait takes
+    /// the rest of the time.
+    Within(Timeout),
+}
+
+/// What the driver does next.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// Look at what the socket holds, into the read-ahead buffer (empty), without
+    /// taking it; `block`: wait for the first byte without end.
+    Peek { block: bool },
+    /// Wait until the line is readable or the clock reaches `until` (`None`: no end).
+    /// Report `Ok(_)` when readable, `Err(TIMED_OUT)` at the deadline.
+    Wait { until: Option<Duration> },
+    /// Read into `dest`.
+    Read { dest: Dest, how: ReadHow },
+    /// The receive is over.
+    Done(Finished),
+}
+
+/// How a receive ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outcome {
+    /// A whole, valid message: `msg[..len]`.
+    Frame(usize),
+    /// A whole, valid serial frame for another slave (libmodbus returns 0).
+    Ignored { len: usize, theirs: u8, ours: i32 },
+    /// The CRC (RTU) or LRC (ASCII) does not match: EMBBADCRC.
+    BadChecksum { lrc: bool, received: u16, computed: u16 },
+    /// No message: `error`, printed with `site` in the debug trace (none for a stop).
+    Failed { error: Error, site: Option<&'static str> },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Finished {
+    pub outcome: Outcome,
+    /// What the driver does before it reports the outcome.
+    pub recovery: Recovery,
+    /// `msg[..traced]` is what the debug trace shows of the message.
+    pub traced: usize,
+    /// The message's framing ended (the trace ends its line).
+    pub ended: bool,
+}
+
+impl Finished {
+    fn failed(error: Error, site: &'static str, recovery: Recovery, traced: usize) -> Self {
+        Finished { outcome: Outcome::Failed { error, site: Some(site) }, recovery, traced, ended: false }
+    }
+}
+
+/// What the machine knows of the line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum LineState {
+    /// Nothing yet.
+    Unknown,
+    /// A peek saw this many bytes.
+    Peeked(usize),
+    /// A peek saw a whole message of this length: take exactly it.
+    Whole(usize),
+    /// Bytes are queued (a peek saw them): read without waiting.
+    Queued,
+    /// Bytes just came: more may have come with them.
+    Arrived,
+    /// A read that does not wait found nothing: wait.
+    Empty,
+    /// A wait said the line is readable.
+    Readable,
+    /// A wait ended at its deadline while an RTU diagnostics request searched for
+    /// its CRC: the frame ends here.
+    Quiet,
+}
+
+/// The step the driver is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Pending {
+    Nothing,
+    Peek,
+    Wait,
+    Read(ReadHow, Dest),
+}
+
+#[derive(Clone, Debug)]
+enum Body {
+    Binary(Assembler),
+    Ascii(ascii::Decoder),
+}
+
+/// One receive (see the module's documentation).
+#[derive(Clone, Debug)]
+pub struct Receiver {
+    s: Settings,
+    body: Body,
+    /// Bytes of `msg` written (by reads, or taken from the read-ahead buffer).
+    filled: usize,
+    /// When the current wait ends (`None`: never).
+    deadline: Option<Duration>,
+    /// The clock when the receive started.
+    started: Duration,
+    /// ASCII: the deadline a byte timeout after the characters just read, applied
+    /// once they are decoded and prove to be inside a frame.
+    rearm: Option<Duration>,
+    /// ASCII: characters a read put in the read-ahead buffer.
+    staged: usize,
+    line: LineState,
+    pending: Pending,
+    finished: Option<Finished>,
+}
+
+impl Receiver {
+    /// A receive that starts at `now` (the driver's monotonic clock).
+    pub fn new(s: Settings, now: Duration) -> Self {
+        let deadline = match s.timeouts.first_wait(s.kind) {
+            Wait::For(t) => Some(now + t.duration()),
+            Wait::Forever | Wait::Left => None,
+        };
+        let body = match s.framing {
+            Framing::Ascii => Body::Ascii(ascii::Decoder::with_delimiter(s.ascii_delimiter)),
+            framing => {
+                Body::Binary(Assembler::new(framing, s.kind).extended_requests(s.extended).expecting(s.expecting))
+            }
+        };
+        Receiver {
+            s,
+            body,
+            filled: 0,
+            deadline,
+            started: now,
+            rearm: None,
+            staged: 0,
+            line: LineState::Unknown,
+            pending: Pending::Nothing,
+            finished: None,
+        }
+    }
+
+    /// The deadline of the current wait.
+    pub fn deadline(&self) -> Option<Duration> {
+        self.deadline
+    }
+
+    /// What to do next. `msg` receives the message (at least the framing's largest
+    /// ADU); `rx` is the context's read-ahead buffer.
+    pub fn step(&mut self, msg: &mut [u8], rx: &mut ReadAhead) -> Step {
+        debug_assert_eq!(self.pending, Pending::Nothing, "step() before done() of the last step");
+        if let Some(f) = self.finished.take() {
+            return Step::Done(f);
+        }
+        if matches!(self.body, Body::Ascii(_)) {
+            return self.step_ascii(msg, rx);
+        }
+        loop {
+            if let Some(f) = self.assemble(msg, rx) {
+                return Step::Done(f);
+            }
+            let avail = rx.available();
+            if avail.is_empty() {
+                break;
+            }
+            // Left over from an earlier read: take only what this message needs, so
+            // whatever stays behind keeps its order. They count as arriving now.
+            let n = self.wanted().min(avail.len());
+            msg[self.filled..self.filled + n].copy_from_slice(&avail[..n]);
+            rx.consume(n);
+            self.filled += n;
+            self.bytes_came(self.started);
+        }
+        let Body::Binary(asm) = &self.body else { unreachable!() };
+        let from = self.filled;
+        let end = if self.s.read_ahead { msg.len() } else { from + asm.wanted() };
+        let message = Dest::Message { from, to: end };
+        let line = self.s.line;
+        let read = |how| Step::Read { dest: message, how };
+        let step = match self.line {
+            LineState::Quiet => {
+                let len = asm.len();
+                return Step::Done(self.check(msg, len));
+            }
+            LineState::Unknown if from == 0 && line.socket && self.s.kind == MsgKind::Indication => {
+                Step::Peek { block: self.deadline.is_none() }
+            }
+            LineState::Unknown if from == 0 && line.timed_reads && self.s.kind == MsgKind::Confirmation => {
+                read(ReadHow::Within(self.s.timeouts.response))
+            }
+            LineState::Peeked(n) => {
+                // Peeked into the read-ahead buffer, which is empty otherwise.
+                match asm.whole(&rx.buf[..n]).filter(|&len| len <= msg.len()) {
+                    Some(len) => {
+                        self.line = LineState::Whole(len);
+                        Step::Read { dest: Dest::Message { from: 0, to: len }, how: ReadHow::Ready }
+                    }
+                    None => {
+                        self.line = LineState::Queued;
+                        read(ReadHow::Queued)
+                    }
+                }
+            }
+            LineState::Queued => read(ReadHow::Queued),
+            LineState::Unknown | LineState::Arrived if from > 0 && line.reads_without_waiting => read(ReadHow::Queued),
+            LineState::Readable | LineState::Whole(_) => read(ReadHow::Ready),
+            _ => Step::Wait { until: self.deadline },
+        };
+        self.pending = match step {
+            Step::Peek { .. } => Pending::Peek,
+            Step::Wait { .. } => Pending::Wait,
+            Step::Read { dest, how } => Pending::Read(how, dest),
+            Step::Done(_) => Pending::Nothing,
+        };
+        step
+    }
+
+    /// The result of the last step: bytes peeked or read, `Ok(_)` for a wait that
+    /// found the line readable, or the error (`TIMED_OUT` when a wait reached its
+    /// deadline). `now` reads the clock; it is called only when bytes came and a new
+    /// deadline follows from them.
+    pub fn done(&mut self, result: Result<usize>, now: impl FnOnce() -> Duration) {
+        let pending = core::mem::replace(&mut self.pending, Pending::Nothing);
+        let mode = self.s.recovery;
+        let traced = self.traced();
+        match pending {
+            Pending::Nothing => debug_assert!(false, "done() without a step"),
+            Pending::Peek => {
+                self.line = match result {
+                    Ok(n) if n > 0 => LineState::Peeked(n),
+                    _ => LineState::Empty,
+                }
+            }
+            Pending::Wait => match result {
+                Ok(_) => self.line = LineState::Readable,
+                Err(Error::TIMED_OUT) if matches!(&self.body, Body::Binary(a) if a.searching_crc()) => {
+                    self.line = LineState::Quiet;
+                }
+                Err(e) => self.finished = Some(Finished::failed(e, "select", after_wait(mode, e), traced)),
+            },
+            Pending::Read(how, dest) => match result {
+                Ok(n) if n > 0 => {
+                    match dest {
+                        Dest::Message { .. } => self.filled += n,
+                        Dest::ReadAhead => self.staged = n,
+                    }
+                    self.bytes_came(now());
+                }
+                // A read that does not wait, or one the kernel ended empty: wait.
+                _ if how == ReadHow::Queued => self.line = LineState::Empty,
+                Err(Error(errno::EAGAIN | errno::EINTR)) => self.line = LineState::Empty,
+                Ok(_) | Err(Error::CONN_RESET) => {
+                    let e = Error::CONN_RESET;
+                    self.finished = Some(Finished::failed(e, "read", after_read(mode, e), traced));
+                }
+                Err(e) => self.finished = Some(Finished::failed(e, "read", after_read(mode, e), traced)),
+            },
+        }
+    }
+
+    /// The context was closed under the last step (from a signal handler or another
+    /// thread): the receive ends with `Error::STOPPED`, no recovery, nothing printed.
+    pub fn stopped(&mut self) {
+        self.pending = Pending::Nothing;
+        self.finished = Some(Finished {
+            outcome: Outcome::Failed { error: Error::STOPPED, site: None },
+            recovery: Recovery::None,
+            traced: self.traced(),
+            ended: false,
+        });
+    }
+
+    /// Bytes of the message accepted so far (what the trace shows of it).
+    fn traced(&self) -> usize {
+        match &self.body {
+            Body::Binary(_) => self.filled,
+            Body::Ascii(d) => d.len(),
+        }
+    }
+
+    fn wanted(&self) -> usize {
+        match &self.body {
+            Body::Binary(a) => a.wanted(),
+            Body::Ascii(_) => 0,
+        }
+    }
+
+    /// Bytes came at `now`: the next wait gets a fresh byte timeout, or, with none,
+    /// the current deadline stands. On ASCII that holds only once the characters
+    /// prove to be inside a frame.
+    fn bytes_came(&mut self, now: Duration) {
+        let rearm = match self.s.timeouts.after_bytes() {
+            Wait::For(t) => Some(now + t.duration()),
+            Wait::Forever | Wait::Left => None,
+        };
+        match self.body {
+            Body::Binary(_) => {
+                self.line = LineState::Arrived;
+                if rearm.is_some() {
+                    self.deadline = rearm;
+                }
+            }
+            Body::Ascii(_) => {
+                self.line = LineState::Arrived;
+                self.rearm = rearm;
+            }
+        }
+    }
+
+    /// Feeds the assembler the bytes of `msg` it has not seen; the finished receive
+    /// when the message is complete (what lies past it goes to `rx`) or too long.
+    fn assemble(&mut self, msg: &[u8], rx: &mut ReadAhead) -> Option<Finished> {
+        let Body::Binary(asm) = &mut self.body else { return None };
+        let filled = self.filled;
+        if asm.is_empty() && filled > 0 {
+            // The usual case: one read brought the whole message.
+            if let Some(len) = asm.whole(&msg[..filled]) {
+                rx.keep(&msg[len..filled]);
+                self.filled = len;
+                return Some(self.check(msg, len));
+            }
+        }
+        while asm.len() < filled {
+            let start = asm.len();
+            let n = asm.wanted().min(filled - start);
+            match asm.received(&msg[..start + n], n) {
+                Ok(Progress::NeedMore(_)) => {}
+                Ok(Progress::Complete(len)) => {
+                    rx.keep(&msg[len..filled]);
+                    self.filled = len;
+                    return Some(self.check(msg, len));
+                }
+                Err(e) => {
+                    rx.keep(&msg[start + n..filled]);
+                    return Some(Finished::failed(e, "too many data", Recovery::None, start + n));
+                }
+            }
+        }
+        None
+    }
+
+    /// The end of a binary frame `msg[..len]`: an RTU frame must have a good CRC and
+    /// be for us.
+    fn check(&self, msg: &[u8], len: usize) -> Finished {
+        let frame = &msg[..len];
+        let outcome = match self.s.framing {
+            Framing::Rtu => match rtu_integrity(frame, self.s.slave) {
+                RtuIntegrity::Ok => Outcome::Frame(len),
+                RtuIntegrity::BadCrc(received, computed) => Outcome::BadChecksum { lrc: false, received, computed },
+                RtuIntegrity::OtherSlave(theirs, ours) => Outcome::Ignored { len, theirs, ours },
+            },
+            _ => Outcome::Frame(len),
+        };
+        self.ended(outcome, len)
+    }
+
+    fn ended(&self, outcome: Outcome, len: usize) -> Finished {
+        let recovery = match outcome {
+            Outcome::BadChecksum { .. } => after_bad_checksum(self.s.recovery),
+            _ => Recovery::None,
+        };
+        Finished { outcome, recovery, traced: len, ended: true }
+    }
+
+    /// ASCII: characters are read into the read-ahead buffer and decoded from there
+    /// (a frame ends at its delimiter, so nothing past it is taken as part of it);
+    /// every read follows a wait.
+    fn step_ascii(&mut self, msg: &mut [u8], rx: &mut ReadAhead) -> Step {
+        if self.staged > 0 {
+            rx.start = 0;
+            rx.end = core::mem::take(&mut self.staged);
+        }
+        let Body::Ascii(decoder) = &mut self.body else { unreachable!() };
+        if !rx.available().is_empty() {
+            let mut used = 0;
+            let mut outcome = None;
+            for &c in rx.available() {
+                used += 1;
+                match decoder.feed(c, msg) {
+                    Ok(ascii::Step::NeedMore) => {}
+                    Ok(ascii::Step::Complete(len)) => {
+                        outcome = Some(Ok(len));
+                        break;
+                    }
+                    Err(e) => {
+                        outcome = Some(Err(e));
+                        break;
+                    }
+                }
+            }
+            rx.consume(used);
+            let rearm = self.rearm.take().or(if self.line == LineState::Unknown {
+                // Characters left over from an earlier read count as arriving now.
+                match self.s.timeouts.after_bytes() {
+                    Wait::For(t) => Some(self.started + t.duration()),
+                    _ => None,
+                }
+            } else {
+                None
+            });
+            match outcome {
+                Some(Ok(len)) => return Step::Done(self.check_ascii(msg, len)),
+                Some(Err(e)) => {
+                    let traced = decoder.len();
+                    return Step::Done(Finished::failed(e, "invalid ASCII frame", Recovery::None, traced));
+                }
+                None if decoder.in_frame() && rearm.is_some() => self.deadline = rearm,
+                None => {}
+            }
+        }
+        self.rearm = None;
+        if self.line == LineState::Readable {
+            self.pending = Pending::Read(ReadHow::Ready, Dest::ReadAhead);
+            Step::Read { dest: Dest::ReadAhead, how: ReadHow::Ready }
+        } else {
+            self.pending = Pending::Wait;
+            Step::Wait { until: self.deadline }
+        }
+    }
+
+    /// The end of an ASCII frame `msg[..len]` (decoded, LRC last): a good LRC, for
+    /// us, and at least as long as its content says (the frame's own length stands
+    /// in for the lengths a PDU does not carry).
+    fn check_ascii(&self, msg: &[u8], len: usize) -> Finished {
+        let frame = &msg[..len];
+        if let Err((received, computed)) = ascii::check_lrc(frame) {
+            let outcome = Outcome::BadChecksum { lrc: true, received: received as u16, computed: computed as u16 };
+            return self.ended(outcome, len);
+        }
+        if frame[0] as i32 != self.s.slave && frame[0] != 0 {
+            return self.ended(Outcome::Ignored { len, theirs: frame[0], ours: self.s.slave }, len);
+        }
+        let whole = len >= 3
+            && Assembler::new(Framing::Ascii, self.s.kind)
+                .extended_requests(self.s.extended)
+                .expecting(Some(len - Framing::Ascii.checksum_length()))
+                .whole(frame)
+                .is_some();
+        if !whole {
+            // The characters ended before the content did (a byte count or a layout
+            // asks for more): refused like an RTU frame cut short.
+            let outcome = Outcome::Failed { error: Error::BAD_DATA, site: Some("frame too short") };
+            return Finished { outcome, recovery: Recovery::None, traced: len, ended: true };
+        }
+        self.ended(Outcome::Frame(len), len)
+    }
+}
+
+#[cfg(test)]
+#[path = "receive_tests.rs"]
+mod tests;
