@@ -96,31 +96,47 @@ pub fn close(ctx: &mut Context) {
 /// `modbus_flush`: discard what is pending on the line. Returns the bytes dropped
 /// (TCP) or 0 (RTU).
 pub fn flush(ctx: &mut Context) -> Result<usize> {
+    flush_reporting(ctx).0
+}
+
+/// [`flush`], and the error of its last failed system call, if any: the errno
+/// libmodbus's `modbus_flush` leaves behind.
+fn flush_reporting(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
     let buffered = ctx.rx.available().len();
     ctx.rx.clear();
-    let rc = if ctx.is_socket() { flush_socket(ctx).map(|n| n + buffered) } else { rtu::flush(ctx.s) };
+    let (rc, left) = if ctx.is_socket() {
+        let (rc, left) = flush_socket(ctx);
+        (rc.map(|n| n + buffered), left)
+    } else {
+        let rc = rtu::flush(ctx.s);
+        (rc, rc.err())
+    };
     if let Ok(n) = rc {
         ctx.diag().out(format_args!("Bytes flushed ({n})\n"));
     }
-    rc
+    (rc, left)
 }
 
 /// Drains a socket without waiting. The count is kept in 16 bits as libmodbus 3.1.11+
-/// does; an overflow switches to PROTOCOL recovery and fails with EOVERFLOW.
-fn flush_socket(ctx: &mut Context) -> Result<usize> {
+/// does; an overflow switches to PROTOCOL recovery and fails with EOVERFLOW. The
+/// second value is the error of the last read, when it failed.
+fn flush_socket(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
     let mut sink = [0u8; MAX_ADU_LENGTH];
     let mut total: u16 = 0;
     loop {
-        let n = transport::recv(ctx.s, &mut sink, libc::MSG_DONTWAIT).unwrap_or(0);
+        let (n, left) = match transport::recv(ctx.s, &mut sink, libc::MSG_DONTWAIT) {
+            Ok(n) => (n, None),
+            Err(e) => (0, Some(e)),
+        };
         total = match total.checked_add(n as u16) {
             Some(t) => t,
             None => {
                 ctx.error_recovery = RECOVERY_PROTOCOL;
-                return Err(Error(libc::EOVERFLOW));
+                return (Err(Error(libc::EOVERFLOW)), Some(Error(libc::EOVERFLOW)));
             }
         };
         if n != MAX_ADU_LENGTH {
-            return Ok(total as usize);
+            return (Ok(total as usize), left);
         }
     }
 }
@@ -562,12 +578,11 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
             if session::after_mismatch(ctx.error_recovery) == Recovery::None {
                 return Err(e);
             }
-            // errno first, then the flush, whose failed non-blocking read may
-            // overwrite it: the order libmodbus has.
-            transport::set_errno(e.0);
+            // libmodbus sets errno, then flushes: a failed read of the flush leaves
+            // its own errno instead.
             sleep_response_timeout(ctx)?;
-            let _ = flush(ctx);
-            Err(Error::UNCHANGED)
+            let (_, left) = flush_reporting(ctx);
+            Err(left.unwrap_or(e))
         }
     }
 }

@@ -2,7 +2,7 @@
 //! (libmodbus's `check_confirmation`, 3.1.12 semantics).
 
 use crate::error::{Error, exception};
-use crate::frame::Framing;
+use crate::frame::{Framing, Layout, MsgKind, beyond_libmodbus, layout};
 use crate::{Diag, fc};
 
 /// Why a response was refused.
@@ -40,14 +40,12 @@ pub fn expected_length(framing: Framing, req: &[u8]) -> Option<usize> {
         // libmodbus says 3 here, but never checks an FC 07 response; its answer is
         // the function code and one status byte.
         fc::READ_EXCEPTION_STATUS => 2,
-        fc::GET_COMM_EVENT_COUNTER => 5,
-        fc::REPORT_SLAVE_ID
-        | fc::DIAGNOSTICS
-        | fc::GET_COMM_EVENT_LOG
-        | fc::READ_FILE_RECORD
-        | fc::WRITE_FILE_RECORD
-        | fc::READ_FIFO_QUEUE
-        | fc::ENCAPSULATED_INTERFACE => return None,
+        fc::REPORT_SLAVE_ID => return None,
+        // Beyond libmodbus: as long as the table's fixed layout says, else unknown.
+        f if beyond_libmodbus(f) => match layout(MsgKind::Confirmation, true, f) {
+            Layout::Fixed(n) => 1 + n as usize,
+            _ => return None,
+        },
         fc::MASK_WRITE_REGISTER => 7,
         _ => 5,
     };
@@ -143,12 +141,7 @@ pub fn check(framing: Framing, req: &[u8], rsp: &[u8], diag: &mut dyn Diag) -> R
             let whole = rsp.len() == h + 2 + count as usize + framing.checksum_length();
             (count, if whole { count } else { rsp.len() as i32 - (h + 2 + framing.checksum_length()) as i32 }, true)
         }
-        fc::DIAGNOSTICS
-        | fc::GET_COMM_EVENT_LOG
-        | fc::READ_FILE_RECORD
-        | fc::WRITE_FILE_RECORD
-        | fc::READ_FIFO_QUEUE
-        | fc::ENCAPSULATED_INTERFACE => {
+        f if beyond_libmodbus(f) => {
             let body = &rsp[..rsp.len() - framing.checksum_length()];
             let req_body = &req[..req.len() - framing.checksum_length()];
             let (want, got) = match check_extended(h, req_body, body) {
@@ -209,6 +202,8 @@ fn check_extended(h: usize, req: &[u8], rsp: &[u8]) -> Result<i32, (i32, i32)> {
             }
             Ok(nb)
         }
+        // Status and event count: nothing to compare with the request.
+        fc::GET_COMM_EVENT_COUNTER => Ok(1),
         // Byte count, FIFO count, values; at most 31 values.
         fc::READ_FIFO_QUEUE => {
             if len < 5 {

@@ -169,6 +169,15 @@ pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
     }
 }
 
+/// The function codes beyond libmodbus, as the table says: those whose requests or
+/// responses the `extended` flag frames differently (see [`layout`]). The one list
+/// of them; the response checks ask it.
+pub fn beyond_libmodbus(function: u8) -> bool {
+    [MsgKind::Indication, MsgKind::Confirmation]
+        .into_iter()
+        .any(|kind| layout(kind, true, function) != layout(kind, false, function))
+}
+
 /// `MEI_READ_DEVICE_ID`: the MEI type of FC 0x2B that carries device identification.
 pub const MEI_READ_DEVICE_ID: u8 = 0x0E;
 
@@ -488,6 +497,23 @@ mod tests {
     /// included, and the RTU diagnostics search for its CRC), `whole` gives the
     /// assembler's length or declines (`None`) exactly where the assembler would need
     /// more bytes or fail.
+    #[test]
+    fn the_codes_beyond_libmodbus_come_from_the_table() {
+        let beyond: Vec<u8> = (0..=255u8).filter(|&f| beyond_libmodbus(f)).collect();
+        assert_eq!(
+            beyond,
+            [
+                fc::DIAGNOSTICS,
+                fc::GET_COMM_EVENT_COUNTER,
+                fc::GET_COMM_EVENT_LOG,
+                fc::READ_FILE_RECORD,
+                fc::WRITE_FILE_RECORD,
+                fc::READ_FIFO_QUEUE,
+                fc::ENCAPSULATED_INTERFACE
+            ]
+        );
+    }
+
     #[test]
     fn whole_agrees_with_the_assembler() {
         let mut rng = crate::test_rng::XorShift::new(0x2545_F491_4F6C_DD1D);

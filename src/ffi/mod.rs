@@ -220,11 +220,21 @@ pub fn status(r: Result<c_int>) -> c_int {
 /// `ctx` must be NULL or a pointer returned by a `modbus_new_*` function and not yet
 /// freed.
 pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Result<c_int>) -> c_int {
+    // SAFETY: forwarded caller contract.
+    status(unsafe { with_ctx_result(ctx, f) })
+}
+
+/// [`with_ctx`] before the C convention: the result, for a caller with more to do
+/// before it sets errno.
+///
+/// # Safety
+/// As [`with_ctx`].
+pub unsafe fn with_ctx_result(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Result<c_int>) -> Result<c_int> {
     // SAFETY: guaranteed by the caller.
     let Some(handle) = (unsafe { ctx.as_ref() }) else {
-        return fail(Error::INVALID);
+        return Err(Error::INVALID);
     };
-    let r = match handle.ctx.enter() {
+    match handle.ctx.enter() {
         Entry::Locked(mut g) => {
             let r = f(&mut g);
             let r = match g.stop.take_handled() {
@@ -239,8 +249,7 @@ pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Resul
             r
         }
         Entry::HeldByThisThread => Err(Error::REENTERED),
-    };
-    status(r)
+    }
 }
 
 /// The rest of a close a signal handler made under the call that just ended:

@@ -101,7 +101,7 @@ pub extern "C" fn modbus_mapping_new_start_address(
             // SAFETY: each pointer is NULL or came from calloc/malloc above; freed once.
             unsafe { libc::free(p) };
         }
-        crate::transport::set_errno(libc::ENOMEM);
+        crate::ffi::fail(Error::NO_MEMORY);
         return ptr::null_mut();
     };
     let mapping = modbus_mapping_t {
@@ -337,7 +337,7 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
     stop.set_accepting(false);
     // SAFETY: forwarded caller contract.
     let rc = unsafe {
-        with_ctx(ctx, |g| match accepted {
+        crate::ffi::with_ctx_result(ctx, |g| match accepted {
             Ok((fd, _)) if g.stop.closes() != closes => {
                 // Closed while the client was being accepted.
                 crate::transport::close(fd);
@@ -358,12 +358,11 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
             }
         })
     };
-    let e = crate::transport::errno();
     // SAFETY: the reference taken above.
     unsafe { crate::ffi::release(ctx) };
-    // Freeing the handle (when a `modbus_free` came meanwhile) must not change errno.
-    crate::transport::set_errno(e);
-    rc
+    // errno after the release: freeing the handle (when a `modbus_free` came
+    // meanwhile) must not change it.
+    crate::ffi::status(rc)
 }
 
 /// Accepts one client on the listening socket `*s`; the new socket becomes the

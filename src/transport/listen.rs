@@ -75,12 +75,11 @@ pub fn listen_ipv4(link: &Link, nb_connection: i32, diag: &mut dyn Diag) -> Resu
     Ok(fd)
 }
 
-/// `perror(what)` through the C library, as libmodbus does in debug mode.
+/// What libmodbus's `perror(what)` prints in debug mode, for the error `e`: the
+/// same line on stderr, without touching errno.
 fn perror(debug: bool, what: &CStr, e: Error) {
     if debug {
-        crate::transport::set_errno(e.0);
-        // SAFETY: `what` is NUL-terminated; perror only reads it.
-        unsafe { libc::perror(what.as_ptr()) };
+        crate::stdio::err(format_args!("{}: {}\n", what.to_string_lossy(), super::describe(e.0)));
     }
 }
 
