@@ -382,8 +382,7 @@ fn receive_settings(ctx: &mut Context, kind: MsgKind) -> Settings {
 /// read, never a byte past it; a serial line is waited on, then read without waiting
 /// until it is empty. A close of the context from a signal handler or another
 /// thread ends the receive after the step it interrupts, with `Error::STOPPED`.
-pub fn receive_msg(g: &mut Guard<'_>, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
-    let ctx: &mut Context = g;
+pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
     let mut diag = ctx.diag();
     match kind {
         MsgKind::Indication => diag.out(format_args!("Waiting for an indication...\n")),
