@@ -34,13 +34,16 @@ const LIBS_PRIVATE_LINUX_GNU: &str = "-lgcc_s -lutil -lrt -lpthread -lm -ldl -lc
 /// Where the exported functions and objects are declared.
 const FFI_ROOT: &str = "src/ffi/mod.rs";
 
-/// Declarations whose top-level `const` qualifier on a by-value parameter cannot be
-/// spelt in Rust. The qualifier does not change the function's type, but libmodbus'
+/// Parameters cbindgen cannot spell as the C API does. Mostly declarations whose
+/// top-level `const` qualifier on a by-value parameter cannot be spelt in Rust. The qualifier does not change the function's type, but libmodbus'
 /// headers show it, so the generated prototypes get it back: (function, parameter
 /// as generated, parameter as libmodbus declares it).
 const CONST_VALUE_PARAMS: &[(&str, &str, &str)] = &[
     ("modbus_write_register", "uint16_t value", "const uint16_t value"),
     ("modbus_set_bits_from_byte", "uint8_t value", "const uint8_t value"),
+    // A nullable function pointer is `Option<fn>` in Rust; cbindgen unwraps it only
+    // when the function type is spelt out, not through its alias.
+    ("modbus_set_tls_authorization", "Option<modbus_tls_authorize_t> authorize", "modbus_tls_authorize_t authorize"),
 ];
 
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -48,6 +51,7 @@ enum Part {
     Main,
     Rtu,
     Tcp,
+    Tls,
     Version,
     /// rsmodbus' own additions, spliced into modbus.h at [`EXTENSIONS_MARKER`].
     Extensions,
@@ -67,13 +71,19 @@ const HEADERS: &[Header] = &[
     Header { file: "modbus.h", config: "cbindgen/modbus.toml", part: Part::Main },
     Header { file: "modbus-rtu.h", config: "cbindgen/modbus-rtu.toml", part: Part::Rtu },
     Header { file: "modbus-tcp.h", config: "cbindgen/modbus-tcp.toml", part: Part::Tcp },
+    Header { file: "modbus-tls.h", config: "cbindgen/modbus-tls.toml", part: Part::Tls },
     Header { file: "modbus-version.h", config: "cbindgen/modbus-version.toml", part: Part::Version },
 ];
 
 /// Which header declares the exported symbol `name`. `extensions` are the symbols
 /// listed as rsmodbus extensions in [`INTENDED_DIFFERENCES`].
 fn part_of(name: &str, extensions: &[String]) -> Part {
-    if name.starts_with("rsmodbus_") || extensions.iter().any(|e| e == name) {
+    if name.starts_with("modbus_new_tcp_tls")
+        || name.starts_with("modbus_set_tls_")
+        || name.starts_with("modbus_get_tls_")
+    {
+        Part::Tls
+    } else if name.starts_with("rsmodbus_") || extensions.iter().any(|e| e == name) {
         Part::Extensions
     } else if name == "modbus_new_rtu" || name.starts_with("modbus_rtu_") {
         Part::Rtu

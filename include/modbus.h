@@ -689,6 +689,7 @@ MODBUS_API const char *rsmodbus_version(void);
     } while (0)
 
 #include "modbus-tcp.h"
+#include "modbus-tls.h"
 #include "modbus-rtu.h"
 
 MODBUS_END_DECLS

@@ -37,7 +37,7 @@ DEB_INC=${DEBIAN_MODBUS_INCLUDE:-/usr/include/modbus}
 EXAMPLES=${LIBMODBUS_EXAMPLES:-/usr/share/doc/libmodbus-dev/examples}
 CC=${CC:-gcc}
 CXX=${CXX:-g++}
-HEADERS=(modbus.h modbus-rtu.h modbus-tcp.h modbus-version.h)
+HEADERS=(modbus.h modbus-rtu.h modbus-tcp.h modbus-tls.h modbus-version.h)
 ADDITIONS=abi/header-prototypes-additions.txt
 TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
 LIBDIR=$TARGET_DIR/$PROFILE
@@ -120,7 +120,7 @@ if [[ ! -f "$DEB_INC/modbus.h" ]]; then
     err "Debian's headers not found in $DEB_INC (apt-get install libmodbus-dev)"
 else
     protos "$DEB_INC"/modbus.h "$DEB_INC"/modbus-rtu.h "$DEB_INC"/modbus-tcp.h >"$TMP/deb.protos"
-    protos include/modbus.h include/modbus-rtu.h include/modbus-tcp.h >"$TMP/ours.protos"
+    protos include/modbus.h include/modbus-rtu.h include/modbus-tcp.h include/modbus-tls.h >"$TMP/ours.protos"
     # The additions file holds plain prototypes: normalise them the same way.
     grep -v '^[[:space:]]*\(#\|$\)' "$ADDITIONS" | sed -E 's/[[:space:]]*\|.*$//; s/^/MODBUS_API /' \
         >"$TMP/additions.h"

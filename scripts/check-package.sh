@@ -143,7 +143,7 @@ else
 fi
 nm -D --defined-only $BUILT/libmodbus.so | awk '{print $3}' | sort >"$WORK/exported"
 {
-    for h in modbus.h modbus-rtu.h modbus-tcp.h modbus-version.h; do echo "/usr/include/modbus/$h"; done
+    for h in modbus.h modbus-rtu.h modbus-tcp.h modbus-tls.h modbus-version.h; do echo "/usr/include/modbus/$h"; done
     echo "$L/libmodbus.so -> libmodbus.so.5.1.0"
     echo "$L/libmodbus.a"
     echo "$L/pkgconfig/libmodbus.pc"

@@ -107,7 +107,7 @@ sed -e "s|^prefix=.*|prefix=$prefix|" \
 chmod 0644 "$D$libdir/pkgconfig/libmodbus.pc"
 
 install -m 0644 include/modbus.h include/modbus-rtu.h include/modbus-tcp.h \
-    include/modbus-version.h "$D$includedir/modbus/"
+    include/modbus-tls.h include/modbus-version.h "$D$includedir/modbus/"
 install -m 0644 target/man/man3/*.3 "$D$mandir/man3/"
 install -m 0644 target/man/man7/*.7 "$D$mandir/man7/"
 

@@ -55,6 +55,9 @@ pub struct Context {
     /// [`crate::server_ext`]); `None` until a server configuration call, so an
     /// unconfigured context is exactly libmodbus and pays nothing for it.
     pub server_ext: Option<Box<crate::server_ext::ServerExt>>,
+    /// Modbus/TCP Security: the TLS settings and sessions of a context made by
+    /// `modbus_new_tcp_tls[_pi]`; `None` for every other context.
+    pub tls: Option<Box<crate::transport::tls::Tls>>,
     /// Frame buffers lent to one transaction at a time (see [`SpareFrames`]).
     pub spare: SpareFrames,
     /// `s` is a serial line this context opened (with `O_NONBLOCK`): a read on it
@@ -119,6 +122,7 @@ impl Context {
             serves_extended: false,
             diagnostics_sent: None,
             server_ext: None,
+            tls: None,
             spare: SpareFrames::default(),
             line_nonblocking: false,
             client_socket: None,
@@ -198,6 +202,24 @@ impl Context {
             _ => c"502".to_owned(),
         };
         Ok(Context::common(Framing::Tcp, Link::TcpPi(TcpPiLink { node, service }), TCP_SLAVE))
+    }
+
+    /// `modbus_new_tcp_tls`: Modbus/TCP Security, TLS over TCP/IPv4.
+    pub fn new_tcp_tls(ip: Option<&CStr>, port: i32) -> Result<Context> {
+        let mut ctx = Context::new_tcp(ip, port)?;
+        ctx.tls = Some(Box::default());
+        Ok(ctx)
+    }
+
+    /// `modbus_new_tcp_tls_pi`: Modbus/TCP Security over any address family.
+    pub fn new_tcp_tls_pi(node: Option<&CStr>, service: Option<&CStr>) -> Result<Context> {
+        let service = match service {
+            Some(s) if !s.is_empty() => Some(s),
+            _ => Some(c"802"),
+        };
+        let mut ctx = Context::new_tcp_pi(node, service)?;
+        ctx.tls = Some(Box::default());
+        Ok(ctx)
     }
 
     /// `modbus_new_rtu_tcp`: RTU frames (slave, PDU, CRC) over a TCP/IPv4 stream,

@@ -13,8 +13,9 @@ use crate::core::session::{self, Recovery, Timeout};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
+use crate::stop::Stop;
 use crate::transport::tcp::ConnectError;
-use crate::transport::{self, Ready, rtu, tcp};
+use crate::transport::{self, Ready, rtu, tcp, tls};
 
 /// A locked context. Functions that may call back into the application (the custom
 /// RTS callback) take the guard so they can release the lock around the call.
@@ -66,6 +67,9 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
         Ok(c) => {
             ctx.set_descriptor(c.fd);
             ctx.client_socket = c.blocking.then(ClientSocket::default);
+            if ctx.tls.is_some() {
+                return tls_handshake(ctx, Side::Client);
+            }
             Ok(())
         }
         Err(ConnectError::Before(e)) => Err(e),
@@ -89,7 +93,72 @@ pub fn close(ctx: &mut Context) {
             let fd = ctx.release_descriptor();
             rtu::close_line(fd, ctx.rtu().and_then(|l| l.saved_termios));
         }
-        Link::Tcp(_) | Link::TcpPi(_) => tcp::close_socket(ctx.release_descriptor()),
+        Link::Tcp(_) | Link::TcpPi(_) => {
+            if let Some(mut session) = ctx.tls.as_deref_mut().and_then(|t| t.remove(ctx.s)) {
+                session.close(ctx.s);
+            }
+            tcp::close_socket(ctx.release_descriptor())
+        }
+    }
+}
+
+/// Which end of a TLS handshake a context takes.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub enum Side {
+    Client,
+    Server,
+}
+
+/// The TLS handshake on the context's socket (just connected or accepted), bounded
+/// by the response timeout; the session is kept for the socket. A failure closes the
+/// socket and leaves the context without one.
+pub fn tls_handshake(ctx: &mut Context, side: Side) -> Result<()> {
+    let fd = ctx.s;
+    let deadline = Some(transport::now() + ctx.response_timeout.duration());
+    let stop = std::sync::Arc::clone(&ctx.stop);
+    let host = match &ctx.link {
+        Link::Tcp(l) => l.ip.to_string_lossy().into_owned(),
+        Link::TcpPi(l) => l.node.to_string_lossy().into_owned(),
+        Link::Rtu(_) => return Err(Error::INVALID),
+    };
+    let Some(tls) = ctx.tls.as_deref_mut() else { return Err(Error::INVALID) };
+    let started = match side {
+        Side::Client => tls.settings.connect(&host),
+        Side::Server => tls.settings.accept(),
+    };
+    // A server reads record by record (see `tls::RecordCut`); the handshake's
+    // flights go out at once.
+    let _ = transport::set_option(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1 as libc::c_int);
+    let mut cut = (side == Side::Server).then(tls::RecordCut::default);
+    let done = started.and_then(|mut conn| {
+        tls::handshake(fd, &mut conn, cut.as_mut(), deadline, &|| stop.stopping())?;
+        Ok(conn)
+    });
+    let mut diag = ctx.diag();
+    match done {
+        Ok(conn) => {
+            if ctx.debug {
+                let described = tls::describe_session(&conn);
+                let session = tls::Session::new(conn, cut);
+                let role = session.role().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
+                diag.out(format_args!("TLS handshake done: {described}, peer role {role}\n"));
+                if let Some(tls) = ctx.tls.as_deref_mut() {
+                    tls.insert(fd, session);
+                }
+            } else if let Some(tls) = ctx.tls.as_deref_mut() {
+                tls.insert(fd, tls::Session::new(conn, cut));
+            }
+            Ok(())
+        }
+        Err(e) => {
+            if ctx.debug {
+                diag.err(format_args!("ERROR TLS handshake: {}\n", describe(e.0)));
+            }
+            if !ctx.stopping() {
+                tcp::close_socket(ctx.release_descriptor());
+            }
+            Err(e)
+        }
     }
 }
 
@@ -102,8 +171,16 @@ pub fn flush(ctx: &mut Context) -> Result<usize> {
 /// [`flush`], and the error of its last failed system call, if any: the errno
 /// libmodbus's `modbus_flush` leaves behind.
 fn flush_reporting(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
-    let buffered = ctx.rx.available().len();
+    let mut buffered = ctx.rx.available().len();
     ctx.rx.clear();
+    let fd = ctx.s;
+    if let Some(session) = ctx.tls.as_deref_mut().and_then(|t| t.session(fd)) {
+        // Records queued on the socket are decrypted and dropped with the rest.
+        while session.fill(fd, libc::MSG_DONTWAIT).is_ok() && !session.readable_end() {
+            buffered += session.discard();
+        }
+        buffered += session.discard();
+    }
     let (rc, left) = if ctx.is_socket() {
         let (rc, left) = flush_socket(ctx);
         (rc.map(|n| n + buffered), left)
@@ -174,21 +251,26 @@ pub fn pause(ctx: &Context, d: Duration) -> Result<()> {
 pub fn set_rts(g: &mut Guard<'_>, on: bool) {
     let Some(link) = g.rtu() else { return };
     match link.custom_rts.clone() {
-        Some(hook) => {
-            // The handle must outlive the callback, which may free it (or a signal
-            // handler may, meanwhile): a reference held across it.
-            let stop = std::sync::Arc::clone(&g.stop);
-            stop.refs.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-            OwnerGuard::unlocked(g, || hook(on));
-            if stop.refs.fetch_sub(1, std::sync::atomic::Ordering::SeqCst) == 1 {
-                // `modbus_free` came meanwhile: the handle is ours to free, when this
-                // call releases the lock (see `OwnerGuard::release`).
-                stop.refs.store(1, std::sync::atomic::Ordering::SeqCst);
-                OwnerGuard::raise_flag(g);
-            }
-        }
+        Some(hook) => call_unlocked(g, || hook(on)),
         None => rtu::set_rts_line(g.s, on),
     }
+}
+
+/// Calls an application's callback with the context unlocked, so that it may call
+/// `modbus_get_socket` and friends on it.
+pub fn call_unlocked<R>(g: &mut Guard<'_>, f: impl FnOnce() -> R) -> R {
+    // The handle must outlive the callback, which may free it (or a signal handler
+    // may, meanwhile): a reference held across it.
+    let stop = std::sync::Arc::clone(&g.stop);
+    stop.refs.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+    let r = OwnerGuard::unlocked(g, f);
+    if stop.refs.fetch_sub(1, std::sync::atomic::Ordering::SeqCst) == 1 {
+        // `modbus_free` came meanwhile: the handle is ours to free, when this call
+        // releases the lock (see `OwnerGuard::release`).
+        stop.refs.store(1, std::sync::atomic::Ordering::SeqCst);
+        OwnerGuard::raise_flag(g);
+    }
+    r
 }
 
 /// The RTS sequence's sleeps (a stop cuts them short; the wait that follows the
@@ -202,11 +284,28 @@ fn sleep_us(ctx: &Context, us: i64) {
 /// Writes one sealed ADU to the line.
 #[inline]
 fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
+    if g.tls.is_some() {
+        return write_tls(g, adu);
+    }
     if g.is_socket() {
         // A client socket the context made blocking must still never block in a send.
         transport::send(g.s, adu, if g.client_socket.is_some() { libc::MSG_DONTWAIT } else { 0 })
     } else {
         write_serial(g, adu)
+    }
+}
+
+/// [`write_adu`] on a TLS session: one record, waiting for room up to the response
+/// timeout. A socket without a session (one given by `modbus_set_socket` that this
+/// context did not connect or accept) cannot carry it: EMBTLS.
+#[inline(never)]
+fn write_tls(ctx: &mut Context, adu: &[u8]) -> Result<usize> {
+    let fd = ctx.s;
+    let deadline = Some(transport::now() + ctx.response_timeout.duration());
+    let stop = std::sync::Arc::clone(&ctx.stop);
+    match ctx.tls.as_deref_mut().and_then(|t| t.session(fd)) {
+        Some(session) => session.send(fd, adu, deadline, &|| stop.stopping()),
+        None => Err(Error(crate::error::EMBTLS)),
     }
 }
 
@@ -315,7 +414,7 @@ pub enum Received {
 /// Carries out the recovery a failure asks for (see `core::session`), unless the
 /// context is being closed under the call.
 fn recover(ctx: &mut Context, recovery: Recovery) {
-    if ctx.stopping() {
+    if recovery == Recovery::None || ctx.stopping() {
         return;
     }
     match recovery {
@@ -393,45 +492,88 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
         return Err(Error::UNCHANGED);
     }
     debug_assert!(buf.len() >= ctx.framing.max_adu_length());
-    let mut machine = Receiver::new(receive_settings(ctx, kind), transport::now());
+    let settings = receive_settings(ctx, kind);
+    let mut machine = Receiver::new(&settings, transport::now);
+    let tls = ctx.tls.is_some();
+    let mut step = machine.start(buf, &mut ctx.rx, transport::now);
     loop {
-        let result = match machine.step(buf, &mut ctx.rx) {
+        let result = match step {
             Step::Done(finished) => return finish(ctx, buf, finished),
+            step if tls => tls_step(ctx, buf, step),
             Step::Peek { block } => {
                 let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
-                transport::recv(ctx.s, &mut ctx.rx.buf, flags)
-            }
-            Step::Wait { until } => wait_readable(ctx, until).map(|()| 0),
-            Step::Read { dest, how } => {
-                let socket = ctx.is_socket();
-                let room = match dest {
-                    Dest::Message { from, to } => &mut buf[from..to],
-                    Dest::ReadAhead => &mut ctx.rx.buf[..],
-                };
-                match how {
-                    ReadHow::Ready if socket => transport::recv(ctx.s, room, 0),
-                    ReadHow::Ready => transport::read(ctx.s, room),
-                    ReadHow::Queued if socket => transport::recv(ctx.s, room, libc::MSG_DONTWAIT),
-                    ReadHow::Queued => transport::read(ctx.s, room),
-                    ReadHow::Within(timeout) => read_within(ctx.s, &mut ctx.client_socket, room, timeout),
+                let peeked = transport::recv(ctx.s, &mut ctx.rx.buf, flags);
+                // A whole message queued: taken at once, exactly (never a byte past it).
+                if let Ok(n) = peeked
+                    && let Some(len) = machine.whole_after_peek(&ctx.rx.buf[..n], buf.len())
+                {
+                    let read = transport::recv(ctx.s, &mut buf[..len], 0);
+                    if !ctx.stopping() {
+                        step = machine.took(len, read, buf, &mut ctx.rx, transport::now);
+                        continue;
+                    }
                 }
+                peeked
             }
+            Step::Read { dest: Dest::Message { from, to }, how: ReadHow::Ready } if ctx.is_socket() => {
+                transport::recv(ctx.s, &mut buf[from..to], 0)
+            }
+            Step::Read { dest: Dest::Message { from, to }, how: ReadHow::Within(timeout) } => {
+                read_within(ctx.s, &mut ctx.client_socket, &mut buf[from..to], timeout, ctx.debug)
+            }
+            step => execute(ctx, buf, step),
         };
         if ctx.stopping() {
             machine.stopped();
+            step = machine.step(buf, &mut ctx.rx, transport::now);
         } else {
-            if result == Err(Error(libc::EINTR)) {
-                ctx.diag().err(format_args!("A non blocked signal was caught\n"));
-            }
-            machine.done(result, transport::now);
+            step = machine.next(result, buf, &mut ctx.rx, transport::now);
         }
+    }
+}
+
+/// The system call of a step (but the socket's peek and plain read, which the
+/// receive loop makes itself).
+#[inline(never)]
+fn execute(ctx: &mut Context, buf: &mut [u8], step: Step) -> Result<usize> {
+    match step {
+        Step::Peek { block } => {
+            let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
+            transport::recv(ctx.s, &mut ctx.rx.buf, flags)
+        }
+        Step::Wait { until } => wait_readable(ctx, until).map(|()| 0),
+        Step::Read { dest, how } => {
+            let socket = ctx.is_socket();
+            let room = match dest {
+                Dest::Message { from, to } => &mut buf[from..to],
+                Dest::ReadAhead => &mut ctx.rx.buf[..],
+            };
+            match how {
+                ReadHow::Ready if socket => transport::recv(ctx.s, room, 0),
+                ReadHow::Ready => transport::read(ctx.s, room),
+                ReadHow::Queued if socket => transport::recv(ctx.s, room, libc::MSG_DONTWAIT),
+                ReadHow::Queued => transport::read(ctx.s, room),
+                ReadHow::Within(timeout) => read_within(ctx.s, &mut ctx.client_socket, room, timeout, ctx.debug),
+            }
+        }
+        Step::Done(_) => unreachable!("handled by the receive loop"),
     }
 }
 
 /// The end of a receive: the debug trace of the message (libmodbus prints its bytes
 /// as they arrive; printed at the end, the text is the same with fewer writes), the
 /// messages of a bad or foreign frame, the recovery.
+#[inline]
 fn finish(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
+    match f.outcome {
+        Outcome::Frame(len) if !ctx.debug => Ok(Received::Frame(len)),
+        _ => finish_reporting(ctx, buf, f),
+    }
+}
+
+/// [`finish`] with something to print or to recover from.
+#[inline(never)]
+fn finish_reporting(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
     if ctx.debug && (f.traced > 0 || f.ended) {
         use std::fmt::Write as _;
         let mut trace = String::with_capacity(f.traced * 4 + 1);
@@ -473,18 +615,77 @@ fn finish(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
 /// descriptor.
 fn wait_readable(ctx: &Context, until: Option<Duration>) -> Result<()> {
     let wake = if ctx.is_socket() { -1 } else { ctx.stop.wake_fd() };
+    wait_line(&ctx.stop, ctx.s, wake, until, ctx.debug)
+}
+
+/// [`wait_readable`] on the parts of a context it needs.
+fn wait_line(stop: &Stop, fd: i32, wake: i32, until: Option<Duration>, debug: bool) -> Result<()> {
     loop {
-        if ctx.stopping() {
+        if stop.stopping() {
             return Err(Error::STOPPED);
         }
         let mut left = until.map(|u| transport::to_timespec(u.saturating_sub(transport::now())));
-        match transport::wait_or_wake(ctx.s, libc::POLLIN, wake, left.as_mut()) {
+        match transport::wait_or_wake(fd, libc::POLLIN, wake, left.as_mut()) {
             Ok(Ready::Line) => return Ok(()),
             Ok(Ready::TimedOut) => return Err(Error::TIMED_OUT),
-            Ok(Ready::Woken) => ctx.stop.drain_wake(),
-            Err(e) if e.0 == libc::EINTR => ctx.diag().err(format_args!("A non blocked signal was caught\n")),
+            Ok(Ready::Woken) => stop.drain_wake(),
+            Err(e) if e.0 == libc::EINTR => {
+                crate::stdio::DebugSink { enabled: debug }.err(format_args!("A non blocked signal was caught\n"))
+            }
             Err(e) => return Err(e),
         }
+    }
+}
+
+/// One step of the receive machine on a TLS session: the same steps, on the
+/// plaintext the session decrypted. A wait ends when plaintext is there (a readable
+/// socket may bring only part of a record, or none of the application's data); a
+/// read takes records from the socket only when no plaintext is left.
+#[inline(never)]
+fn tls_step(ctx: &mut Context, buf: &mut [u8], step: Step) -> Result<usize> {
+    let Context { tls, rx, stop, client_socket, debug, s: fd, .. } = ctx;
+    let fd = *fd;
+    let Some(session) = tls.as_deref_mut().and_then(|t| t.session(fd)) else { return Err(Error(crate::error::EMBTLS)) };
+    match step {
+        Step::Peek { block } => {
+            let flags = if block { 0 } else { libc::MSG_DONTWAIT };
+            while !session.readable() {
+                session.fill(fd, flags)?;
+            }
+            match session.peek(&mut rx.buf) {
+                0 => session.take(&mut []),
+                n => Ok(n),
+            }
+        }
+        Step::Wait { until } => {
+            while !session.readable() {
+                wait_line(stop, fd, -1, until, *debug)?;
+                match session.fill(fd, libc::MSG_DONTWAIT) {
+                    Err(e) if e.0 != libc::EAGAIN && e.0 != libc::EINTR => return Err(e),
+                    _ => {}
+                }
+            }
+            Ok(0)
+        }
+        Step::Read { dest, how } => {
+            let room = match dest {
+                Dest::Message { from, to } => &mut buf[from..to],
+                Dest::ReadAhead => &mut rx.buf[..],
+            };
+            let flags = match how {
+                ReadHow::Queued => libc::MSG_DONTWAIT,
+                ReadHow::Ready => 0,
+                ReadHow::Within(timeout) if receive_timeout_set(fd, client_socket, timeout) => 0,
+                ReadHow::Within(_) => libc::MSG_DONTWAIT,
+            };
+            // One recv at most: a part of a record, or a record with no application
+            // data, leaves nothing to take (EAGAIN), and the machine waits again.
+            if !session.readable() {
+                session.fill(fd, flags)?;
+            }
+            session.take(room)
+        }
+        Step::Done(_) => unreachable!("handled by the caller"),
     }
 }
 
@@ -494,17 +695,33 @@ fn wait_readable(ctx: &Context, until: Option<Duration>) -> Result<()> {
 /// eighth of the time plus a tick or two late, so it is set to 3/4 of the response
 /// timeout; when it fires (EAGAIN), the machine waits for the rest of the response
 /// timeout, which therefore ends when libmodbus's `select` would.
-fn read_within(fd: i32, socket: &mut Option<ClientSocket>, room: &mut [u8], timeout: Timeout) -> Result<usize> {
-    if let Some(socket) = socket.as_mut() {
-        if socket.rcvtimeo_for != Some(timeout) {
-            // Without the timer the read must not block: then it only looks.
-            if tcp::set_receive_timeout(fd, timeout.duration() * 3 / 4).is_err() {
-                return transport::recv(fd, room, libc::MSG_DONTWAIT);
-            }
-            socket.rcvtimeo_for = Some(timeout);
-        }
+fn read_within(
+    fd: i32,
+    socket: &mut Option<ClientSocket>,
+    room: &mut [u8],
+    timeout: Timeout,
+    debug: bool,
+) -> Result<usize> {
+    // Without the timer the read must not block: then it only looks.
+    let flags = if receive_timeout_set(fd, socket, timeout) { 0 } else { libc::MSG_DONTWAIT };
+    let read = transport::recv(fd, room, flags);
+    if debug && matches!(read, Err(Error(libc::EINTR))) {
+        crate::stdio::DebugSink { enabled: true }.err(format_args!("A non blocked signal was caught\n"));
     }
-    transport::recv(fd, room, 0)
+    read
+}
+
+/// Sets the socket's `SO_RCVTIMEO` to 3/4 of `timeout` unless it already is; false
+/// when it cannot be set (a blocking read could then block for ever).
+fn receive_timeout_set(fd: i32, socket: &mut Option<ClientSocket>, timeout: Timeout) -> bool {
+    let Some(socket) = socket.as_mut() else { return false };
+    if socket.rcvtimeo_for != Some(timeout) {
+        if tcp::set_receive_timeout(fd, timeout.duration() * 3 / 4).is_err() {
+            return false;
+        }
+        socket.rcvtimeo_for = Some(timeout);
+    }
+    true
 }
 
 /// The unit id a request goes to.

@@ -14,6 +14,7 @@ use crate::core::Diag;
 use crate::core::diagnostics::Delivery;
 use crate::core::frame::{Framing, MsgKind};
 use crate::core::reply::{Mapping, Outcome, Server, exception_response};
+use crate::core::security;
 use crate::engine::{self, AduBuf, Guard, Received};
 use crate::error::{Error, Result, exception};
 use crate::server_ext::BusEvent;
@@ -100,6 +101,9 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 /// [`crate::core::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
 /// for a suppressed RTU broadcast (and, with diagnostics, in listen-only mode).
 pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
+    if g.tls.as_deref().is_some_and(|t| t.authorize.is_some()) && !authorized(g, req) {
+        return refuse(g, req);
+    }
     let server = Server { framing: g.framing, quirks: g.quirks };
     let mut sink = g.diag();
     let mut out = g.spare.take();
@@ -119,6 +123,42 @@ pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn M
     };
     g.spare.give(out);
     result
+}
+
+/// Modbus/TCP Security: asks the application's authorization callback about each
+/// range `req` touches, for the role of the client on the context's socket (R-24 to
+/// R-28 of the specification).
+fn authorized(g: &mut Guard<'_>, req: &[u8]) -> bool {
+    let fd = g.s;
+    let Some(tls) = g.tls.as_deref() else { return true };
+    let Some(hook) = tls.authorize.clone() else { return true };
+    let role: Option<std::ffi::CString> = tls.session_ref(fd).and_then(|s| s.role()).map(ToOwned::to_owned);
+    let h = g.framing.header_length();
+    let unit = req.get(h - 1).copied().unwrap_or(0);
+    let access = security::access(req.get(h..).unwrap_or(&[]));
+    for range in access.ranges() {
+        let allowed =
+            engine::call_unlocked(g, || hook(role.as_deref(), unit, access.function, range.address, range.nb));
+        if !allowed {
+            let shown = role.as_deref().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
+            g.diag().out(format_args!(
+                "Request 0x{:02X} at {} ({} item(s)) refused for role {shown}\n",
+                access.function, range.address, range.nb
+            ));
+            return false;
+        }
+    }
+    true
+}
+
+/// The answer to a request the authorization refused: exception 01, ILLEGAL
+/// FUNCTION, nothing changed.
+fn refuse(g: &mut Guard<'_>, req: &[u8]) -> Result<usize> {
+    let mut out = g.spare.take();
+    let len = exception_response(g.framing, req, exception::ILLEGAL_FUNCTION, &mut out);
+    let r = engine::send_msg(g, &mut out[..], len);
+    g.spare.give(out);
+    r
 }
 
 /// `modbus_reply_exception`: sends exception `code` (below `MODBUS_EXCEPTION_MAX`,

@@ -63,6 +63,16 @@ pub const EMBUNKEXC: i32 = EMBXGTAR + 4;
 pub const EMBMDATA: i32 = EMBXGTAR + 5;
 pub const EMBBADSLAVE: i32 = EMBXGTAR + 6;
 
+/// Modbus/TCP Security failures (rsmodbus, beyond libmodbus's range): a handshake
+/// or record that failed, and the reasons a C program may want to tell apart.
+pub const EMBTLS: i32 = MODBUS_ENOBASE + 64;
+pub const EMBTLSNOCERT: i32 = EMBTLS + 1;
+pub const EMBTLSUNKNOWNCA: i32 = EMBTLS + 2;
+pub const EMBTLSEXPIRED: i32 = EMBTLS + 3;
+pub const EMBTLSNAME: i32 = EMBTLS + 4;
+pub const EMBTLSVERSION: i32 = EMBTLS + 5;
+pub const EMBTLSCONFIG: i32 = EMBTLS + 6;
+
 /// An errno value, as libmodbus would set it.
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub struct Error(pub i32);
@@ -129,6 +139,13 @@ pub const fn strerror_modbus_c(errnum: i32) -> Option<&'static core::ffi::CStr> 
         EMBBADEXC => c"Invalid exception code",
         EMBMDATA => c"Too many data",
         EMBBADSLAVE => c"Response not from requested slave",
+        EMBTLS => c"TLS failure",
+        EMBTLSNOCERT => c"TLS: the peer sent no certificate",
+        EMBTLSUNKNOWNCA => c"TLS: certificate not issued by a trusted CA",
+        EMBTLSEXPIRED => c"TLS: certificate expired or not yet valid",
+        EMBTLSNAME => c"TLS: certificate not valid for the peer's name or address",
+        EMBTLSVERSION => c"TLS: protocol version not accepted (TLS 1.2 or newer)",
+        EMBTLSCONFIG => c"TLS: certificate, key or CA not set",
         _ => return None,
     })
 }

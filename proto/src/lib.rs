@@ -20,6 +20,7 @@ pub mod error;
 pub mod frame;
 pub mod reply;
 pub mod request;
+pub mod security;
 #[cfg(test)]
 mod seed_vectors;
 pub mod server_ext;

@@ -11,6 +11,7 @@ pub mod extensions;
 pub mod rtu;
 pub mod server;
 pub mod tcp;
+pub mod tls;
 pub mod version;
 
 use std::ffi::{CStr, c_char, c_int};

@@ -346,6 +346,11 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
             Ok((fd, peer)) => {
                 g.set_descriptor(fd);
                 listen::report_accept(&mut g.diag(), peer.as_deref());
+                if g.tls.is_some() {
+                    // Modbus/TCP Security: the client is served only once it has
+                    // authenticated (a failure closes its socket).
+                    crate::engine::tls_handshake(g, crate::engine::Side::Server)?;
+                }
                 Ok(fd)
             }
             Err(e) => {

@@ -7,6 +7,7 @@ pub mod link;
 pub mod listen;
 pub mod rtu;
 pub mod tcp;
+pub mod tls;
 
 use std::time::Duration;
 

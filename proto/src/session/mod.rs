@@ -24,10 +24,12 @@ impl Timeout {
         Timeout { sec, usec }
     }
 
+    #[inline]
     pub const fn is_zero(self) -> bool {
         self.sec == 0 && self.usec == 0
     }
 
+    #[inline]
     pub const fn duration(self) -> Duration {
         Duration::new(self.sec as u64, self.usec * 1000)
     }
@@ -59,6 +61,7 @@ pub enum Wait {
 impl Timeouts {
     /// The first wait of a receive: the response timeout for a confirmation, the
     /// indication timeout (zero: forever) for an indication.
+    #[inline]
     pub const fn first_wait(&self, kind: MsgKind) -> Wait {
         match kind {
             MsgKind::Confirmation => Wait::For(self.response),
@@ -69,6 +72,7 @@ impl Timeouts {
 
     /// The wait after bytes of the message arrived: a fresh byte timeout, or, when
     /// that is zero, what is left of the current one.
+    #[inline]
     pub const fn after_bytes(&self) -> Wait {
         if self.byte.is_zero() { Wait::Left } else { Wait::For(self.byte) }
     }

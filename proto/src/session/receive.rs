@@ -50,10 +50,12 @@ impl ReadAhead {
         ReadAhead { buf: [0; MAX_ADU_LENGTH], start: 0, end: 0 }
     }
 
+    #[inline]
     pub fn available(&self) -> &[u8] {
         &self.buf[self.start..self.end]
     }
 
+    #[inline]
     pub fn consume(&mut self, n: usize) {
         self.start += n;
         if self.start == self.end {
@@ -61,12 +63,14 @@ impl ReadAhead {
         }
     }
 
+    #[inline]
     pub fn clear(&mut self) {
         self.start = 0;
         self.end = 0;
     }
 
     /// Keeps `rest` (read past a message while this buffer was empty).
+    #[inline]
     fn keep(&mut self, rest: &[u8]) {
         if !rest.is_empty() {
             debug_assert!(self.available().is_empty());
@@ -217,7 +221,25 @@ enum Pending {
     Nothing,
     Peek,
     Wait,
-    Read(ReadHow, Dest),
+    /// A read into the message; `queued`: one that does not wait.
+    Read {
+        queued: bool,
+    },
+    /// A read into the read-ahead buffer (ASCII characters).
+    ReadStaged,
+}
+
+impl Pending {
+    #[inline]
+    fn of(step: &Step) -> Pending {
+        match step {
+            Step::Peek { .. } => Pending::Peek,
+            Step::Wait { .. } => Pending::Wait,
+            Step::Read { dest: Dest::ReadAhead, .. } => Pending::ReadStaged,
+            Step::Read { how, .. } => Pending::Read { queued: *how == ReadHow::Queued },
+            Step::Done(_) => Pending::Nothing,
+        }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -228,18 +250,16 @@ enum Body {
 
 /// One receive (see the module's documentation).
 #[derive(Clone, Debug)]
-pub struct Receiver {
-    s: Settings,
+pub struct Receiver<'s> {
+    s: &'s Settings,
     body: Body,
     /// Bytes of `msg` written (by reads, or taken from the read-ahead buffer).
     filled: usize,
     /// When the current wait ends (`None`: never).
     deadline: Option<Duration>,
-    /// The clock when the receive started.
-    started: Duration,
-    /// ASCII: the deadline a byte timeout after the characters just read, applied
-    /// once they are decoded and prove to be inside a frame.
-    rearm: Option<Duration>,
+    /// Bytes of the message came since the last wait: the next wait gets a fresh
+    /// byte timeout (the clock is read then, and only then).
+    rearm: bool,
     /// ASCII: characters a read put in the read-ahead buffer.
     staged: usize,
     line: LineState,
@@ -247,11 +267,13 @@ pub struct Receiver {
     finished: Option<Finished>,
 }
 
-impl Receiver {
-    /// A receive that starts at `now` (the driver's monotonic clock).
-    pub fn new(s: Settings, now: Duration) -> Self {
+impl<'s> Receiver<'s> {
+    /// A receive that starts now; `now` reads the driver's monotonic clock, and is
+    /// called only when the first wait has an end.
+    #[inline]
+    pub fn new(s: &'s Settings, now: impl FnOnce() -> Duration) -> Self {
         let deadline = match s.timeouts.first_wait(s.kind) {
-            Wait::For(t) => Some(now + t.duration()),
+            Wait::For(t) => Some(now() + t.duration()),
             Wait::Forever | Wait::Left => None,
         };
         let body = match s.framing {
@@ -265,8 +287,7 @@ impl Receiver {
             body,
             filled: 0,
             deadline,
-            started: now,
-            rearm: None,
+            rearm: false,
             staged: 0,
             line: LineState::Unknown,
             pending: Pending::Nothing,
@@ -279,20 +300,45 @@ impl Receiver {
         self.deadline
     }
 
+    /// The first step: [`Receiver::step`], with the usual beginnings (nothing left
+    /// over from an earlier read) decided at once.
+    #[inline]
+    pub fn start(&mut self, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
+        if let Body::Binary(asm) = &self.body
+            && rx.available().is_empty()
+        {
+            let line = self.s.line;
+            let dest = Dest::Message { from: 0, to: if self.s.read_ahead { msg.len() } else { asm.wanted() } };
+            if line.socket && self.s.kind == MsgKind::Indication {
+                self.pending = Pending::Peek;
+                return Step::Peek { block: self.deadline.is_none() };
+            }
+            if line.timed_reads && self.s.kind == MsgKind::Confirmation {
+                self.pending = Pending::Read { queued: false };
+                return Step::Read { dest, how: ReadHow::Within(self.s.timeouts.response) };
+            }
+        }
+        self.step(msg, rx, now)
+    }
+
     /// What to do next. `msg` receives the message (at least the framing's largest
-    /// ADU); `rx` is the context's read-ahead buffer.
-    pub fn step(&mut self, msg: &mut [u8], rx: &mut ReadAhead) -> Step {
+    /// ADU); `rx` is the context's read-ahead buffer; `now` reads the clock, called
+    /// only for the deadline of a wait that follows new bytes.
+    pub fn step(&mut self, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
         debug_assert_eq!(self.pending, Pending::Nothing, "step() before done() of the last step");
         if let Some(f) = self.finished.take() {
             return Step::Done(f);
         }
-        if matches!(self.body, Body::Ascii(_)) {
-            return self.step_ascii(msg, rx);
-        }
-        loop {
+        let fed = match &self.body {
+            Body::Binary(asm) => asm.len(),
+            Body::Ascii(_) => return self.step_ascii(msg, rx, now),
+        };
+        if self.filled > fed {
             if let Some(f) = self.assemble(msg, rx) {
                 return Step::Done(f);
             }
+        }
+        loop {
             let avail = rx.available();
             if avail.is_empty() {
                 break;
@@ -303,7 +349,10 @@ impl Receiver {
             msg[self.filled..self.filled + n].copy_from_slice(&avail[..n]);
             rx.consume(n);
             self.filled += n;
-            self.bytes_came(self.started);
+            self.bytes_came();
+            if let Some(f) = self.assemble(msg, rx) {
+                return Step::Done(f);
+            }
         }
         let Body::Binary(asm) = &self.body else { unreachable!() };
         let from = self.filled;
@@ -338,25 +387,19 @@ impl Receiver {
             LineState::Queued => read(ReadHow::Queued),
             LineState::Unknown | LineState::Arrived if from > 0 && line.reads_without_waiting => read(ReadHow::Queued),
             LineState::Readable | LineState::Whole(_) => read(ReadHow::Ready),
-            _ => Step::Wait { until: self.deadline },
+            _ => Step::Wait { until: self.wait_deadline(now) },
         };
-        self.pending = match step {
-            Step::Peek { .. } => Pending::Peek,
-            Step::Wait { .. } => Pending::Wait,
-            Step::Read { dest, how } => Pending::Read(how, dest),
-            Step::Done(_) => Pending::Nothing,
-        };
+        self.pending = Pending::of(&step);
         step
     }
 
     /// The result of the last step: bytes peeked or read, `Ok(_)` for a wait that
     /// found the line readable, or the error (`TIMED_OUT` when a wait reached its
-    /// deadline). `now` reads the clock; it is called only when bytes came and a new
-    /// deadline follows from them.
-    pub fn done(&mut self, result: Result<usize>, now: impl FnOnce() -> Duration) {
+    /// deadline).
+    #[inline]
+    pub fn done(&mut self, result: Result<usize>) {
         let pending = core::mem::replace(&mut self.pending, Pending::Nothing);
         let mode = self.s.recovery;
-        let traced = self.traced();
         match pending {
             Pending::Nothing => debug_assert!(false, "done() without a step"),
             Pending::Peek => {
@@ -370,26 +413,111 @@ impl Receiver {
                 Err(Error::TIMED_OUT) if matches!(&self.body, Body::Binary(a) if a.searching_crc()) => {
                     self.line = LineState::Quiet;
                 }
-                Err(e) => self.finished = Some(Finished::failed(e, "select", after_wait(mode, e), traced)),
+                Err(e) => self.finished = Some(Finished::failed(e, "select", after_wait(mode, e), self.traced())),
             },
-            Pending::Read(how, dest) => match result {
+            Pending::Read { .. } | Pending::ReadStaged => match result {
                 Ok(n) if n > 0 => {
-                    match dest {
-                        Dest::Message { .. } => self.filled += n,
-                        Dest::ReadAhead => self.staged = n,
+                    if pending == Pending::ReadStaged {
+                        self.staged = n;
+                    } else {
+                        self.filled += n;
                     }
-                    self.bytes_came(now());
+                    self.bytes_came();
                 }
                 // A read that does not wait, or one the kernel ended empty: wait.
-                _ if how == ReadHow::Queued => self.line = LineState::Empty,
+                _ if pending == (Pending::Read { queued: true }) => self.line = LineState::Empty,
                 Err(Error(errno::EAGAIN | errno::EINTR)) => self.line = LineState::Empty,
                 Ok(_) | Err(Error::CONN_RESET) => {
                     let e = Error::CONN_RESET;
-                    self.finished = Some(Finished::failed(e, "read", after_read(mode, e), traced));
+                    self.finished = Some(Finished::failed(e, "read", after_read(mode, e), self.traced()));
                 }
-                Err(e) => self.finished = Some(Finished::failed(e, "read", after_read(mode, e), traced)),
+                Err(e) => self.finished = Some(Finished::failed(e, "read", after_read(mode, e), self.traced())),
             },
         }
+    }
+
+    /// [`Receiver::done`] then [`Receiver::step`], in one call: the result of the
+    /// last step, and what to do next. The usual transitions are taken directly: a
+    /// peek that shows a whole request (take exactly it), a read that brings a whole
+    /// message (its end).
+    #[inline]
+    pub fn next(
+        &mut self,
+        result: Result<usize>,
+        msg: &mut [u8],
+        rx: &mut ReadAhead,
+        now: impl FnOnce() -> Duration,
+    ) -> Step {
+        // (A read or a peek is pending only on binary framings, and never once the
+        // receive is finished.)
+        if let Ok(n) = result
+            && n > 0
+            && let Body::Binary(asm) = &self.body
+        {
+            if self.pending == Pending::Peek {
+                if let Some(len) = Self::whole_in(asm, &rx.buf[..n], msg.len()) {
+                    self.line = LineState::Whole(len);
+                    self.pending = Pending::Read { queued: false };
+                    return Step::Read { dest: Dest::Message { from: 0, to: len }, how: ReadHow::Ready };
+                }
+            } else if self.filled == 0 && matches!(self.pending, Pending::Read { .. }) {
+                return self.first_bytes(n, msg, rx, now);
+            }
+        }
+        self.done(result);
+        self.step(msg, rx, now)
+    }
+
+    /// After a peek of `peeked`: the length of the whole message it shows, when it
+    /// shows one that fits `room`. The driver may then take exactly that message and
+    /// report it with [`Receiver::took`] instead of reporting the peek.
+    #[inline]
+    pub fn whole_after_peek(&self, peeked: &[u8], room: usize) -> Option<usize> {
+        match &self.body {
+            Body::Binary(asm) if self.pending == Pending::Peek => Self::whole_in(asm, peeked, room),
+            _ => None,
+        }
+    }
+
+    /// The result of reading the whole message [`Receiver::whole_after_peek`] found,
+    /// and what to do next.
+    #[inline]
+    pub fn took(
+        &mut self,
+        len: usize,
+        result: Result<usize>,
+        msg: &mut [u8],
+        rx: &mut ReadAhead,
+        now: impl FnOnce() -> Duration,
+    ) -> Step {
+        self.line = LineState::Whole(len);
+        self.pending = Pending::Read { queued: false };
+        self.next(result, msg, rx, now)
+    }
+
+    #[inline]
+    fn whole_in(asm: &Assembler, bytes: &[u8], room: usize) -> Option<usize> {
+        asm.whole(bytes).filter(|&len| len <= room)
+    }
+
+    /// The first bytes of the message came (`n` of them, in `msg`): the end when they
+    /// hold the whole message (what lies past it goes to `rx`), else the next step.
+    #[inline]
+    fn first_bytes(&mut self, n: usize, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
+        self.pending = Pending::Nothing;
+        let Body::Binary(asm) = &self.body else { unreachable!("binary framings only") };
+        let len = match self.line {
+            LineState::Whole(len) if len == n => Some(len),
+            _ => asm.whole(&msg[..n]),
+        };
+        if let Some(len) = len {
+            rx.keep(&msg[len..n]);
+            self.filled = len;
+            return Step::Done(self.check(msg, len));
+        }
+        self.filled = n;
+        self.bytes_came();
+        self.step(msg, rx, now)
     }
 
     /// The context was closed under the last step (from a signal handler or another
@@ -419,26 +547,24 @@ impl Receiver {
         }
     }
 
-    /// Bytes came at `now`: the next wait gets a fresh byte timeout, or, with none,
-    /// the current deadline stands. On ASCII that holds only once the characters
-    /// prove to be inside a frame.
-    fn bytes_came(&mut self, now: Duration) {
-        let rearm = match self.s.timeouts.after_bytes() {
-            Wait::For(t) => Some(now + t.duration()),
-            Wait::Forever | Wait::Left => None,
-        };
-        match self.body {
-            Body::Binary(_) => {
-                self.line = LineState::Arrived;
-                if rearm.is_some() {
-                    self.deadline = rearm;
-                }
-            }
-            Body::Ascii(_) => {
-                self.line = LineState::Arrived;
-                self.rearm = rearm;
+    /// Bytes came: the next wait gets a fresh byte timeout, or, with none, the
+    /// current deadline stands. On ASCII that holds only once the characters prove
+    /// to be inside a frame (see `step_ascii`).
+    #[inline]
+    fn bytes_came(&mut self) {
+        self.line = LineState::Arrived;
+        self.rearm = matches!(self.body, Body::Binary(_));
+    }
+
+    /// The deadline of the wait about to start: a byte timeout from `now` when bytes
+    /// came since the last wait, else the current one.
+    fn wait_deadline(&mut self, now: impl FnOnce() -> Duration) -> Option<Duration> {
+        if core::mem::take(&mut self.rearm) {
+            if let Wait::For(t) = self.s.timeouts.after_bytes() {
+                self.deadline = Some(now() + t.duration());
             }
         }
+        self.deadline
     }
 
     /// Feeds the assembler the bytes of `msg` it has not seen; the finished receive
@@ -475,7 +601,11 @@ impl Receiver {
 
     /// The end of a binary frame `msg[..len]`: an RTU frame must have a good CRC and
     /// be for us.
+    #[inline]
     fn check(&self, msg: &[u8], len: usize) -> Finished {
+        if self.s.framing == Framing::Tcp {
+            return Finished { outcome: Outcome::Frame(len), recovery: Recovery::None, traced: len, ended: true };
+        }
         let frame = &msg[..len];
         let outcome = match self.s.framing {
             Framing::Rtu => match rtu_integrity(frame, self.s.slave) {
@@ -499,7 +629,7 @@ impl Receiver {
     /// ASCII: characters are read into the read-ahead buffer and decoded from there
     /// (a frame ends at its delimiter, so nothing past it is taken as part of it);
     /// every read follows a wait.
-    fn step_ascii(&mut self, msg: &mut [u8], rx: &mut ReadAhead) -> Step {
+    fn step_ascii(&mut self, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
         if self.staged > 0 {
             rx.start = 0;
             rx.end = core::mem::take(&mut self.staged);
@@ -523,32 +653,24 @@ impl Receiver {
                 }
             }
             rx.consume(used);
-            let rearm = self.rearm.take().or(if self.line == LineState::Unknown {
-                // Characters left over from an earlier read count as arriving now.
-                match self.s.timeouts.after_bytes() {
-                    Wait::For(t) => Some(self.started + t.duration()),
-                    _ => None,
-                }
-            } else {
-                None
-            });
             match outcome {
                 Some(Ok(len)) => return Step::Done(self.check_ascii(msg, len)),
                 Some(Err(e)) => {
                     let traced = decoder.len();
                     return Step::Done(Finished::failed(e, "invalid ASCII frame", Recovery::None, traced));
                 }
-                None if decoder.in_frame() && rearm.is_some() => self.deadline = rearm,
+                // Characters (read now, or left over from an earlier read) that are
+                // inside a frame: the byte timeout runs.
+                None if decoder.in_frame() => self.rearm = true,
                 None => {}
             }
         }
-        self.rearm = None;
         if self.line == LineState::Readable {
-            self.pending = Pending::Read(ReadHow::Ready, Dest::ReadAhead);
+            self.pending = Pending::ReadStaged;
             Step::Read { dest: Dest::ReadAhead, how: ReadHow::Ready }
         } else {
             self.pending = Pending::Wait;
-            Step::Wait { until: self.deadline }
+            Step::Wait { until: self.wait_deadline(now) }
         }
     }
 

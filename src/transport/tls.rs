@@ -1,0 +1,593 @@
+//! Modbus/TCP Security: TLS over a TCP socket, with rustls.
+//!
+//! - **Crypto provider: ring.** It builds from a clean clone with nothing but the C
+//!   compiler the library already needs (aws-lc-rs, rustls' default, also needs cmake
+//!   and takes minutes to build), and it covers every suite offered here.
+//! - **Versions**: TLS 1.2 and 1.3, never lower (the specification's );
+//!   1.3 only on request (`modbus_set_tls_min_version`).
+//! - **Cipher suites** (ring's, in rustls' order of preference): TLS 1.3
+//!   `TLS13_AES_256_GCM_SHA384`, `TLS13_AES_128_GCM_SHA256`,
+//!   `TLS13_CHACHA20_POLY1305_SHA256`; TLS 1.2 `TLS_ECDHE_ECDSA_WITH_AES_256_GCM_SHA384`,
+//!   `..._AES_128_GCM_SHA256`, `..._CHACHA20_POLY1305_SHA256` and the same three with
+//!   `ECDHE_RSA`. The specification's mandatory `TLS_RSA_WITH_AES_128_CBC_SHA256` and
+//!   `TLS_RSA_WITH_NULL_SHA256` are not offered: RSA key exchange has no forward
+//!   secrecy, CBC with MAC-then-encrypt invites padding oracles, and NULL encrypts
+//!   nothing; rustls implements none of them.
+//! - **Mutual authentication**: a server always requires a client certificate that
+//!   chains to its CA; a client always verifies the server's chain and its name or
+//!   address (a client without a certificate of its own can connect, and the server
+//!   refuses it: the refusal is the server's to make).
+//! - **Session resumption**: a context keeps its configurations, and with them
+//!   rustls' session caches (client: in memory; server: stateful, plus tickets).
+//!
+//! A [`Session`] is one connection: rustls' state, the plaintext received and not
+//! yet taken, and the peer's role. The driver reads and writes through it.
+
+use std::collections::HashMap;
+use std::ffi::{CStr, CString};
+use std::io::{self, Read, Write};
+use std::sync::Arc;
+use std::time::Duration;
+
+use rustls::pki_types::pem::PemObject;
+use rustls::pki_types::{CertificateDer, PrivateKeyDer, ServerName};
+use rustls::server::WebPkiClientVerifier;
+use rustls::{
+    AlertDescription, CertificateError, ClientConfig, ClientConnection, Connection, PeerIncompatible, RootCertStore,
+    ServerConfig, ServerConnection, SupportedProtocolVersion,
+};
+
+use super::{Ready, now, to_timespec, wait_or_wake};
+use crate::core::security;
+use crate::error::{
+    EMBTLS, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSUNKNOWNCA, EMBTLSVERSION, Error, Result, errno,
+};
+
+/// `MODBUS_TLS_1_2`, `MODBUS_TLS_1_3`: the protocol versions, as on the wire.
+pub const TLS_1_2: u16 = 0x0303;
+pub const TLS_1_3: u16 = 0x0304;
+
+fn provider() -> Arc<rustls::crypto::CryptoProvider> {
+    Arc::new(rustls::crypto::ring::default_provider())
+}
+
+/// The errno a rustls failure is reported with.
+pub fn error_of(e: &rustls::Error) -> Error {
+    use rustls::Error as E;
+    Error(match e {
+        E::NoCertificatesPresented | E::AlertReceived(AlertDescription::CertificateRequired) => EMBTLSNOCERT,
+        E::InvalidCertificate(
+            CertificateError::Expired
+            | CertificateError::ExpiredContext { .. }
+            | CertificateError::NotValidYet
+            | CertificateError::NotValidYetContext { .. },
+        )
+        | E::AlertReceived(AlertDescription::CertificateExpired) => EMBTLSEXPIRED,
+        E::InvalidCertificate(CertificateError::NotValidForName | CertificateError::NotValidForNameContext { .. }) => {
+            EMBTLSNAME
+        }
+        E::InvalidCertificate(CertificateError::UnknownIssuer | CertificateError::BadSignature)
+        | E::AlertReceived(AlertDescription::UnknownCA | AlertDescription::BadCertificate) => EMBTLSUNKNOWNCA,
+        E::AlertReceived(AlertDescription::ProtocolVersion)
+        | E::PeerIncompatible(
+            PeerIncompatible::Tls12NotOffered
+            | PeerIncompatible::Tls12NotOfferedOrEnabled
+            | PeerIncompatible::SupportedVersionsExtensionRequired
+            | PeerIncompatible::ServerDoesNotSupportTls12Or13
+            | PeerIncompatible::ServerTlsVersionIsDisabledByOurConfig
+            // A ClientHello without signature algorithms is from before TLS 1.2.
+            | PeerIncompatible::SignatureAlgorithmsExtensionRequired,
+        ) => EMBTLSVERSION,
+        _ => EMBTLS,
+    })
+}
+
+fn io_error(e: io::Error) -> Error {
+    Error(e.raw_os_error().unwrap_or(errno::ECONNRESET))
+}
+
+/// The TLS settings of a context (`modbus_set_tls_*`) and the configurations made
+/// from them (kept, with their session caches, until a setting changes).
+pub struct TlsSettings {
+    chain: Vec<CertificateDer<'static>>,
+    key: Option<PrivateKeyDer<'static>>,
+    roots: Vec<CertificateDer<'static>>,
+    min_version: u16,
+    server_name: Option<String>,
+    client: Option<Arc<ClientConfig>>,
+    server: Option<Arc<ServerConfig>>,
+}
+
+impl Default for TlsSettings {
+    fn default() -> Self {
+        TlsSettings {
+            chain: Vec::new(),
+            key: None,
+            roots: Vec::new(),
+            min_version: TLS_1_2,
+            server_name: None,
+            client: None,
+            server: None,
+        }
+    }
+}
+
+/// Reads a PEM file; an unreadable file gives the errno of the failure.
+pub fn read_file(path: &std::path::Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(io_error)
+}
+
+impl TlsSettings {
+    fn changed(&mut self) {
+        self.client = None;
+        self.server = None;
+    }
+
+    /// The certificate chain (leaf first) and private key, PEM. EINVAL when either
+    /// holds nothing usable or the key does not belong to the certificate.
+    pub fn set_certificate_pem(&mut self, chain_pem: &[u8], key_pem: &[u8]) -> Result<()> {
+        let chain: Vec<_> = CertificateDer::pem_slice_iter(chain_pem)
+            .collect::<core::result::Result<_, _>>()
+            .map_err(|_| Error::INVALID)?;
+        let key = PrivateKeyDer::from_pem_slice(key_pem).map_err(|_| Error::INVALID)?;
+        if chain.is_empty() {
+            return Err(Error::INVALID);
+        }
+        // The key must load and match the certificate: a server configuration
+        // checks both.
+        ServerConfig::builder_with_provider(provider())
+            .with_safe_default_protocol_versions()
+            .map_err(|_| Error::INVALID)?
+            .with_no_client_auth()
+            .with_single_cert(chain.clone(), key.clone_key())
+            .map_err(|_| Error::INVALID)?;
+        self.chain = chain;
+        self.key = Some(key);
+        self.changed();
+        Ok(())
+    }
+
+    /// The CA certificates (PEM, one or more) that peers' chains must lead to.
+    pub fn set_ca_pem(&mut self, pem: &[u8]) -> Result<()> {
+        let certs: Vec<_> =
+            CertificateDer::pem_slice_iter(pem).collect::<core::result::Result<_, _>>().map_err(|_| Error::INVALID)?;
+        let mut store = RootCertStore::empty();
+        for cert in &certs {
+            store.add(cert.clone()).map_err(|_| Error::INVALID)?;
+        }
+        if certs.is_empty() {
+            return Err(Error::INVALID);
+        }
+        self.roots = certs;
+        self.changed();
+        Ok(())
+    }
+
+    pub fn set_min_version(&mut self, version: u16) -> Result<()> {
+        if version != TLS_1_2 && version != TLS_1_3 {
+            return Err(Error::INVALID);
+        }
+        self.min_version = version;
+        self.changed();
+        Ok(())
+    }
+
+    /// The name (or address) a client checks the server's certificate against,
+    /// instead of the address it connects to; `None`: that address.
+    pub fn set_server_name(&mut self, name: Option<String>) -> Result<()> {
+        if let Some(n) = &name {
+            ServerName::try_from(n.as_str()).map_err(|_| Error::INVALID)?;
+        }
+        self.server_name = name;
+        Ok(())
+    }
+
+    fn versions(&self) -> &'static [&'static SupportedProtocolVersion] {
+        static TLS13_ONLY: [&SupportedProtocolVersion; 1] = [&rustls::version::TLS13];
+        if self.min_version == TLS_1_3 { &TLS13_ONLY } else { rustls::ALL_VERSIONS }
+    }
+
+    fn root_store(&self) -> Result<Arc<RootCertStore>> {
+        if self.roots.is_empty() {
+            return Err(Error(EMBTLSCONFIG));
+        }
+        let mut store = RootCertStore::empty();
+        for cert in &self.roots {
+            store.add(cert.clone()).map_err(|_| Error(EMBTLSCONFIG))?;
+        }
+        Ok(Arc::new(store))
+    }
+
+    /// The client's configuration: the CA to verify the server with (required), and
+    /// the client's own certificate when set.
+    pub fn client_config(&mut self) -> Result<Arc<ClientConfig>> {
+        if let Some(c) = &self.client {
+            return Ok(Arc::clone(c));
+        }
+        let builder = ClientConfig::builder_with_provider(provider())
+            .with_protocol_versions(self.versions())
+            .map_err(|_| Error(EMBTLSCONFIG))?
+            .with_root_certificates(self.root_store()?);
+        let config = match &self.key {
+            Some(key) => {
+                builder.with_client_auth_cert(self.chain.clone(), key.clone_key()).map_err(|_| Error(EMBTLSCONFIG))?
+            }
+            None => builder.with_no_client_auth(),
+        };
+        let config = Arc::new(config);
+        self.client = Some(Arc::clone(&config));
+        Ok(config)
+    }
+
+    /// The server's configuration: its certificate and key, and the CA every client
+    /// certificate must chain to (all required).
+    pub fn server_config(&mut self) -> Result<Arc<ServerConfig>> {
+        if let Some(c) = &self.server {
+            return Ok(Arc::clone(c));
+        }
+        let Some(key) = &self.key else { return Err(Error(EMBTLSCONFIG)) };
+        let verifier = WebPkiClientVerifier::builder_with_provider(self.root_store()?, provider())
+            .build()
+            .map_err(|_| Error(EMBTLSCONFIG))?;
+        let mut config = ServerConfig::builder_with_provider(provider())
+            .with_protocol_versions(self.versions())
+            .map_err(|_| Error(EMBTLSCONFIG))?
+            .with_client_cert_verifier(verifier)
+            .with_single_cert(self.chain.clone(), key.clone_key())
+            .map_err(|_| Error(EMBTLSCONFIG))?;
+        config.ticketer = rustls::crypto::ring::Ticketer::new().map_err(|_| Error(EMBTLSCONFIG))?;
+        let config = Arc::new(config);
+        self.server = Some(Arc::clone(&config));
+        Ok(config)
+    }
+
+    /// A client connection to `host` (the address or node connected to, unless a
+    /// server name was set).
+    pub fn connect(&mut self, host: &str) -> Result<Connection> {
+        let config = self.client_config()?;
+        let name = self.server_name.as_deref().unwrap_or(host);
+        let name = ServerName::try_from(name.to_owned()).map_err(|_| Error(EMBTLSNAME))?;
+        ClientConnection::new(config, name).map(Connection::from).map_err(|e| error_of(&e))
+    }
+
+    /// A server connection.
+    pub fn accept(&mut self) -> Result<Connection> {
+        let config = self.server_config()?;
+        ServerConnection::new(config).map(Connection::from).map_err(|e| error_of(&e))
+    }
+}
+
+/// A socket as rustls reads and writes it: one `recv`/`send` per call, with `flags`.
+/// With a [`RecordCut`], a read never goes past the end of the TLS record it is in.
+struct Fd<'a> {
+    fd: i32,
+    flags: i32,
+    cut: Option<&'a mut RecordCut>,
+}
+
+impl Read for Fd<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let room = match &self.cut {
+            Some(cut) => buf.len().min(cut.limit()),
+            None => buf.len(),
+        };
+        let n = super::recv(self.fd, &mut buf[..room], self.flags).map_err(|e| io::Error::from_raw_os_error(e.0))?;
+        if let Some(cut) = self.cut.as_deref_mut() {
+            cut.advance(&buf[..n]);
+        }
+        Ok(n)
+    }
+}
+
+/// Where the TLS record being read ends, so that a server never takes bytes of the
+/// next record off the socket: a client's next request (and its first one, sent
+/// with the end of its handshake) stays in the kernel until it is wanted, and an
+/// application's `poll()` loop sees it. Records are read in two parts: the 5-byte
+/// header (type, version, length), then the body.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RecordCut {
+    header: [u8; 5],
+    have: usize,
+    body_left: usize,
+}
+
+impl RecordCut {
+    /// Most bytes the next read may take.
+    fn limit(&self) -> usize {
+        if self.have < 5 { 5 - self.have } else { self.body_left }
+    }
+
+    fn advance(&mut self, mut bytes: &[u8]) {
+        while !bytes.is_empty() {
+            if self.have < 5 {
+                let n = bytes.len().min(5 - self.have);
+                self.header[self.have..self.have + n].copy_from_slice(&bytes[..n]);
+                self.have += n;
+                bytes = &bytes[n..];
+                if self.have == 5 {
+                    self.body_left = u16::from_be_bytes([self.header[3], self.header[4]]) as usize;
+                    if self.body_left == 0 {
+                        self.have = 0;
+                    }
+                }
+            } else {
+                let n = bytes.len().min(self.body_left);
+                self.body_left -= n;
+                bytes = &bytes[n..];
+                if self.body_left == 0 {
+                    self.have = 0;
+                }
+            }
+        }
+    }
+}
+
+impl Write for Fd<'_> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        super::send(self.fd, buf, self.flags).map_err(|e| io::Error::from_raw_os_error(e.0))
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+/// Waits for `events` on `fd` until `deadline` on the monotonic clock (`None`:
+/// forever), resuming after signals; `stopping` ends it (the closer shuts the
+/// socket down, which wakes the wait).
+fn wait_until(fd: i32, events: libc::c_short, deadline: Option<Duration>, stopping: &dyn Fn() -> bool) -> Result<()> {
+    loop {
+        if stopping() {
+            return Err(Error::STOPPED);
+        }
+        let mut left = deadline.map(|d| to_timespec(d.saturating_sub(now())));
+        match wait_or_wake(fd, events, -1, left.as_mut()) {
+            Ok(Ready::TimedOut) => return Err(Error::TIMED_OUT),
+            Ok(_) => return Ok(()),
+            Err(e) if e.0 == libc::EINTR => {}
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// Writes what rustls has to send, waiting for room until `deadline`.
+fn write_pending(
+    fd: i32,
+    conn: &mut Connection,
+    deadline: Option<Duration>,
+    stopping: &dyn Fn() -> bool,
+) -> Result<()> {
+    while conn.wants_write() {
+        match conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
+            Ok(_) => {}
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock || e.kind() == io::ErrorKind::Interrupted => {
+                wait_until(fd, libc::POLLOUT, deadline, stopping)?
+            }
+            Err(e) => return Err(io_error(e)),
+        }
+    }
+    Ok(())
+}
+
+/// The handshake of `conn` on `fd`, until `deadline`. A refusal sends its alert
+/// before it is reported.
+pub fn handshake(
+    fd: i32,
+    conn: &mut Connection,
+    cut: Option<&mut RecordCut>,
+    deadline: Option<Duration>,
+    stopping: &dyn Fn() -> bool,
+) -> Result<()> {
+    let mut cut = cut;
+    loop {
+        write_pending(fd, conn, deadline, stopping)?;
+        if !conn.is_handshaking() {
+            return Ok(());
+        }
+        wait_until(fd, libc::POLLIN, deadline, stopping)?;
+        match conn.read_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: cut.as_deref_mut() }) {
+            Ok(0) => return Err(Error::CONN_RESET),
+            Ok(_) => {}
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock || e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(io_error(e)),
+        }
+        if let Err(e) = conn.process_new_packets() {
+            let _ = write_pending(fd, conn, deadline, stopping);
+            return Err(error_of(&e));
+        }
+    }
+}
+
+/// What a handshake agreed on, for the debug trace.
+pub fn describe_session(conn: &Connection) -> String {
+    let version = conn.protocol_version().map_or_else(|| "?".to_owned(), |v| format!("{v:?}"));
+    let suite = conn.negotiated_cipher_suite().map_or_else(|| "?".to_owned(), |s| format!("{:?}", s.suite()));
+    let resumed = matches!(conn.handshake_kind(), Some(rustls::HandshakeKind::Resumed));
+    format!("{version}, {suite}{}", if resumed { ", resumed" } else { "" })
+}
+
+/// One TLS connection on a socket.
+pub struct Session {
+    conn: Connection,
+    /// Plaintext received and not taken yet (`plain[start..]`).
+    plain: Vec<u8>,
+    start: usize,
+    /// The peer closed: close_notify (a clean end) or the socket's end of stream.
+    ended: bool,
+    /// A record that failed (decryption, a fatal alert): reported by the next read.
+    failed: Option<Error>,
+    role: Option<CString>,
+    resumed: bool,
+    /// A server's reads stop at record boundaries (see [`RecordCut`]).
+    cut: Option<RecordCut>,
+}
+
+impl Session {
+    /// A connection whose handshake completed; `cut`: the record boundary of a
+    /// server's reads.
+    pub fn new(mut conn: Connection, cut: Option<RecordCut>) -> Self {
+        let role = conn
+            .peer_certificates()
+            .and_then(|chain| chain.first())
+            .and_then(|c| security::role(c))
+            .and_then(|r| CString::new(r).ok());
+        let resumed = matches!(conn.handshake_kind(), Some(rustls::HandshakeKind::Resumed));
+        // Application data that came with the end of the handshake.
+        let mut plain = Vec::new();
+        let _ = conn.reader().read_to_end(&mut plain);
+        Session { conn, plain, start: 0, ended: false, failed: None, role, resumed, cut }
+    }
+
+    /// The role in the peer's certificate.
+    pub fn role(&self) -> Option<&CStr> {
+        self.role.as_deref()
+    }
+
+    /// The handshake resumed an earlier session.
+    pub fn resumed(&self) -> bool {
+        self.resumed
+    }
+
+    /// Plaintext is there to take, or the end or a failure to report.
+    pub fn readable(&self) -> bool {
+        self.start < self.plain.len() || self.ended || self.failed.is_some()
+    }
+
+    /// One `recv` of records (with `flags`), decrypted into the plaintext buffer.
+    /// `Err` only for EAGAIN (nothing came) and EINTR; a failed socket or record is
+    /// kept for the read to report.
+    pub fn fill(&mut self, fd: i32, flags: i32) -> Result<()> {
+        let n = match self.conn.read_tls(&mut Fd { fd, flags, cut: self.cut.as_mut() }) {
+            Ok(n) => n,
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Err(Error(libc::EAGAIN)),
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => return Err(Error(libc::EINTR)),
+            Err(e) => {
+                // A reset or another failure of the socket: reported by the read.
+                self.failed = Some(io_error(e));
+                return Ok(());
+            }
+        };
+        match self.conn.process_new_packets() {
+            Ok(state) => {
+                let pending = state.plaintext_bytes_to_read();
+                if pending > 0 {
+                    if self.start == self.plain.len() {
+                        self.plain.clear();
+                        self.start = 0;
+                    }
+                    let at = self.plain.len();
+                    self.plain.resize(at + pending, 0);
+                    if self.conn.reader().read_exact(&mut self.plain[at..]).is_err() {
+                        self.plain.truncate(at);
+                    }
+                }
+                if n == 0 || state.peer_has_closed() {
+                    self.ended = true;
+                }
+            }
+            Err(e) => {
+                let _ = self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None });
+                self.failed = Some(error_of(&e));
+            }
+        }
+        Ok(())
+    }
+
+    /// Copies plaintext into `room` without taking it.
+    pub fn peek(&self, room: &mut [u8]) -> usize {
+        let avail = &self.plain[self.start..];
+        let n = avail.len().min(room.len());
+        room[..n].copy_from_slice(&avail[..n]);
+        n
+    }
+
+    /// Takes plaintext into `room`: `Ok(0)` at the peer's end, `Err` for a failed
+    /// record, EAGAIN when nothing is there.
+    pub fn take(&mut self, room: &mut [u8]) -> Result<usize> {
+        let n = self.peek(room);
+        if n > 0 {
+            self.start += n;
+            return Ok(n);
+        }
+        if let Some(e) = self.failed {
+            return Err(e);
+        }
+        if self.ended { Ok(0) } else { Err(Error(libc::EAGAIN)) }
+    }
+
+    /// The peer ended the session, or a record failed.
+    pub fn readable_end(&self) -> bool {
+        self.ended || self.failed.is_some()
+    }
+
+    /// Drops the plaintext not taken (a flush); returns its length.
+    pub fn discard(&mut self) -> usize {
+        let n = self.plain.len() - self.start;
+        self.plain.clear();
+        self.start = 0;
+        n
+    }
+
+    /// Sends `data` as application data, waiting for room until `deadline`.
+    pub fn send(
+        &mut self,
+        fd: i32,
+        data: &[u8],
+        deadline: Option<Duration>,
+        stopping: &dyn Fn() -> bool,
+    ) -> Result<usize> {
+        if self.conn.writer().write_all(data).is_err() {
+            return Err(Error(libc::EPIPE));
+        }
+        write_pending(fd, &mut self.conn, deadline, stopping)?;
+        Ok(data.len())
+    }
+
+    /// Sends close_notify, without waiting.
+    pub fn close(&mut self, fd: i32) {
+        self.conn.send_close_notify();
+        let _ = self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None });
+    }
+}
+
+/// The application's authorization callback (`modbus_set_tls_authorization`), as the
+/// C layer wraps it: given the peer's role, the unit id, the function code, an
+/// address and a count, true allows.
+pub type Authorize = Arc<dyn Fn(Option<&CStr>, u8, u8, u16, u16) -> bool + Send + Sync>;
+
+/// A context's TLS state: its settings, and the session of each socket it
+/// connected or accepted (a server that serves many clients on one context finds
+/// each client's session from the descriptor `modbus_set_socket` gave it).
+#[derive(Default)]
+pub struct Tls {
+    pub settings: TlsSettings,
+    pub authorize: Option<Authorize>,
+    sessions: HashMap<i32, Session>,
+    /// Handshakes completed, in full and resumed (for the benchmark and tests).
+    pub full_handshakes: u64,
+    pub resumed_handshakes: u64,
+}
+
+impl Tls {
+    pub fn session(&mut self, fd: i32) -> Option<&mut Session> {
+        self.sessions.get_mut(&fd)
+    }
+
+    pub fn session_ref(&self, fd: i32) -> Option<&Session> {
+        self.sessions.get(&fd)
+    }
+
+    /// Keeps the session of a new connection on `fd`, replacing the session of an
+    /// earlier socket that had the same number.
+    pub fn insert(&mut self, fd: i32, session: Session) {
+        if session.resumed() {
+            self.resumed_handshakes += 1;
+        } else {
+            self.full_handshakes += 1;
+        }
+        self.sessions.insert(fd, session);
+    }
+
+    pub fn remove(&mut self, fd: i32) -> Option<Session> {
+        self.sessions.remove(&fd)
+    }
+}
