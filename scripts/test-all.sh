@@ -66,6 +66,8 @@ run pgo-unit env MBTEST_OURS_DIR=target/pgo/release SRVTEST_OUT=target/server-te
 [ -x scripts/run-thread-tests.sh ] && run threads scripts/run-thread-tests.sh --no-cargo
 # Stopping a waiting call from a signal handler or another thread (issue 19).
 [ -x scripts/run-stop-tests.sh ] && run stop scripts/run-stop-tests.sh --no-cargo
+# Modbus/TCP Security: TLS, roles, refusals, many clients, faults (issue 21).
+[ -x scripts/run-tls-tests.sh ] && run tls scripts/run-tls-tests.sh --no-cargo
 [ -x scripts/run-extended-tests.sh ] && run c-extended scripts/run-extended-tests.sh
 [ -x scripts/run-fault-tests.sh ] && run faults scripts/run-fault-tests.sh
 [ -x scripts/run-soak.sh ] && run soak scripts/run-soak.sh

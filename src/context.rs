@@ -4,8 +4,9 @@
 use std::ffi::CStr;
 use std::sync::Arc;
 
-use crate::core::frame::{Framing, MAX_ADU_LENGTH};
+use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::core::limits::TCP_SLAVE;
+use crate::core::session::receive::{LineCaps, Settings};
 use crate::error::{Error, Result};
 use crate::stdio::{self, DebugSink};
 use crate::stop::Stop;
@@ -30,24 +31,23 @@ pub use crate::core::session::receive::ReadAhead;
 pub struct Context {
     pub framing: Framing,
     pub link: Link,
-    /// Slave (unit) id used for requests; -1 until set on RTU.
-    pub slave: i32,
+    /// What a receive needs of the context, kept where a receive finds it whole
+    /// (see `core::session::receive::Settings`): the slave (unit) id used for requests
+    /// (-1 until set on RTU), the error recovery mode, the response, byte and
+    /// indication timeouts, and whether the server answers the function codes beyond
+    /// libmodbus (set by the server configuration calls: their requests are then
+    /// framed whole; off, a server frames and answers them exactly as libmodbus does).
+    /// The fields of one receive (its kind, what the line can do...) are set by the
+    /// receive itself.
+    pub session: Settings,
     /// The file descriptor (socket or serial line), -1 when closed.
     pub s: i32,
     pub debug: bool,
-    pub error_recovery: i32,
     pub quirks: u32,
-    pub response_timeout: Timeout,
-    pub byte_timeout: Timeout,
-    pub indication_timeout: Timeout,
     /// Last transaction id used (TCP).
     pub t_id: u16,
     /// Read-ahead of the client side (see [`ReadAhead`]).
     pub rx: ReadAhead,
-    /// The server answers function codes beyond libmodbus (set by the server
-    /// configuration calls), so their requests are framed whole. Off, a server
-    /// frames and answers them exactly as libmodbus does.
-    pub serves_extended: bool,
     /// Length of header + PDU of the last diagnostics request sent on a serial
     /// framing: its answer is as long, and its PDU says nothing of its length.
     pub diagnostics_sent: Option<usize>,
@@ -109,17 +109,27 @@ impl Context {
         Context {
             framing,
             link,
-            slave,
+            session: Settings {
+                framing,
+                kind: MsgKind::Indication,
+                extended: false,
+                expecting: None,
+                timeouts: Timeouts {
+                    response: Timeout::new(0, 500_000),
+                    byte: Timeout::new(0, 500_000),
+                    indication: Timeout::new(0, 0),
+                },
+                recovery: 0,
+                slave,
+                read_ahead: false,
+                ascii_delimiter: b'\n',
+                line: LineCaps { socket: false, reads_without_waiting: false, timed_reads: false },
+            },
             s: -1,
             debug: false,
-            error_recovery: 0,
             quirks: 0,
-            response_timeout: Timeout::new(0, 500_000),
-            byte_timeout: Timeout::new(0, 500_000),
-            indication_timeout: Timeout::new(0, 0),
             t_id: 0,
             rx: ReadAhead::new(),
-            serves_extended: false,
             diagnostics_sent: None,
             server_ext: None,
             tls: None,
@@ -171,7 +181,8 @@ impl Context {
     pub fn new_ascii(device: Option<&CStr>, baud: i32, parity: u8, data_bit: i32, stop_bit: i32) -> Result<Context> {
         let mut ctx = Context::new_rtu(device, baud, parity, data_bit, stop_bit)?;
         ctx.framing = Framing::Ascii;
-        ctx.byte_timeout = Timeout::new(1, 0);
+        ctx.session.framing = Framing::Ascii;
+        ctx.session.timeouts.byte = Timeout::new(1, 0);
         Ok(ctx)
     }
 
@@ -227,7 +238,7 @@ impl Context {
     pub fn new_rtu_tcp(ip: Option<&CStr>, port: i32) -> Result<Context> {
         let mut ctx = Context::new_tcp(ip, port)?;
         ctx.framing = Framing::Rtu;
-        ctx.slave = -1;
+        ctx.session.slave = -1;
         Ok(ctx)
     }
 
@@ -235,7 +246,7 @@ impl Context {
     pub fn new_rtu_tcp_pi(node: Option<&CStr>, service: Option<&CStr>) -> Result<Context> {
         let mut ctx = Context::new_tcp_pi(node, service)?;
         ctx.framing = Framing::Rtu;
-        ctx.slave = -1;
+        ctx.session.slave = -1;
         Ok(ctx)
     }
 
@@ -256,7 +267,7 @@ impl Context {
     /// The three timeouts, for the session rules.
     #[inline]
     pub fn timeouts(&self) -> Timeouts {
-        Timeouts { response: self.response_timeout, byte: self.byte_timeout, indication: self.indication_timeout }
+        self.session.timeouts
     }
 
     /// TCP (MBAP) framing.
@@ -306,7 +317,7 @@ impl Context {
         if !ok {
             return Err(Error::INVALID);
         }
-        self.slave = slave;
+        self.session.slave = slave;
         Ok(())
     }
 
@@ -315,7 +326,7 @@ impl Context {
         if (sec == 0 && usec == 0) || usec > 999_999 {
             return Err(Error::INVALID);
         }
-        self.response_timeout = Timeout::new(sec, usec);
+        self.session.timeouts.response = Timeout::new(sec, usec);
         Ok(())
     }
 
@@ -335,12 +346,12 @@ mod tests {
     #[test]
     fn defaults() {
         let c = Context::new_tcp(Some(c"127.0.0.1"), 502).unwrap();
-        assert_eq!((c.slave, c.s, c.t_id), (0xFF, -1, 0));
-        assert_eq!(c.response_timeout, Timeout::new(0, 500_000));
-        assert_eq!(c.byte_timeout, Timeout::new(0, 500_000));
-        assert!(c.indication_timeout.is_zero());
+        assert_eq!((c.session.slave, c.s, c.t_id), (0xFF, -1, 0));
+        assert_eq!(c.session.timeouts.response, Timeout::new(0, 500_000));
+        assert_eq!(c.session.timeouts.byte, Timeout::new(0, 500_000));
+        assert!(c.session.timeouts.indication.is_zero());
         let r = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
-        assert_eq!(r.slave, -1);
+        assert_eq!(r.session.slave, -1);
         // 10 bits at 9600 baud.
         assert_eq!(r.rtu().unwrap().onebyte_time, 1041);
         assert_eq!(r.rtu().unwrap().rts_delay, 1041);

@@ -8,7 +8,7 @@ use crate::context::{ClientSocket, Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NON
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::core::request::{Request, next_tid};
-use crate::core::session::receive::{Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Settings, Step};
+use crate::core::session::receive::{Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Step};
 use crate::core::session::{self, Recovery, Timeout};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
@@ -43,7 +43,7 @@ use crate::transport::describe;
 pub fn connect(ctx: &mut Context) -> Result<()> {
     ctx.rx.clear();
     let mut diag = ctx.diag();
-    let timeout = ctx.response_timeout.duration();
+    let timeout = ctx.session.timeouts.response.duration();
     let connected = match &mut ctx.link {
         Link::Rtu(link) => {
             let fd = rtu::open(link, &mut diag)?;
@@ -114,7 +114,7 @@ pub enum Side {
 /// socket and leaves the context without one.
 pub fn tls_handshake(ctx: &mut Context, side: Side) -> Result<()> {
     let fd = ctx.s;
-    let deadline = Some(transport::now() + ctx.response_timeout.duration());
+    let deadline = Some(transport::now() + ctx.session.timeouts.response.duration());
     let stop = std::sync::Arc::clone(&ctx.stop);
     let host = match &ctx.link {
         Link::Tcp(l) => l.ip.to_string_lossy().into_owned(),
@@ -208,7 +208,7 @@ fn flush_socket(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
         total = match total.checked_add(n as u16) {
             Some(t) => t,
             None => {
-                ctx.error_recovery = RECOVERY_PROTOCOL;
+                ctx.session.recovery = RECOVERY_PROTOCOL;
                 return (Err(Error(libc::EOVERFLOW)), Some(Error(libc::EOVERFLOW)));
             }
         };
@@ -221,7 +221,7 @@ fn flush_socket(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
 /// Sleeps the response timeout (error recovery); `Err(STOPPED)` as soon as the
 /// context is being closed under the call.
 pub fn sleep_response_timeout(ctx: &Context) -> Result<()> {
-    pause(ctx, ctx.response_timeout.duration())
+    pause(ctx, ctx.session.timeouts.response.duration())
 }
 
 /// Sleeps `d`, resuming after signals, and ends early with `Err(STOPPED)` when the
@@ -301,7 +301,7 @@ fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
 #[inline(never)]
 fn write_tls(ctx: &mut Context, adu: &[u8]) -> Result<usize> {
     let fd = ctx.s;
-    let deadline = Some(transport::now() + ctx.response_timeout.duration());
+    let deadline = Some(transport::now() + ctx.session.timeouts.response.duration());
     let stop = std::sync::Arc::clone(&ctx.stop);
     match ctx.tls.as_deref_mut().and_then(|t| t.session(fd)) {
         Some(session) => session.send(fd, adu, deadline, &|| stop.stopping()),
@@ -384,7 +384,7 @@ fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: R
             Ok(_) => return Err(Error::BAD_DATA),
             Err(e) => {
                 error_print(g, e, None);
-                match session::after_send(g.error_recovery, e) {
+                match session::after_send(g.session.recovery, e) {
                     Recovery::ReconnectAfterSleep => {
                         close(g);
                         sleep_response_timeout(g)?;
@@ -444,32 +444,27 @@ fn recover(ctx: &mut Context, recovery: Recovery) {
 /// could fire too late (see [`read_within`]).
 const RCVTIMEO_MIN_RESPONSE_TIMEOUT: Duration = Duration::from_millis(200);
 
-/// What the receive machine needs to know of the context.
-fn receive_settings(ctx: &mut Context, kind: MsgKind) -> Settings {
+/// Completes the context's session settings with those of this receive (its kind,
+/// what the line can do now) for the receive machine.
+#[inline]
+fn prepare_session(ctx: &mut Context, kind: MsgKind) {
     let socket = ctx.is_socket();
     let confirmation = kind == MsgKind::Confirmation;
-    Settings {
-        framing: ctx.framing,
-        kind,
-        extended: ctx.serves_extended,
-        expecting: if confirmation { ctx.diagnostics_sent.take() } else { None },
-        timeouts: ctx.timeouts(),
-        recovery: ctx.error_recovery,
-        slave: ctx.slave,
-        read_ahead: confirmation && !ctx.rtu().is_some_and(|l| l.confirmation_to_ignore),
-        ascii_delimiter: match ctx.framing {
-            Framing::Ascii => {
-                ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter())
-            }
-            _ => b'\n',
-        },
-        line: LineCaps {
-            socket,
-            reads_without_waiting: socket || ctx.line_nonblocking,
-            timed_reads: confirmation
-                && ctx.client_socket.is_some()
-                && ctx.response_timeout.duration() >= RCVTIMEO_MIN_RESPONSE_TIMEOUT,
-        },
+    let ignore = confirmation && ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
+    let s = &mut ctx.session;
+    s.kind = kind;
+    s.line = LineCaps { socket, reads_without_waiting: socket || ctx.line_nonblocking, timed_reads: false };
+    s.expecting = None;
+    s.read_ahead = false;
+    if confirmation {
+        s.expecting = ctx.diagnostics_sent.take();
+        s.read_ahead = !ignore;
+        s.line.timed_reads =
+            ctx.client_socket.is_some() && s.timeouts.response.duration() >= RCVTIMEO_MIN_RESPONSE_TIMEOUT;
+    }
+    if ctx.framing == Framing::Ascii {
+        s.ascii_delimiter =
+            ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
     }
 }
 
@@ -482,22 +477,26 @@ fn receive_settings(ctx: &mut Context, kind: MsgKind) -> Settings {
 /// until it is empty. A close of the context from a signal handler or another
 /// thread ends the receive after the step it interrupts, with `Error::STOPPED`.
 pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
-    let mut diag = ctx.diag();
-    match kind {
-        MsgKind::Indication => diag.out(format_args!("Waiting for an indication...\n")),
-        MsgKind::Confirmation => diag.out(format_args!("Waiting for a confirmation...\n")),
-    }
-    if ctx.s < 0 {
-        diag.err(format_args!("ERROR The connection is not established.\n"));
-        return Err(Error::UNCHANGED);
+    if ctx.debug || ctx.s < 0 {
+        let mut diag = ctx.diag();
+        match kind {
+            MsgKind::Indication => diag.out(format_args!("Waiting for an indication...\n")),
+            MsgKind::Confirmation => diag.out(format_args!("Waiting for a confirmation...\n")),
+        }
+        if ctx.s < 0 {
+            diag.err(format_args!("ERROR The connection is not established.\n"));
+            return Err(Error::UNCHANGED);
+        }
     }
     debug_assert!(buf.len() >= ctx.framing.max_adu_length());
-    let settings = receive_settings(ctx, kind);
-    let mut machine = Receiver::new(&settings, transport::now);
+    prepare_session(ctx, kind);
+    let mut machine = Receiver::new(&ctx.session, transport::now);
     let tls = ctx.tls.is_some();
-    let mut step = machine.start(buf, &mut ctx.rx, transport::now);
+    let mut step = machine.start(&ctx.session, buf, &mut ctx.rx, transport::now);
     loop {
         let result = match step {
+            Step::Frame(len) if !ctx.debug => return Ok(Received::Frame(len)),
+            Step::Frame(len) => return finish(ctx, buf, Finished::frame(len)),
             Step::Done(finished) => return finish(ctx, buf, finished),
             step if tls => tls_step(ctx, buf, step),
             Step::Peek { block } => {
@@ -509,13 +508,18 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
                 {
                     let read = transport::recv(ctx.s, &mut buf[..len], 0);
                     if !ctx.stopping() {
-                        step = machine.took(len, read, buf, &mut ctx.rx, transport::now);
+                        step = machine.took(&ctx.session, len, read, buf, &mut ctx.rx, transport::now);
+                        if let Step::Frame(len) = step
+                            && !ctx.debug
+                        {
+                            return Ok(Received::Frame(len));
+                        }
                         continue;
                     }
                 }
                 peeked
             }
-            Step::Read { dest: Dest::Message { from, to }, how: ReadHow::Ready } if ctx.is_socket() => {
+            Step::Read { dest: Dest::Message { from, to }, how: ReadHow::Ready } if ctx.session.line.socket => {
                 transport::recv(ctx.s, &mut buf[from..to], 0)
             }
             Step::Read { dest: Dest::Message { from, to }, how: ReadHow::Within(timeout) } => {
@@ -525,9 +529,9 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
         };
         if ctx.stopping() {
             machine.stopped();
-            step = machine.step(buf, &mut ctx.rx, transport::now);
+            step = machine.step(&ctx.session, buf, &mut ctx.rx, transport::now);
         } else {
-            step = machine.next(result, buf, &mut ctx.rx, transport::now);
+            step = machine.next(&ctx.session, result, buf, &mut ctx.rx, transport::now);
         }
     }
 }
@@ -556,7 +560,7 @@ fn execute(ctx: &mut Context, buf: &mut [u8], step: Step) -> Result<usize> {
                 ReadHow::Within(timeout) => read_within(ctx.s, &mut ctx.client_socket, room, timeout, ctx.debug),
             }
         }
-        Step::Done(_) => unreachable!("handled by the receive loop"),
+        Step::Done(_) | Step::Frame(_) => unreachable!("handled by the receive loop"),
     }
 }
 
@@ -685,7 +689,7 @@ fn tls_step(ctx: &mut Context, buf: &mut [u8], step: Step) -> Result<usize> {
             }
             session.take(room)
         }
-        Step::Done(_) => unreachable!("handled by the caller"),
+        Step::Done(_) | Step::Frame(_) => unreachable!("handled by the caller"),
     }
 }
 
@@ -726,7 +730,7 @@ fn receive_timeout_set(fd: i32, socket: &mut Option<ClientSocket>, timeout: Time
 
 /// The unit id a request goes to.
 fn unit(ctx: &Context) -> u8 {
-    ctx.slave as u8
+    ctx.session.slave as u8
 }
 
 /// Encodes `req` with the next transaction id into `buf`; returns its unsealed length.
@@ -745,7 +749,7 @@ pub struct Confirmed {
 }
 
 pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Result<Confirmed> {
-    if g.slave < 0 {
+    if g.session.slave < 0 {
         // libmodbus asserts (and aborts) here: an RTU request needs a slave id.
         g.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
@@ -783,7 +787,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
             Err(e)
         }
         Err(Rejection::Mismatch(e)) => {
-            if session::after_mismatch(ctx.error_recovery) == Recovery::SleepFlush
+            if session::after_mismatch(ctx.session.recovery) == Recovery::SleepFlush
                 && sleep_response_timeout(ctx).is_ok()
             {
                 let _ = flush(ctx);
@@ -791,7 +795,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
             Err(e)
         }
         Err(Rejection::Foreign(e)) => {
-            if session::after_mismatch(ctx.error_recovery) == Recovery::None {
+            if session::after_mismatch(ctx.session.recovery) == Recovery::None {
                 return Err(e);
             }
             // libmodbus sets errno, then flushes: a failed read of the flush leaves

@@ -104,7 +104,7 @@ fn silence_is_a_timeout_and_close_is_a_reset() {
     let (ours, peer) = socket_pair();
     let m = tcp_context(ours);
     let mut g = m.lock();
-    g.response_timeout = Timeout::new(0, 50_000);
+    g.session.timeouts.response = Timeout::new(0, 50_000);
     assert!(wait_for_timeout(&mut g) >= Duration::from_millis(45));
     let mut buf = [0u8; MAX_ADU_LENGTH];
     // Half a frame, then the peer goes away.
@@ -119,8 +119,8 @@ fn byte_timeout_applies_between_bytes() {
     let (ours, peer) = socket_pair();
     let m = tcp_context(ours);
     let mut g = m.lock();
-    g.response_timeout = Timeout::new(2, 0);
-    g.byte_timeout = Timeout::new(0, 20_000);
+    g.session.timeouts.response = Timeout::new(2, 0);
+    g.session.timeouts.byte = Timeout::new(0, 20_000);
     transport::write(peer, &[0, 1, 0, 0]).unwrap();
     // Ends on the byte timeout, long before the 2 s response timeout.
     assert!(wait_for_timeout(&mut g) < Duration::from_millis(1500));
@@ -135,7 +135,7 @@ fn client_socket_response_timeout_ends_on_time() {
     let (ours, peer) = socket_pair();
     let m = client_socket_context(ours);
     let mut g = m.lock();
-    g.response_timeout = Timeout::new(0, 300_000);
+    g.session.timeouts.response = Timeout::new(0, 300_000);
     for _ in 0..2 {
         // Not 225 ms (SO_RCVTIMEO alone), nor 525 (a full ppoll after it).
         assert_took(wait_for_timeout(&mut g), 300, 480);
@@ -144,7 +144,7 @@ fn client_socket_response_timeout_ends_on_time() {
         assert!(set >= Duration::from_millis(225) && set <= Duration::from_millis(235), "{set:?}");
     }
     // A response timeout too short for the kernel's timer: ppoll only, on time.
-    g.response_timeout = Timeout::new(0, 100_000);
+    g.session.timeouts.response = Timeout::new(0, 100_000);
     assert_took(wait_for_timeout(&mut g), 100, 350);
     drop(g);
     transport::close(peer);
@@ -156,8 +156,8 @@ fn client_socket_without_byte_timeout_shares_the_response_timeout() {
     let (ours, peer) = socket_pair();
     let m = client_socket_context(ours);
     let mut g = m.lock();
-    g.response_timeout = Timeout::new(0, 400_000);
-    g.byte_timeout = Timeout::new(0, 0);
+    g.session.timeouts.response = Timeout::new(0, 400_000);
+    g.session.timeouts.byte = Timeout::new(0, 0);
     let writer = std::thread::spawn(move || {
         std::thread::sleep(Duration::from_millis(150));
         transport::write(peer, &[0, 1, 0, 0]).unwrap();
@@ -183,7 +183,7 @@ fn client_socket_wait_survives_a_signal() {
     let (ours, peer) = socket_pair();
     let m = client_socket_context(ours);
     let mut g = m.lock();
-    g.response_timeout = Timeout::new(0, 300_000);
+    g.session.timeouts.response = Timeout::new(0, 300_000);
     // SAFETY: pthread_self has no preconditions.
     let waiter = unsafe { libc::pthread_self() };
     let signaller = std::thread::spawn(move || {
@@ -268,7 +268,7 @@ fn rtu_frame_for_another_slave_is_ignored_and_bad_crc_refused() {
     let (ours, peer) = socket_pair();
     let mut ctx = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
     ctx.s = ours;
-    ctx.slave = 0x11;
+    ctx.session.slave = 0x11;
     let m = Mutex::new(ctx);
     let mut g = m.lock();
     let frame = |slave: u8| {
@@ -299,9 +299,9 @@ fn serial_requests_in_pieces_and_back_to_back() {
     unsafe { libc::fcntl(ours, libc::F_SETFL, libc::fcntl(ours, libc::F_GETFL) | libc::O_NONBLOCK) };
     let mut ctx = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
     ctx.s = ours;
-    ctx.slave = 0x11;
+    ctx.session.slave = 0x11;
     ctx.line_nonblocking = true;
-    ctx.byte_timeout = modbus::context::Timeout::new(0, 300_000);
+    ctx.session.timeouts.byte = modbus::context::Timeout::new(0, 300_000);
     let m = Mutex::new(ctx);
     let mut g = m.lock();
     let rtu = |body: &[u8]| {
@@ -339,7 +339,7 @@ fn serial_requests_in_pieces_and_back_to_back() {
     }
 
     // Nothing arrives: the indication timeout.
-    g.indication_timeout = modbus::context::Timeout::new(0, 50_000);
+    g.session.timeouts.indication = modbus::context::Timeout::new(0, 50_000);
     assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::TIMED_OUT));
     transport::close(peer);
     transport::close(ours);
@@ -350,7 +350,7 @@ fn ascii_exchange_over_a_stream() {
     let (ours, peer) = socket_pair();
     let mut ctx = Context::new_ascii(Some(c"/dev/null"), 9600, b'E', 7, 1).unwrap();
     ctx.s = ours;
-    ctx.slave = 1;
+    ctx.session.slave = 1;
     let m = Mutex::new(ctx);
     let server = std::thread::spawn(move || {
         let mut got = Vec::new();
@@ -389,7 +389,7 @@ fn ascii_frames_shorter_than_their_content_are_refused() {
     let (ours, peer) = socket_pair();
     let mut ctx = Context::new_ascii(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
     ctx.s = ours;
-    ctx.slave = 0xEF;
+    ctx.session.slave = 0xEF;
     let m = Mutex::new(ctx);
     let mut g = m.lock();
     let mut buf = [0u8; MAX_ADU_LENGTH];

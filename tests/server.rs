@@ -430,7 +430,7 @@ fn extended_requests_are_framed_whole_only_once_configured() {
         write_all(peer, &diag);
         assert_eq!(modbus_receive(ctx.0, buf.as_mut_ptr()), 8);
         let g = (*ctx.0).lock();
-        assert!(g.server_ext.is_none() && !g.serves_extended);
+        assert!(g.server_ext.is_none() && !g.session.extended);
     }
     close(peer);
     close(ours);
@@ -527,7 +527,7 @@ fn configuration_exports() {
     unsafe {
         let g = |c: &Ctx| {
             let g = (*c.0).lock();
-            (g.server_ext.is_some(), g.serves_extended)
+            (g.server_ext.is_some(), g.session.extended)
         };
         assert_eq!(modbus_set_exception_status(ctx.0, 0x6D), 0);
         assert_eq!(g(&ctx), (true, false));

@@ -12,6 +12,7 @@
 //! | `ffi_server` | the C ABI: `modbus_receive` + `modbus_reply` over a socket pair, mapping with start offsets |
 //! | `ffi_client` | the C ABI: every client call against pre-written response bytes      |
 //! | `server_ascii`, `client_ascii` | the same paths with Modbus ASCII: characters -> `ascii::Decoder` -> LRC -> ... |
+//! | `security`   | Modbus/TCP Security: TLS record boundaries of a server's reads, the role of a certificate, what a request asks the authorization callback |
 //!
 //! The FFI targets choose TCP, RTU or ASCII contexts from their first byte.
 //!
@@ -860,11 +861,56 @@ pub fn client_ascii(data: &[u8]) {
     client(Framing::Ascii, data)
 }
 
+/// `security`: Modbus/TCP Security's pure paths. Layout: `[chunk seed][bytes...]`.
+/// - The TLS record stream a server reads (`RecordCut`): `bytes` read in pieces of
+///   sizes drawn from the seed, never past a record's end; every place the cut says
+///   "between records" is where a plain parse of the headers puts a boundary.
+/// - The role of `bytes` as a certificate: none, or 1 to 255 bytes of UTF-8
+///   without NUL.
+/// - What `bytes` as a request PDU asks the authorization callback: its function
+///   code and one or two ranges.
+pub fn security(data: &[u8]) {
+    use modbus::core::security::{MAX_ROLE_LENGTH, RecordCut, access, role};
+    let Some((&seed, bytes)) = data.split_first() else { return };
+    // Boundaries by a plain parse of the headers.
+    let mut expected = Vec::new();
+    let mut at = 0usize;
+    while at + 5 <= bytes.len() {
+        let end = at + 5 + u16::from_be_bytes([bytes[at + 3], bytes[at + 4]]) as usize;
+        if end > bytes.len() {
+            break;
+        }
+        expected.push(end);
+        at = end;
+    }
+    let mut cut = RecordCut::default();
+    let (mut at, mut i, mut seen) = (0usize, 0usize, Vec::new());
+    while at < bytes.len() {
+        let want = 1 + (seed as usize).wrapping_mul(i + 7) % 97;
+        let n = cut.limit().min(want).min(bytes.len() - at);
+        assert!(n > 0, "a read of nothing before the end of the stream");
+        cut.advance(&bytes[at..at + n]);
+        at += n;
+        i += 1;
+        if cut.at_boundary() {
+            seen.push(at);
+        }
+    }
+    assert_eq!(seen, expected, "record boundaries");
+    if let Some(r) = role(bytes) {
+        assert!(!r.is_empty() && r.len() <= MAX_ROLE_LENGTH && !r.contains('\0'));
+    }
+    let a = access(bytes);
+    assert_eq!(a.function, bytes.first().copied().unwrap_or(0));
+    let n = a.ranges().count();
+    assert!((1..=2).contains(&n));
+}
+
 /// A fuzz target.
 pub type Target = fn(&[u8]);
 
 /// Every target by name, for the replay tool.
-pub const TARGETS: [(&str, Target); 8] = [
+pub const TARGETS: [(&str, Target); 9] = [
     ("server_rtu", server_rtu),
     ("server_tcp", server_tcp),
     ("server_ascii", server_ascii),
@@ -873,6 +919,7 @@ pub const TARGETS: [(&str, Target); 8] = [
     ("client_ascii", client_ascii),
     ("ffi_server", ffi_server),
     ("ffi_client", ffi_client),
+    ("security", security),
 ];
 
 pub fn target(name: &str) -> Option<Target> {

@@ -279,6 +279,20 @@ fn known_end(rules: Rules, msg: &[u8], floor: usize) -> usize {
     known.filter(|&t| t >= floor).unwrap_or(floor)
 }
 
+/// The length of the message `bytes` starts with, when `bytes` holds all of it (see
+/// [`Assembler::whole`]).
+#[inline]
+pub fn whole_length(rules: Rules, bytes: &[u8]) -> Option<usize> {
+    let max = rules.framing.max_adu_length();
+    let Length::Total(mut total) = message_length(rules, bytes) else { return None };
+    if rules.searches_crc(bytes) {
+        while total <= bytes.len() && !crc_matches(&bytes[..total]) && total + 2 <= max {
+            total += 2;
+        }
+    }
+    (total <= max && total <= bytes.len()).then_some(total)
+}
+
 /// The CRC of an RTU frame matches its content.
 pub fn crc_matches(frame: &[u8]) -> bool {
     frame.len() >= 2 && stored_crc(frame) == Some(crc16(&frame[..frame.len() - 2]))
@@ -367,14 +381,7 @@ impl Assembler {
     /// framing's maximum (an error [`Assembler::received`] reports).
     #[inline]
     pub fn whole(&self, bytes: &[u8]) -> Option<usize> {
-        let max = self.rules.framing.max_adu_length();
-        let Length::Total(mut total) = message_length(self.rules, bytes) else { return None };
-        if self.rules.searches_crc(bytes) {
-            while total <= bytes.len() && !crc_matches(&bytes[..total]) && total + 2 <= max {
-                total += 2;
-            }
-        }
-        (total <= max && total <= bytes.len()).then_some(total)
+        whole_length(self.rules, bytes)
     }
 
     /// The length of the whole message when its first bytes `head` already tell it

@@ -99,7 +99,10 @@ impl Req<'_> {
         self.0.get(i).copied().unwrap_or(0)
     }
     fn u16(&self, i: usize) -> u16 {
-        u16::from_be_bytes([self.u8(i), self.u8(i + 1)])
+        match self.0.get(i..i + 2) {
+            Some(&[hi, lo]) => u16::from_be_bytes([hi, lo]),
+            _ => (self.u8(i) as u16) << 8,
+        }
     }
     /// Big-endian registers from byte `at` into `regs` (bytes past the end read as 0).
     fn registers_to(&self, at: usize, regs: &mut [u16]) {

@@ -150,6 +150,57 @@ pub fn access(pdu: &[u8]) -> Access {
     Access { function, ranges }
 }
 
+/// Where the TLS record being read ends, so that a server never takes bytes of the
+/// next record off its socket: a client's next request (and its first one, sent with
+/// the end of its handshake) stays in the kernel until it is wanted, and an
+/// application's `poll()` loop sees it. A record is a 5-byte header (content type,
+/// version, length) and a body of that length; [`RecordCut::limit`] says how many
+/// bytes the next read may take, [`RecordCut::advance`] accounts for what it took.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RecordCut {
+    header: [u8; 5],
+    have: usize,
+    body_left: usize,
+}
+
+impl RecordCut {
+    /// Most bytes the next read may take: the rest of the header, or of the body.
+    #[inline]
+    pub fn limit(&self) -> usize {
+        if self.have < 5 { 5 - self.have } else { self.body_left }
+    }
+
+    /// True between records.
+    pub fn at_boundary(&self) -> bool {
+        self.have == 0
+    }
+
+    /// Accounts for `bytes` read from the stream (any number, split anywhere).
+    pub fn advance(&mut self, mut bytes: &[u8]) {
+        while !bytes.is_empty() {
+            if self.have < 5 {
+                let n = bytes.len().min(5 - self.have);
+                self.header[self.have..self.have + n].copy_from_slice(&bytes[..n]);
+                self.have += n;
+                bytes = &bytes[n..];
+                if self.have == 5 {
+                    self.body_left = u16::from_be_bytes([self.header[3], self.header[4]]) as usize;
+                    if self.body_left == 0 {
+                        self.have = 0;
+                    }
+                }
+            } else {
+                let n = bytes.len().min(self.body_left);
+                self.body_left -= n;
+                bytes = &bytes[n..];
+                if self.body_left == 0 {
+                    self.have = 0;
+                }
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,6 +299,43 @@ mod tests {
         assert_eq!(role(&[]), None);
         assert_eq!(role(&[0x30, 0x84, 0xFF, 0xFF, 0xFF, 0xFF]), None);
         assert_eq!(role(&[0x3F, 0x01, 0x00]), None);
+    }
+
+    /// Reads `stream` as a server does, `chunk(i)` bytes at most per read, never past
+    /// a record's end: the reads that end a record end exactly at record boundaries.
+    fn cut_reads(stream: &[u8], chunk: impl Fn(usize) -> usize) -> Vec<usize> {
+        let mut cut = RecordCut::default();
+        let mut at = 0;
+        let mut ends = Vec::new();
+        let mut i = 0;
+        while at < stream.len() {
+            let n = cut.limit().min(chunk(i).max(1)).min(stream.len() - at);
+            assert!(n > 0);
+            cut.advance(&stream[at..at + n]);
+            at += n;
+            i += 1;
+            if cut.at_boundary() {
+                ends.push(at);
+            }
+        }
+        ends
+    }
+
+    #[test]
+    fn reads_stop_at_record_boundaries() {
+        // Three records: 2-byte body, empty body, 300-byte body; then half a header.
+        let mut stream = std::vec![23, 3, 3, 0, 2, 0xAA, 0xBB, 21, 3, 3, 0, 0, 23, 3, 3, 1, 44];
+        stream.extend(std::iter::repeat_n(0x55, 300));
+        let whole = stream.len();
+        stream.extend_from_slice(&[23, 3]);
+        for chunk in [1usize, 2, 3, 5, 7, 64, 1000] {
+            assert_eq!(cut_reads(&stream, |_| chunk), [7, 12, whole], "chunks of {chunk}");
+        }
+        assert_eq!(cut_reads(&stream, |i| [1, 9, 2, 300][i % 4]), [7, 12, whole]);
+        // The header's length field decides the body, whatever it holds.
+        let mut cut = RecordCut::default();
+        cut.advance(&[0xFF, 0, 0, 0xFF, 0xFF]);
+        assert_eq!(cut.limit(), 0xFFFF);
     }
 
     #[test]

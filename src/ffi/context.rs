@@ -70,7 +70,7 @@ pub unsafe extern "C" fn modbus_set_slave(ctx: *mut Modbus, slave: c_int) -> c_i
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_get_slave(ctx: *mut Modbus) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| Ok(g.slave)) }
+    unsafe { with_ctx(ctx, |g| Ok(g.session.slave)) }
 }
 
 /// The C enum `modbus_error_recovery_mode` (a bit set: NONE 0, LINK 2, PROTOCOL 4), as
@@ -90,7 +90,7 @@ pub unsafe extern "C" fn modbus_set_error_recovery(
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            g.error_recovery = error_recovery as u8 as i32;
+            g.session.recovery = error_recovery as u8 as i32;
             Ok(0)
         })
     }
@@ -147,7 +147,7 @@ pub unsafe extern "C" fn modbus_get_response_timeout(ctx: *mut Modbus, to_sec: *
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            put_timeout(g.response_timeout, to_sec, to_usec);
+            put_timeout(g.session.timeouts.response, to_sec, to_usec);
             Ok(0)
         })
     }
@@ -170,7 +170,7 @@ pub unsafe extern "C" fn modbus_get_byte_timeout(ctx: *mut Modbus, to_sec: *mut 
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            put_timeout(g.byte_timeout, to_sec, to_usec);
+            put_timeout(g.session.timeouts.byte, to_sec, to_usec);
             Ok(0)
         })
     }
@@ -185,7 +185,7 @@ pub unsafe extern "C" fn modbus_set_byte_timeout(ctx: *mut Modbus, to_sec: u32, 
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            g.byte_timeout = Context::checked_timeout(to_sec, to_usec)?;
+            g.session.timeouts.byte = Context::checked_timeout(to_sec, to_usec)?;
             Ok(0)
         })
     }
@@ -198,7 +198,7 @@ pub unsafe extern "C" fn modbus_get_indication_timeout(ctx: *mut Modbus, to_sec:
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            put_timeout(g.indication_timeout, to_sec, to_usec);
+            put_timeout(g.session.timeouts.indication, to_sec, to_usec);
             Ok(0)
         })
     }
@@ -213,7 +213,7 @@ pub unsafe extern "C" fn modbus_set_indication_timeout(ctx: *mut Modbus, to_sec:
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            g.indication_timeout = Context::checked_timeout(to_sec, to_usec)?;
+            g.session.timeouts.indication = Context::checked_timeout(to_sec, to_usec)?;
             Ok(0)
         })
     }

@@ -272,7 +272,7 @@ pub unsafe extern "C" fn modbus_reply(
             let bound = if req_length < 0 { usize::MAX } else { req_length as usize };
             // SAFETY: request_extent only asks for prefixes of the request as its own
             // header describes it (and within a non-negative req_length).
-            let extent = request_extent(g.framing, g.serves_extended, bound, |n| slice::from_raw_parts(req, n));
+            let extent = request_extent(g.framing, g.session.extended, bound, |n| slice::from_raw_parts(req, n));
             // SAFETY: the same bytes, now as one slice.
             let req = slice::from_raw_parts(req, extent);
             let mut mapping = CMapping(mb_mapping);
@@ -413,7 +413,7 @@ fn configure(g: &mut Guard<'_>, f: impl FnOnce(&mut ServerExt) -> Result<c_int>)
     if ext.is_idle() {
         g.server_ext = None;
     }
-    g.serves_extended = g.server_ext.as_ref().is_some_and(|e| e.needs_extended_framing());
+    g.session.extended = g.server_ext.as_ref().is_some_and(|e| e.needs_extended_framing());
     r
 }
 

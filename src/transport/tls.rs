@@ -39,6 +39,7 @@ use rustls::{
 
 use super::{Ready, now, to_timespec, wait_or_wake};
 use crate::core::security;
+pub use crate::core::security::RecordCut;
 use crate::error::{
     EMBTLS, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSUNKNOWNCA, EMBTLSVERSION, Error, Result, errno,
 };
@@ -276,49 +277,6 @@ impl Read for Fd<'_> {
             cut.advance(&buf[..n]);
         }
         Ok(n)
-    }
-}
-
-/// Where the TLS record being read ends, so that a server never takes bytes of the
-/// next record off the socket: a client's next request (and its first one, sent
-/// with the end of its handshake) stays in the kernel until it is wanted, and an
-/// application's `poll()` loop sees it. Records are read in two parts: the 5-byte
-/// header (type, version, length), then the body.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct RecordCut {
-    header: [u8; 5],
-    have: usize,
-    body_left: usize,
-}
-
-impl RecordCut {
-    /// Most bytes the next read may take.
-    fn limit(&self) -> usize {
-        if self.have < 5 { 5 - self.have } else { self.body_left }
-    }
-
-    fn advance(&mut self, mut bytes: &[u8]) {
-        while !bytes.is_empty() {
-            if self.have < 5 {
-                let n = bytes.len().min(5 - self.have);
-                self.header[self.have..self.have + n].copy_from_slice(&bytes[..n]);
-                self.have += n;
-                bytes = &bytes[n..];
-                if self.have == 5 {
-                    self.body_left = u16::from_be_bytes([self.header[3], self.header[4]]) as usize;
-                    if self.body_left == 0 {
-                        self.have = 0;
-                    }
-                }
-            } else {
-                let n = bytes.len().min(self.body_left);
-                self.body_left -= n;
-                bytes = &bytes[n..];
-                if self.body_left == 0 {
-                    self.have = 0;
-                }
-            }
-        }
     }
 }
 

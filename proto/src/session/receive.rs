@@ -161,6 +161,10 @@ pub enum Step {
     Read { dest: Dest, how: ReadHow },
     /// The receive is over.
     Done(Finished),
+    /// The receive is over with a whole, valid message `msg[..len]`, and nothing to
+    /// report or recover from (the usual end: the same as `Done` with
+    /// [`Finished::frame`]).
+    Frame(usize),
 }
 
 /// How a receive ended.
@@ -188,6 +192,19 @@ pub struct Finished {
 }
 
 impl Finished {
+    /// A whole, valid message of `len` bytes.
+    pub const fn frame(len: usize) -> Self {
+        Finished { outcome: Outcome::Frame(len), recovery: Recovery::None, traced: len, ended: true }
+    }
+
+    /// The step that reports this end.
+    fn into_step(self) -> Step {
+        match self.outcome {
+            Outcome::Frame(len) => Step::Frame(len),
+            _ => Step::Done(self),
+        }
+    }
+
     fn failed(error: Error, site: &'static str, recovery: Recovery, traced: usize) -> Self {
         Finished { outcome: Outcome::Failed { error, site: Some(site) }, recovery, traced, ended: false }
     }
@@ -237,7 +254,7 @@ impl Pending {
             Step::Wait { .. } => Pending::Wait,
             Step::Read { dest: Dest::ReadAhead, .. } => Pending::ReadStaged,
             Step::Read { how, .. } => Pending::Read { queued: *how == ReadHow::Queued },
-            Step::Done(_) => Pending::Nothing,
+            Step::Done(_) | Step::Frame(_) => Pending::Nothing,
         }
     }
 }
@@ -250,8 +267,7 @@ enum Body {
 
 /// One receive (see the module's documentation).
 #[derive(Clone, Debug)]
-pub struct Receiver<'s> {
-    s: &'s Settings,
+pub struct Receiver {
     body: Body,
     /// Bytes of `msg` written (by reads, or taken from the read-ahead buffer).
     filled: usize,
@@ -260,18 +276,16 @@ pub struct Receiver<'s> {
     /// Bytes of the message came since the last wait: the next wait gets a fresh
     /// byte timeout (the clock is read then, and only then).
     rearm: bool,
-    /// ASCII: characters a read put in the read-ahead buffer.
-    staged: usize,
     line: LineState,
     pending: Pending,
     finished: Option<Finished>,
 }
 
-impl<'s> Receiver<'s> {
+impl Receiver {
     /// A receive that starts now; `now` reads the driver's monotonic clock, and is
     /// called only when the first wait has an end.
     #[inline]
-    pub fn new(s: &'s Settings, now: impl FnOnce() -> Duration) -> Self {
+    pub fn new(s: &Settings, now: impl FnOnce() -> Duration) -> Self {
         let deadline = match s.timeouts.first_wait(s.kind) {
             Wait::For(t) => Some(now() + t.duration()),
             Wait::Forever | Wait::Left => None,
@@ -283,12 +297,10 @@ impl<'s> Receiver<'s> {
             }
         };
         Receiver {
-            s,
             body,
             filled: 0,
             deadline,
             rearm: false,
-            staged: 0,
             line: LineState::Unknown,
             pending: Pending::Nothing,
             finished: None,
@@ -303,39 +315,37 @@ impl<'s> Receiver<'s> {
     /// The first step: [`Receiver::step`], with the usual beginnings (nothing left
     /// over from an earlier read) decided at once.
     #[inline]
-    pub fn start(&mut self, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
-        if let Body::Binary(asm) = &self.body
-            && rx.available().is_empty()
-        {
-            let line = self.s.line;
-            let dest = Dest::Message { from: 0, to: if self.s.read_ahead { msg.len() } else { asm.wanted() } };
-            if line.socket && self.s.kind == MsgKind::Indication {
+    pub fn start(&mut self, s: &Settings, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
+        if s.framing != Framing::Ascii && rx.available().is_empty() {
+            let line = s.line;
+            if line.socket && s.kind == MsgKind::Indication {
                 self.pending = Pending::Peek;
                 return Step::Peek { block: self.deadline.is_none() };
             }
-            if line.timed_reads && self.s.kind == MsgKind::Confirmation {
+            if line.timed_reads && s.kind == MsgKind::Confirmation {
                 self.pending = Pending::Read { queued: false };
-                return Step::Read { dest, how: ReadHow::Within(self.s.timeouts.response) };
+                let to = if s.read_ahead { msg.len() } else { s.framing.header_length() + 1 };
+                return Step::Read { dest: Dest::Message { from: 0, to }, how: ReadHow::Within(s.timeouts.response) };
             }
         }
-        self.step(msg, rx, now)
+        self.step(s, msg, rx, now)
     }
 
     /// What to do next. `msg` receives the message (at least the framing's largest
     /// ADU); `rx` is the context's read-ahead buffer; `now` reads the clock, called
     /// only for the deadline of a wait that follows new bytes.
-    pub fn step(&mut self, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
+    pub fn step(&mut self, s: &Settings, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
         debug_assert_eq!(self.pending, Pending::Nothing, "step() before done() of the last step");
         if let Some(f) = self.finished.take() {
             return Step::Done(f);
         }
         let fed = match &self.body {
             Body::Binary(asm) => asm.len(),
-            Body::Ascii(_) => return self.step_ascii(msg, rx, now),
+            Body::Ascii(_) => return self.step_ascii(s, msg, rx, now),
         };
         if self.filled > fed {
-            if let Some(f) = self.assemble(msg, rx) {
-                return Step::Done(f);
+            if let Some(f) = self.assemble(s, msg, rx) {
+                return f.into_step();
             }
         }
         loop {
@@ -350,26 +360,26 @@ impl<'s> Receiver<'s> {
             rx.consume(n);
             self.filled += n;
             self.bytes_came();
-            if let Some(f) = self.assemble(msg, rx) {
-                return Step::Done(f);
+            if let Some(f) = self.assemble(s, msg, rx) {
+                return f.into_step();
             }
         }
         let Body::Binary(asm) = &self.body else { unreachable!() };
         let from = self.filled;
-        let end = if self.s.read_ahead { msg.len() } else { from + asm.wanted() };
+        let end = if s.read_ahead { msg.len() } else { from + asm.wanted() };
         let message = Dest::Message { from, to: end };
-        let line = self.s.line;
+        let line = s.line;
         let read = |how| Step::Read { dest: message, how };
         let step = match self.line {
             LineState::Quiet => {
                 let len = asm.len();
-                return Step::Done(self.check(msg, len));
+                return self.end(s, msg, len);
             }
-            LineState::Unknown if from == 0 && line.socket && self.s.kind == MsgKind::Indication => {
+            LineState::Unknown if from == 0 && line.socket && s.kind == MsgKind::Indication => {
                 Step::Peek { block: self.deadline.is_none() }
             }
-            LineState::Unknown if from == 0 && line.timed_reads && self.s.kind == MsgKind::Confirmation => {
-                read(ReadHow::Within(self.s.timeouts.response))
+            LineState::Unknown if from == 0 && line.timed_reads && s.kind == MsgKind::Confirmation => {
+                read(ReadHow::Within(s.timeouts.response))
             }
             LineState::Peeked(n) => {
                 // Peeked into the read-ahead buffer, which is empty otherwise.
@@ -387,7 +397,7 @@ impl<'s> Receiver<'s> {
             LineState::Queued => read(ReadHow::Queued),
             LineState::Unknown | LineState::Arrived if from > 0 && line.reads_without_waiting => read(ReadHow::Queued),
             LineState::Readable | LineState::Whole(_) => read(ReadHow::Ready),
-            _ => Step::Wait { until: self.wait_deadline(now) },
+            _ => Step::Wait { until: self.wait_deadline(s, now) },
         };
         self.pending = Pending::of(&step);
         step
@@ -397,9 +407,9 @@ impl<'s> Receiver<'s> {
     /// found the line readable, or the error (`TIMED_OUT` when a wait reached its
     /// deadline).
     #[inline]
-    pub fn done(&mut self, result: Result<usize>) {
+    pub fn done(&mut self, s: &Settings, result: Result<usize>) {
         let pending = core::mem::replace(&mut self.pending, Pending::Nothing);
-        let mode = self.s.recovery;
+        let mode = s.recovery;
         match pending {
             Pending::Nothing => debug_assert!(false, "done() without a step"),
             Pending::Peek => {
@@ -418,7 +428,9 @@ impl<'s> Receiver<'s> {
             Pending::Read { .. } | Pending::ReadStaged => match result {
                 Ok(n) if n > 0 => {
                     if pending == Pending::ReadStaged {
-                        self.staged = n;
+                        // ASCII keeps its decoded bytes in the decoder: `filled`
+                        // holds the characters the read put in the read-ahead buffer.
+                        self.filled = n;
                     } else {
                         self.filled += n;
                     }
@@ -443,6 +455,7 @@ impl<'s> Receiver<'s> {
     #[inline]
     pub fn next(
         &mut self,
+        s: &Settings,
         result: Result<usize>,
         msg: &mut [u8],
         rx: &mut ReadAhead,
@@ -455,17 +468,17 @@ impl<'s> Receiver<'s> {
             && let Body::Binary(asm) = &self.body
         {
             if self.pending == Pending::Peek {
-                if let Some(len) = Self::whole_in(asm, &rx.buf[..n], msg.len()) {
+                if let Some(len) = asm.whole(&rx.buf[..n]).filter(|&len| len <= msg.len()) {
                     self.line = LineState::Whole(len);
                     self.pending = Pending::Read { queued: false };
                     return Step::Read { dest: Dest::Message { from: 0, to: len }, how: ReadHow::Ready };
                 }
             } else if self.filled == 0 && matches!(self.pending, Pending::Read { .. }) {
-                return self.first_bytes(n, msg, rx, now);
+                return self.first_bytes(s, n, msg, rx, now);
             }
         }
-        self.done(result);
-        self.step(msg, rx, now)
+        self.done(s, result);
+        self.step(s, msg, rx, now)
     }
 
     /// After a peek of `peeked`: the length of the whole message it shows, when it
@@ -474,7 +487,7 @@ impl<'s> Receiver<'s> {
     #[inline]
     pub fn whole_after_peek(&self, peeked: &[u8], room: usize) -> Option<usize> {
         match &self.body {
-            Body::Binary(asm) if self.pending == Pending::Peek => Self::whole_in(asm, peeked, room),
+            Body::Binary(asm) if self.pending == Pending::Peek => asm.whole(peeked).filter(|&len| len <= room),
             _ => None,
         }
     }
@@ -484,26 +497,34 @@ impl<'s> Receiver<'s> {
     #[inline]
     pub fn took(
         &mut self,
+        s: &Settings,
         len: usize,
         result: Result<usize>,
         msg: &mut [u8],
         rx: &mut ReadAhead,
         now: impl FnOnce() -> Duration,
     ) -> Step {
+        if matches!(result, Ok(n) if n == len) {
+            self.pending = Pending::Nothing;
+            self.filled = len;
+            return self.end(s, msg, len);
+        }
         self.line = LineState::Whole(len);
         self.pending = Pending::Read { queued: false };
-        self.next(result, msg, rx, now)
-    }
-
-    #[inline]
-    fn whole_in(asm: &Assembler, bytes: &[u8], room: usize) -> Option<usize> {
-        asm.whole(bytes).filter(|&len| len <= room)
+        self.next(s, result, msg, rx, now)
     }
 
     /// The first bytes of the message came (`n` of them, in `msg`): the end when they
     /// hold the whole message (what lies past it goes to `rx`), else the next step.
     #[inline]
-    fn first_bytes(&mut self, n: usize, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
+    fn first_bytes(
+        &mut self,
+        s: &Settings,
+        n: usize,
+        msg: &mut [u8],
+        rx: &mut ReadAhead,
+        now: impl FnOnce() -> Duration,
+    ) -> Step {
         self.pending = Pending::Nothing;
         let Body::Binary(asm) = &self.body else { unreachable!("binary framings only") };
         let len = match self.line {
@@ -513,11 +534,11 @@ impl<'s> Receiver<'s> {
         if let Some(len) = len {
             rx.keep(&msg[len..n]);
             self.filled = len;
-            return Step::Done(self.check(msg, len));
+            return self.end(s, msg, len);
         }
         self.filled = n;
         self.bytes_came();
-        self.step(msg, rx, now)
+        self.step(s, msg, rx, now)
     }
 
     /// The context was closed under the last step (from a signal handler or another
@@ -553,14 +574,14 @@ impl<'s> Receiver<'s> {
     #[inline]
     fn bytes_came(&mut self) {
         self.line = LineState::Arrived;
-        self.rearm = matches!(self.body, Body::Binary(_));
+        self.rearm = !matches!(self.body, Body::Ascii(_));
     }
 
     /// The deadline of the wait about to start: a byte timeout from `now` when bytes
     /// came since the last wait, else the current one.
-    fn wait_deadline(&mut self, now: impl FnOnce() -> Duration) -> Option<Duration> {
+    fn wait_deadline(&mut self, s: &Settings, now: impl FnOnce() -> Duration) -> Option<Duration> {
         if core::mem::take(&mut self.rearm) {
-            if let Wait::For(t) = self.s.timeouts.after_bytes() {
+            if let Wait::For(t) = s.timeouts.after_bytes() {
                 self.deadline = Some(now() + t.duration());
             }
         }
@@ -569,7 +590,7 @@ impl<'s> Receiver<'s> {
 
     /// Feeds the assembler the bytes of `msg` it has not seen; the finished receive
     /// when the message is complete (what lies past it goes to `rx`) or too long.
-    fn assemble(&mut self, msg: &[u8], rx: &mut ReadAhead) -> Option<Finished> {
+    fn assemble(&mut self, s: &Settings, msg: &[u8], rx: &mut ReadAhead) -> Option<Finished> {
         let Body::Binary(asm) = &mut self.body else { return None };
         let filled = self.filled;
         if asm.is_empty() && filled > 0 {
@@ -577,7 +598,7 @@ impl<'s> Receiver<'s> {
             if let Some(len) = asm.whole(&msg[..filled]) {
                 rx.keep(&msg[len..filled]);
                 self.filled = len;
-                return Some(self.check(msg, len));
+                return Some(self.check(s, msg, len));
             }
         }
         while asm.len() < filled {
@@ -588,7 +609,7 @@ impl<'s> Receiver<'s> {
                 Ok(Progress::Complete(len)) => {
                     rx.keep(&msg[len..filled]);
                     self.filled = len;
-                    return Some(self.check(msg, len));
+                    return Some(self.check(s, msg, len));
                 }
                 Err(e) => {
                     rx.keep(&msg[start + n..filled]);
@@ -601,26 +622,35 @@ impl<'s> Receiver<'s> {
 
     /// The end of a binary frame `msg[..len]`: an RTU frame must have a good CRC and
     /// be for us.
+    /// The step that ends a receive with the binary frame `msg[..len]`.
     #[inline]
-    fn check(&self, msg: &[u8], len: usize) -> Finished {
-        if self.s.framing == Framing::Tcp {
+    fn end(&self, s: &Settings, msg: &[u8], len: usize) -> Step {
+        if s.framing == Framing::Tcp {
+            return Step::Frame(len);
+        }
+        self.check(s, msg, len).into_step()
+    }
+
+    #[inline]
+    fn check(&self, s: &Settings, msg: &[u8], len: usize) -> Finished {
+        if s.framing == Framing::Tcp {
             return Finished { outcome: Outcome::Frame(len), recovery: Recovery::None, traced: len, ended: true };
         }
         let frame = &msg[..len];
-        let outcome = match self.s.framing {
-            Framing::Rtu => match rtu_integrity(frame, self.s.slave) {
+        let outcome = match s.framing {
+            Framing::Rtu => match rtu_integrity(frame, s.slave) {
                 RtuIntegrity::Ok => Outcome::Frame(len),
                 RtuIntegrity::BadCrc(received, computed) => Outcome::BadChecksum { lrc: false, received, computed },
                 RtuIntegrity::OtherSlave(theirs, ours) => Outcome::Ignored { len, theirs, ours },
             },
             _ => Outcome::Frame(len),
         };
-        self.ended(outcome, len)
+        self.ended(s, outcome, len)
     }
 
-    fn ended(&self, outcome: Outcome, len: usize) -> Finished {
+    fn ended(&self, s: &Settings, outcome: Outcome, len: usize) -> Finished {
         let recovery = match outcome {
-            Outcome::BadChecksum { .. } => after_bad_checksum(self.s.recovery),
+            Outcome::BadChecksum { .. } => after_bad_checksum(s.recovery),
             _ => Recovery::None,
         };
         Finished { outcome, recovery, traced: len, ended: true }
@@ -629,10 +659,10 @@ impl<'s> Receiver<'s> {
     /// ASCII: characters are read into the read-ahead buffer and decoded from there
     /// (a frame ends at its delimiter, so nothing past it is taken as part of it);
     /// every read follows a wait.
-    fn step_ascii(&mut self, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
-        if self.staged > 0 {
+    fn step_ascii(&mut self, s: &Settings, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
+        if self.filled > 0 {
             rx.start = 0;
-            rx.end = core::mem::take(&mut self.staged);
+            rx.end = core::mem::take(&mut self.filled);
         }
         let Body::Ascii(decoder) = &mut self.body else { unreachable!() };
         if !rx.available().is_empty() {
@@ -654,7 +684,7 @@ impl<'s> Receiver<'s> {
             }
             rx.consume(used);
             match outcome {
-                Some(Ok(len)) => return Step::Done(self.check_ascii(msg, len)),
+                Some(Ok(len)) => return self.check_ascii(s, msg, len).into_step(),
                 Some(Err(e)) => {
                     let traced = decoder.len();
                     return Step::Done(Finished::failed(e, "invalid ASCII frame", Recovery::None, traced));
@@ -670,25 +700,25 @@ impl<'s> Receiver<'s> {
             Step::Read { dest: Dest::ReadAhead, how: ReadHow::Ready }
         } else {
             self.pending = Pending::Wait;
-            Step::Wait { until: self.wait_deadline(now) }
+            Step::Wait { until: self.wait_deadline(s, now) }
         }
     }
 
     /// The end of an ASCII frame `msg[..len]` (decoded, LRC last): a good LRC, for
     /// us, and at least as long as its content says (the frame's own length stands
     /// in for the lengths a PDU does not carry).
-    fn check_ascii(&self, msg: &[u8], len: usize) -> Finished {
+    fn check_ascii(&self, s: &Settings, msg: &[u8], len: usize) -> Finished {
         let frame = &msg[..len];
         if let Err((received, computed)) = ascii::check_lrc(frame) {
             let outcome = Outcome::BadChecksum { lrc: true, received: received as u16, computed: computed as u16 };
-            return self.ended(outcome, len);
+            return self.ended(s, outcome, len);
         }
-        if frame[0] as i32 != self.s.slave && frame[0] != 0 {
-            return self.ended(Outcome::Ignored { len, theirs: frame[0], ours: self.s.slave }, len);
+        if frame[0] as i32 != s.slave && frame[0] != 0 {
+            return self.ended(s, Outcome::Ignored { len, theirs: frame[0], ours: s.slave }, len);
         }
         let whole = len >= 3
-            && Assembler::new(Framing::Ascii, self.s.kind)
-                .extended_requests(self.s.extended)
+            && Assembler::new(Framing::Ascii, s.kind)
+                .extended_requests(s.extended)
                 .expecting(Some(len - Framing::Ascii.checksum_length()))
                 .whole(frame)
                 .is_some();
@@ -698,7 +728,7 @@ impl<'s> Receiver<'s> {
             let outcome = Outcome::Failed { error: Error::BAD_DATA, site: Some("frame too short") };
             return Finished { outcome, recovery: Recovery::None, traced: len, ended: true };
         }
-        self.ended(Outcome::Frame(len), len)
+        self.ended(s, Outcome::Frame(len), len)
     }
 }
 

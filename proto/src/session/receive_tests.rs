@@ -123,10 +123,11 @@ impl Line {
         let now = self.now;
         let mut m = Receiver::new(&s, || now);
         self.settle();
-        let mut step = m.start(msg, rx, || now);
+        let mut step = m.start(&s, msg, rx, || now);
         for n in 0..64 {
             let result = match step {
                 Step::Done(f) => return f,
+                Step::Frame(len) => return Finished::frame(len),
                 Step::Peek { block } => {
                     self.log.push(if block { "peek (blocks)" } else { "peek" }.into());
                     if block {
@@ -143,7 +144,7 @@ impl Line {
                                     self.log.push(format!("read 0..{len}"));
                                     let took = self.take(&mut msg[..len]);
                                     let now = self.now;
-                                    step = m.took(len, Ok(took), msg, rx, || now);
+                                    step = m.took(&s, len, Ok(took), msg, rx, || now);
                                     continue;
                                 }
                                 None => Ok(n),
@@ -195,9 +196,9 @@ impl Line {
             let now = self.now;
             step = if self.stop_at == Some(n) {
                 m.stopped();
-                m.step(msg, rx, || now)
+                m.step(&s, msg, rx, || now)
             } else {
-                m.next(result, msg, rx, || now)
+                m.next(&s, result, msg, rx, || now)
             };
         }
         panic!("no end after 64 steps: {:?}", self.log);
@@ -856,26 +857,26 @@ fn a_failed_read_after_a_wait_waits_again() {
     let mut m = Receiver::new(&rtu_settings, || ms(0));
     let mut msg = [0u8; MAX_ADU_LENGTH];
     let mut rx = ReadAhead::new();
-    assert_eq!(m.step(&mut msg, &mut rx, || ms(30)), Step::Wait { until: Some(ms(500)) });
-    m.done(Ok(0));
-    assert!(matches!(m.step(&mut msg, &mut rx, || ms(30)), Step::Read { how: ReadHow::Ready, .. }));
-    m.done(Err(Error(errno::EAGAIN)));
-    assert_eq!(m.step(&mut msg, &mut rx, || ms(30)), Step::Wait { until: Some(ms(500)) });
-    m.done(Ok(0));
-    assert!(matches!(m.step(&mut msg, &mut rx, || ms(30)), Step::Read { how: ReadHow::Ready, .. }));
+    assert_eq!(m.step(&rtu_settings, &mut msg, &mut rx, || ms(30)), Step::Wait { until: Some(ms(500)) });
+    m.done(&rtu_settings, Ok(0));
+    assert!(matches!(m.step(&rtu_settings, &mut msg, &mut rx, || ms(30)), Step::Read { how: ReadHow::Ready, .. }));
+    m.done(&rtu_settings, Err(Error(errno::EAGAIN)));
+    assert_eq!(m.step(&rtu_settings, &mut msg, &mut rx, || ms(30)), Step::Wait { until: Some(ms(500)) });
+    m.done(&rtu_settings, Ok(0));
+    assert!(matches!(m.step(&rtu_settings, &mut msg, &mut rx, || ms(30)), Step::Read { how: ReadHow::Ready, .. }));
     msg[..rsp.len()].copy_from_slice(&rsp);
-    m.done(Ok(rsp.len()));
-    match m.step(&mut msg, &mut rx, || ms(30)) {
-        Step::Done(f) => assert_eq!(f.outcome, frame(rsp.len())),
+    m.done(&rtu_settings, Ok(rsp.len()));
+    match m.step(&rtu_settings, &mut msg, &mut rx, || ms(30)) {
+        Step::Frame(len) => assert_eq!(len, rsp.len()),
         other => panic!("{other:?}"),
     }
     // Another error of the read: reported, with its recovery.
     let mut m = Receiver::new(&link_settings, || ms(0));
-    let _ = m.step(&mut msg, &mut rx, || ms(30));
-    m.done(Ok(0));
-    let _ = m.step(&mut msg, &mut rx, || ms(30));
-    m.done(Err(Error(errno::EBADF)));
-    match m.step(&mut msg, &mut rx, || ms(30)) {
+    let _ = m.step(&link_settings, &mut msg, &mut rx, || ms(30));
+    m.done(&link_settings, Ok(0));
+    let _ = m.step(&link_settings, &mut msg, &mut rx, || ms(30));
+    m.done(&link_settings, Err(Error(errno::EBADF)));
+    match m.step(&link_settings, &mut msg, &mut rx, || ms(30)) {
         Step::Done(f) => {
             assert_eq!(f.outcome, failed(Error(errno::EBADF), "read"));
             assert_eq!(f.recovery, Recovery::Reconnect);
