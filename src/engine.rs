@@ -8,7 +8,7 @@ use crate::context::{ClientSocket, Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NON
 use crate::core::confirm::{self, Rejection};
 use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::core::request::{Request, next_tid};
-use crate::core::session::receive::{Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Step};
+use crate::core::session::receive::{self, Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Step};
 use crate::core::session::{self, Recovery, Timeout};
 use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
@@ -490,9 +490,25 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
     }
     debug_assert!(buf.len() >= ctx.framing.max_adu_length());
     prepare_session(ctx, kind);
-    let mut machine = Receiver::new(&ctx.session, transport::now);
+    // The usual first steps need no state of the receive: it is built when a step
+    // does not end the receive (see `receive::first_step`).
+    let first = if ctx.tls.is_some() { None } else { receive::first_step(&ctx.session, &ctx.rx, buf.len()) };
+    let mut machine: Option<Receiver> = None;
+    let mut started = None;
+    let mut step = match first {
+        Some(step) => {
+            if matches!(step, Step::Read { .. }) {
+                // The deadline runs from before the read, which may wait.
+                started = Some(transport::now());
+            }
+            step
+        }
+        None => {
+            let m = machine.insert(Receiver::new(&ctx.session, transport::now));
+            m.start(&ctx.session, buf, &mut ctx.rx, transport::now)
+        }
+    };
     let tls = ctx.tls.is_some();
-    let mut step = machine.start(&ctx.session, buf, &mut ctx.rx, transport::now);
     loop {
         let result = match step {
             Step::Frame(len) if !ctx.debug => return Ok(Received::Frame(len)),
@@ -503,17 +519,24 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
                 let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
                 let peeked = transport::recv(ctx.s, &mut ctx.rx.buf, flags);
                 // A whole message queued: taken at once, exactly (never a byte past it).
-                if let Ok(n) = peeked
-                    && let Some(len) = machine.whole_after_peek(&ctx.rx.buf[..n], buf.len())
-                {
+                let whole = match (&machine, peeked) {
+                    (None, Ok(n)) => receive::whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
+                    (Some(m), Ok(n)) => m.whole_after_peek(&ctx.rx.buf[..n], buf.len()),
+                    _ => None,
+                };
+                if let Some(len) = whole {
                     let read = transport::recv(ctx.s, &mut buf[..len], 0);
                     if !ctx.stopping() {
-                        step = machine.took(&ctx.session, len, read, buf, &mut ctx.rx, transport::now);
-                        if let Step::Frame(len) = step
-                            && !ctx.debug
-                        {
-                            return Ok(Received::Frame(len));
-                        }
+                        step = match &mut machine {
+                            None if matches!(read, Ok(n) if n == len) => receive::end(&ctx.session, buf, len),
+                            m => {
+                                let m = match m {
+                                    Some(m) => m,
+                                    None => m.insert(Receiver::after_first(&ctx.session, &step, transport::now())),
+                                };
+                                m.took(&ctx.session, len, read, buf, &mut ctx.rx, transport::now)
+                            }
+                        };
                         continue;
                     }
                 }
@@ -527,11 +550,18 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
             }
             step => execute(ctx, buf, step),
         };
+        let m = match &mut machine {
+            Some(m) => m,
+            None => {
+                let started = started.unwrap_or_else(transport::now);
+                machine.insert(Receiver::after_first(&ctx.session, &step, started))
+            }
+        };
         if ctx.stopping() {
-            machine.stopped();
-            step = machine.step(&ctx.session, buf, &mut ctx.rx, transport::now);
+            m.stopped();
+            step = m.step(&ctx.session, buf, &mut ctx.rx, transport::now);
         } else {
-            step = machine.next(&ctx.session, result, buf, &mut ctx.rx, transport::now);
+            step = m.next(&ctx.session, result, buf, &mut ctx.rx, transport::now);
         }
     }
 }

@@ -32,7 +32,9 @@ use core::time::Duration;
 use super::{Recovery, Timeout, Timeouts, Wait, after_bad_checksum, after_read, after_wait};
 use crate::ascii;
 use crate::error::{Error, Result, errno};
-use crate::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
+use crate::frame::{
+    Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, Rules, rtu_integrity, whole_length,
+};
 
 /// Bytes a client read past the end of the message it was assembling (or, on ASCII,
 /// characters not decoded yet). They are handed out before the line is read again,
@@ -265,6 +267,74 @@ enum Body {
     Ascii(ascii::Decoder),
 }
 
+/// The usual first steps of a receive, from its settings alone (nothing left over in
+/// `rx`, a binary framing): a socket server peeks (blocking when the indication
+/// timeout is infinite); a client socket with timed reads reads within the response
+/// timeout. `None`: the first step needs the receive's state ([`Receiver::start`]).
+/// Together with [`whole_after_peek`] and [`end`], the usual receive of a socket
+/// server ends without that state being built.
+#[inline]
+pub fn first_step(s: &Settings, rx: &ReadAhead, room: usize) -> Option<Step> {
+    if s.framing == Framing::Ascii || !rx.available().is_empty() {
+        return None;
+    }
+    if s.line.socket && s.kind == MsgKind::Indication {
+        return Some(Step::Peek { block: s.timeouts.first_wait(s.kind) == Wait::Forever });
+    }
+    if s.line.timed_reads && s.kind == MsgKind::Confirmation {
+        let to = if s.read_ahead { room } else { s.framing.header_length() + 1 };
+        return Some(Step::Read { dest: Dest::Message { from: 0, to }, how: ReadHow::Within(s.timeouts.response) });
+    }
+    None
+}
+
+/// After the peek of [`first_step`]: the length of the whole message `peeked`
+/// shows, when it shows one that fits `room`. The driver may then take exactly
+/// that message and end with [`end`] (or, if the read took less, hand the result
+/// to [`Receiver::took`]).
+#[inline]
+pub fn whole_after_peek(s: &Settings, peeked: &[u8], room: usize) -> Option<usize> {
+    // The rules `Assembler::new(..).extended_requests(..).expecting(..)` frames by.
+    let rules = Rules {
+        framing: s.framing,
+        kind: s.kind,
+        extended: s.kind == MsgKind::Confirmation || s.extended,
+        known_total: s.expecting,
+    };
+    whole_length(rules, peeked).filter(|&len| len <= room)
+}
+
+/// The step that ends a receive with the whole binary frame `msg[..len]`.
+#[inline]
+pub fn end(s: &Settings, msg: &[u8], len: usize) -> Step {
+    if s.framing == Framing::Tcp {
+        return Step::Frame(len);
+    }
+    check(s, msg, len).into_step()
+}
+
+/// The end of a binary frame `msg[..len]`: an RTU frame must have a good CRC and be
+/// for us.
+fn check(s: &Settings, msg: &[u8], len: usize) -> Finished {
+    let outcome = match s.framing {
+        Framing::Rtu => match rtu_integrity(&msg[..len], s.slave) {
+            RtuIntegrity::Ok => Outcome::Frame(len),
+            RtuIntegrity::BadCrc(received, computed) => Outcome::BadChecksum { lrc: false, received, computed },
+            RtuIntegrity::OtherSlave(theirs, ours) => Outcome::Ignored { len, theirs, ours },
+        },
+        _ => Outcome::Frame(len),
+    };
+    ended(s, outcome, len)
+}
+
+fn ended(s: &Settings, outcome: Outcome, len: usize) -> Finished {
+    let recovery = match outcome {
+        Outcome::BadChecksum { .. } => after_bad_checksum(s.recovery),
+        _ => Recovery::None,
+    };
+    Finished { outcome, recovery, traced: len, ended: true }
+}
+
 /// One receive (see the module's documentation).
 #[derive(Clone, Debug)]
 pub struct Receiver {
@@ -312,23 +382,27 @@ impl Receiver {
         self.deadline
     }
 
-    /// The first step: [`Receiver::step`], with the usual beginnings (nothing left
-    /// over from an earlier read) decided at once.
+    /// The first step: [`Receiver::step`], with the usual beginnings decided at once
+    /// (see [`first_step`]).
     #[inline]
     pub fn start(&mut self, s: &Settings, msg: &mut [u8], rx: &mut ReadAhead, now: impl FnOnce() -> Duration) -> Step {
-        if s.framing != Framing::Ascii && rx.available().is_empty() {
-            let line = s.line;
-            if line.socket && s.kind == MsgKind::Indication {
-                self.pending = Pending::Peek;
-                return Step::Peek { block: self.deadline.is_none() };
+        match first_step(s, rx, msg.len()) {
+            Some(step) => {
+                self.pending = Pending::of(&step);
+                step
             }
-            if line.timed_reads && s.kind == MsgKind::Confirmation {
-                self.pending = Pending::Read { queued: false };
-                let to = if s.read_ahead { msg.len() } else { s.framing.header_length() + 1 };
-                return Step::Read { dest: Dest::Message { from: 0, to }, how: ReadHow::Within(s.timeouts.response) };
-            }
+            None => self.step(s, msg, rx, now),
         }
-        self.step(s, msg, rx, now)
+    }
+
+    /// The receive after its first step was taken by [`first_step`] (the driver builds
+    /// this state only when that step did not end the receive): as [`Receiver::new`]
+    /// then [`Receiver::start`], the receive having started at `started`.
+    #[inline]
+    pub fn after_first(s: &Settings, first: &Step, started: Duration) -> Self {
+        let mut r = Receiver::new(s, || started);
+        r.pending = Pending::of(first);
+        r
     }
 
     /// What to do next. `msg` receives the message (at least the framing's largest
@@ -366,14 +440,14 @@ impl Receiver {
         }
         let Body::Binary(asm) = &self.body else { unreachable!() };
         let from = self.filled;
-        let end = if s.read_ahead { msg.len() } else { from + asm.wanted() };
-        let message = Dest::Message { from, to: end };
+        let to = if s.read_ahead { msg.len() } else { from + asm.wanted() };
+        let message = Dest::Message { from, to };
         let line = s.line;
         let read = |how| Step::Read { dest: message, how };
         let step = match self.line {
             LineState::Quiet => {
                 let len = asm.len();
-                return self.end(s, msg, len);
+                return end(s, msg, len);
             }
             LineState::Unknown if from == 0 && line.socket && s.kind == MsgKind::Indication => {
                 Step::Peek { block: self.deadline.is_none() }
@@ -507,7 +581,7 @@ impl Receiver {
         if matches!(result, Ok(n) if n == len) {
             self.pending = Pending::Nothing;
             self.filled = len;
-            return self.end(s, msg, len);
+            return end(s, msg, len);
         }
         self.line = LineState::Whole(len);
         self.pending = Pending::Read { queued: false };
@@ -534,7 +608,7 @@ impl Receiver {
         if let Some(len) = len {
             rx.keep(&msg[len..n]);
             self.filled = len;
-            return self.end(s, msg, len);
+            return end(s, msg, len);
         }
         self.filled = n;
         self.bytes_came();
@@ -598,7 +672,7 @@ impl Receiver {
             if let Some(len) = asm.whole(&msg[..filled]) {
                 rx.keep(&msg[len..filled]);
                 self.filled = len;
-                return Some(self.check(s, msg, len));
+                return Some(check(s, msg, len));
             }
         }
         while asm.len() < filled {
@@ -609,7 +683,7 @@ impl Receiver {
                 Ok(Progress::Complete(len)) => {
                     rx.keep(&msg[len..filled]);
                     self.filled = len;
-                    return Some(self.check(s, msg, len));
+                    return Some(check(s, msg, len));
                 }
                 Err(e) => {
                     rx.keep(&msg[start + n..filled]);
@@ -622,40 +696,6 @@ impl Receiver {
 
     /// The end of a binary frame `msg[..len]`: an RTU frame must have a good CRC and
     /// be for us.
-    /// The step that ends a receive with the binary frame `msg[..len]`.
-    #[inline]
-    fn end(&self, s: &Settings, msg: &[u8], len: usize) -> Step {
-        if s.framing == Framing::Tcp {
-            return Step::Frame(len);
-        }
-        self.check(s, msg, len).into_step()
-    }
-
-    #[inline]
-    fn check(&self, s: &Settings, msg: &[u8], len: usize) -> Finished {
-        if s.framing == Framing::Tcp {
-            return Finished { outcome: Outcome::Frame(len), recovery: Recovery::None, traced: len, ended: true };
-        }
-        let frame = &msg[..len];
-        let outcome = match s.framing {
-            Framing::Rtu => match rtu_integrity(frame, s.slave) {
-                RtuIntegrity::Ok => Outcome::Frame(len),
-                RtuIntegrity::BadCrc(received, computed) => Outcome::BadChecksum { lrc: false, received, computed },
-                RtuIntegrity::OtherSlave(theirs, ours) => Outcome::Ignored { len, theirs, ours },
-            },
-            _ => Outcome::Frame(len),
-        };
-        self.ended(s, outcome, len)
-    }
-
-    fn ended(&self, s: &Settings, outcome: Outcome, len: usize) -> Finished {
-        let recovery = match outcome {
-            Outcome::BadChecksum { .. } => after_bad_checksum(s.recovery),
-            _ => Recovery::None,
-        };
-        Finished { outcome, recovery, traced: len, ended: true }
-    }
-
     /// ASCII: characters are read into the read-ahead buffer and decoded from there
     /// (a frame ends at its delimiter, so nothing past it is taken as part of it);
     /// every read follows a wait.
@@ -711,10 +751,10 @@ impl Receiver {
         let frame = &msg[..len];
         if let Err((received, computed)) = ascii::check_lrc(frame) {
             let outcome = Outcome::BadChecksum { lrc: true, received: received as u16, computed: computed as u16 };
-            return self.ended(s, outcome, len);
+            return ended(s, outcome, len);
         }
         if frame[0] as i32 != s.slave && frame[0] != 0 {
-            return self.ended(s, Outcome::Ignored { len, theirs: frame[0], ours: s.slave }, len);
+            return ended(s, Outcome::Ignored { len, theirs: frame[0], ours: s.slave }, len);
         }
         let whole = len >= 3
             && Assembler::new(Framing::Ascii, s.kind)
@@ -728,7 +768,7 @@ impl Receiver {
             let outcome = Outcome::Failed { error: Error::BAD_DATA, site: Some("frame too short") };
             return Finished { outcome, recovery: Recovery::None, traced: len, ended: true };
         }
-        self.ended(s, Outcome::Frame(len), len)
+        ended(s, Outcome::Frame(len), len)
     }
 }
 

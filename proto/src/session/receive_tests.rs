@@ -117,13 +117,20 @@ impl Line {
         if self.at_eof() { Ok(0) } else { Ok(self.take(room)) }
     }
 
-    /// Runs one receive to its end, calling the machine as the driver does:
-    /// `start`, then `next` with each result (`stopped` and `step` for a stop).
+    /// Runs one receive to its end, calling the machine as the driver does: the
+    /// stateless `first_step` when it has one (the state is built after it, only if
+    /// it did not end the receive), else `new` and `start`; then `next` with each
+    /// result (`stopped` and `step` for a stop).
     fn run(&mut self, s: Settings, msg: &mut [u8], rx: &mut ReadAhead) -> Finished {
         let now = self.now;
-        let mut m = Receiver::new(&s, || now);
         self.settle();
-        let mut step = m.start(&s, msg, rx, || now);
+        let first = first_step(&s, rx, msg.len());
+        let mut machine: Option<Receiver> = None;
+        let mut step = match first {
+            Some(step) => step,
+            None => machine.insert(Receiver::new(&s, || now)).start(&s, msg, rx, || now),
+        };
+        let started = now;
         for n in 0..64 {
             let result = match step {
                 Step::Done(f) => return f,
@@ -139,16 +146,28 @@ impl Line {
                         match self.peek(&mut rx.buf) {
                             0 => Err(Error(errno::EAGAIN)),
                             // As the driver: a whole message queued is taken at once.
-                            n => match m.whole_after_peek(&rx.buf[..n], msg.len()) {
-                                Some(len) => {
-                                    self.log.push(format!("read 0..{len}"));
-                                    let took = self.take(&mut msg[..len]);
-                                    let now = self.now;
-                                    step = m.took(&s, len, Ok(took), msg, rx, || now);
-                                    continue;
+                            n => {
+                                let whole = match &machine {
+                                    None => whole_after_peek(&s, &rx.buf[..n], msg.len()),
+                                    Some(m) => m.whole_after_peek(&rx.buf[..n], msg.len()),
+                                };
+                                match whole {
+                                    Some(len) => {
+                                        self.log.push(format!("read 0..{len}"));
+                                        let took = self.take(&mut msg[..len]);
+                                        let now = self.now;
+                                        step =
+                                            match &mut machine {
+                                                None if took == len => end(&s, msg, len),
+                                                m => m
+                                                    .get_or_insert_with(|| Receiver::after_first(&s, &step, now))
+                                                    .took(&s, len, Ok(took), msg, rx, || now),
+                                            };
+                                        continue;
+                                    }
+                                    None => Ok(n),
                                 }
-                                None => Ok(n),
-                            },
+                            }
                         }
                     }
                 }
@@ -194,6 +213,7 @@ impl Line {
             };
             self.settle();
             let now = self.now;
+            let m = machine.get_or_insert_with(|| Receiver::after_first(&s, &step, started));
             step = if self.stop_at == Some(n) {
                 m.stopped();
                 m.step(&s, msg, rx, || now)
