@@ -16,8 +16,9 @@
 #   - faults: garbage instead of a handshake, a client that stops halfway through
 #     the handshake (the server goes on serving others), a connection cut under a
 #     client (the next connect works);
-#   - IPv6 (::1);
-#   - valgrind on the example client.
+#   - interoperability with pymodbus, both directions, IPv4 and IPv6;
+#   - AddressSanitizer (with its leak checker) on the C programs: the test client's
+#     scenarios and the example server, built with -fsanitize=address.
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
 # Usage: scripts/run-tls-tests.sh [--no-cargo]
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -190,6 +191,46 @@ start_server cut server && {
     done <"$WORK/scenario-reconnect.out"
     stop_server
 }
+
+# AddressSanitizer on both C programs: an instrumented server that exits by itself
+# after its requests (so that the leak checker runs), and the instrumented client's
+# scenarios against it.
+ASAN=(-O1 -g -fsanitize=address -fno-omit-frame-pointer)
+if gcc "${CFLAGS_W[@]}" "${ASAN[@]}" examples/tls-server.c -o "$WORK/tls-server-asan" "${LDFLAGS[@]}" &&
+    gcc "${CFLAGS_W[@]}" "${ASAN[@]}" c-tests/tls/tls-test.c c-tests/common/libinfo.c -o "$WORK/tls-test-asan" \
+        "${LDFLAGS[@]}" -ldl; then
+    ok "build tls-server and tls-test with -fsanitize=address"
+    PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+    # operator: 4 requests; reader: 4 served; norole: refused before any is served.
+    ASAN_OPTIONS=detect_leaks=1 "$WORK/tls-server-asan" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" 9 \
+        >"$WORK/asan-server.out" 2>&1 &
+    SERVER_PID=$!
+    for _ in $(seq 100); do grep -q serving "$WORK/asan-server.out" && break; sleep 0.05; done
+    for sc in operator reader nocert rogue; do
+        if ASAN_OPTIONS=detect_leaks=1 timeout 60 "$WORK/tls-test-asan" "$C" 127.0.0.1 "$PORT" "$sc" \
+            >"$WORK/asan-$sc.out" 2>&1 && ! grep -q "Sanitizer" "$WORK/asan-$sc.out"; then
+            ok "AddressSanitizer: client scenario $sc"
+        else
+            bad "AddressSanitizer: client scenario $sc" "$(grep -A3 'Sanitizer\|FAIL' "$WORK/asan-$sc.out" | head -n 8)"
+        fi
+    done
+    # Requests left before the server ends: serve them.
+    ASAN_OPTIONS=detect_leaks=1 timeout 60 "$WORK/tls-test-asan" "$C" 127.0.0.1 "$PORT" operator >/dev/null 2>&1
+    if timeout 30 tail --pid="$SERVER_PID" -f /dev/null; then
+        wait "$SERVER_PID"
+        rc=$?
+        if [ $rc -eq 0 ] && ! grep -q "Sanitizer" "$WORK/asan-server.out"; then
+            ok "AddressSanitizer: the example server, exit 0, no error, no leak"
+        else
+            bad "AddressSanitizer: the example server" "exit $rc: $(grep -A5 Sanitizer "$WORK/asan-server.out" | head -n 10)"
+        fi
+    else
+        bad "AddressSanitizer: the example server ended after its requests" "still running"
+        stop_server
+    fi
+else
+    bad "build with -fsanitize=address" ""
+fi
 
 # Interoperability with pymodbus (mutual TLS), both directions, IPv4 and IPv6: a
 # pymodbus client against our server (every libmodbus function code; a reader's
