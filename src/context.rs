@@ -238,6 +238,7 @@ impl Context {
     pub fn new_rtu_tcp(ip: Option<&CStr>, port: i32) -> Result<Context> {
         let mut ctx = Context::new_tcp(ip, port)?;
         ctx.framing = Framing::Rtu;
+        ctx.session.framing = Framing::Rtu;
         ctx.session.slave = -1;
         Ok(ctx)
     }
@@ -246,6 +247,7 @@ impl Context {
     pub fn new_rtu_tcp_pi(node: Option<&CStr>, service: Option<&CStr>) -> Result<Context> {
         let mut ctx = Context::new_tcp_pi(node, service)?;
         ctx.framing = Framing::Rtu;
+        ctx.session.framing = Framing::Rtu;
         ctx.session.slave = -1;
         Ok(ctx)
     }
@@ -380,6 +382,23 @@ mod tests {
         let mut t = Context::new_tcp(None, 502).unwrap();
         assert!(t.set_slave(0xFF).is_ok());
         assert_eq!(t.set_slave(-1), Err(Error::INVALID));
+    }
+
+    #[test]
+    fn the_session_settings_follow_the_context() {
+        let contexts = [
+            Context::new_tcp(None, 502).unwrap(),
+            Context::new_tcp_pi(None, None).unwrap(),
+            Context::new_rtu_tcp(None, 502).unwrap(),
+            Context::new_rtu_tcp_pi(None, None).unwrap(),
+            Context::new_tcp_tls(None, 802).unwrap(),
+            Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap(),
+            Context::new_ascii(Some(c"/dev/null"), 9600, b'E', 7, 1).unwrap(),
+        ];
+        for c in contexts {
+            assert_eq!(c.session.framing, c.framing);
+            assert_eq!(c.session.slave, if c.framing == Framing::Tcp { 0xFF } else { -1 });
+        }
     }
 
     #[test]

@@ -452,6 +452,7 @@ fn prepare_session(ctx: &mut Context, kind: MsgKind) {
     let confirmation = kind == MsgKind::Confirmation;
     let ignore = confirmation && ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
     let s = &mut ctx.session;
+    debug_assert_eq!(s.framing, ctx.framing, "the session's framing is the context's");
     s.kind = kind;
     s.line = LineCaps { socket, reads_without_waiting: socket || ctx.line_nonblocking, timed_reads: false };
     s.expecting = None;
