@@ -47,6 +47,15 @@ for prog in tls-server tls-client; do
 done
 check "compile c-tests/tls/tls-test.c (-Wall -Wextra -Werror)" \
     gcc "${CFLAGS_W[@]}" c-tests/tls/tls-test.c c-tests/common/libinfo.c -o "$WORK/tls-test" "${LDFLAGS[@]}" -ldl
+# The example programs print no LIBINFO line: the loader's choice, from ldd.
+for prog in tls-server tls-client; do
+    loaded=$(ldd "$WORK/$prog" 2>/dev/null | awk '/libmodbus\.so\.5/ {print $3}')
+    if [ "$(readlink -f "$loaded")" = "$(readlink -f "$LIB/libmodbus.so")" ]; then
+        ok "$prog loads target/release/libmodbus.so ($loaded)"
+    else
+        bad "$prog loads target/release/libmodbus.so" "ldd says: $loaded"
+    fi
+done
 if ! check "make the test certificates with openssl" c-tests/tls/make-certs.sh "$WORK/certs"; then
     summary
     exit 1
@@ -72,6 +81,18 @@ stop_server() {
     wait "$SERVER_PID" 2>/dev/null
 }
 
+# count_lines FILE [PREFIX]: every "PASS x"/"ok   - x" and "FAIL x"/"FAIL - x" line of
+# FILE counts as a check (named PREFIX: x)
+count_lines() {
+    local line name
+    while IFS= read -r line; do
+        case $line in
+        PASS\ * | "ok   - "*) name=${line#PASS } && name=${name#ok   - } && ok "${2:+$2: }$name" ;;
+        FAIL\ *) name=${line#FAIL } && name=${name#- } && bad "${2:+$2: }$name" "" ;;
+        esac
+    done <"$1"
+}
+
 # scenario NAME [ARGS]: runs tls-test against the server; every PASS/FAIL line counts
 scenario() {
     local name=$1
@@ -83,12 +104,7 @@ scenario() {
         ! grep -q "LIBINFO: .*target/release/libmodbus.so.*(rsmodbus" "$out"; then
         bad "$name: loaded target/release/libmodbus.so" "$(grep LIBINFO "$out")"
     fi
-    while IFS= read -r line; do
-        case $line in
-        PASS\ *) ok "${line#PASS }" ;;
-        FAIL\ *) bad "${line#FAIL }" "" ;;
-        esac
-    done <"$out"
+    count_lines "$out"
     [ $rc -eq 0 ] || bad "$name: exit status" "$rc: $(tail -n 3 "$out")"
 }
 
@@ -183,12 +199,7 @@ start_server cut server && {
     echo go >&7
     exec 7>&-
     wait "$CLIENT_PID"
-    while IFS= read -r line; do
-        case $line in
-        PASS\ *) ok "${line#PASS }" ;;
-        FAIL\ *) bad "${line#FAIL }" "" ;;
-        esac
-    done <"$WORK/scenario-reconnect.out"
+    count_lines "$WORK/scenario-reconnect.out"
     stop_server
 }
 
@@ -248,12 +259,7 @@ if "$PY" -c 'import pymodbus' 2>/dev/null; then
         shift
         timeout 60 "$@" >"$WORK/$name.out" 2>&1
         local rc=$?
-        while IFS= read -r line; do
-            case $line in
-            "ok   - "*) ok "$name: ${line#ok   - }" ;;
-            "FAIL - "*) bad "$name: ${line#FAIL - }" "" ;;
-            esac
-        done <"$WORK/$name.out"
+        count_lines "$WORK/$name.out" "$name"
         [ $rc -eq 0 ] || bad "$name: exit status" "$rc: $(tail -n 3 "$WORK/$name.out")"
     }
     for fam in 127.0.0.1 ::1; do

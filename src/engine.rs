@@ -522,7 +522,7 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
                 // A whole message queued: taken at once, exactly (never a byte past it).
                 let whole = match (&machine, peeked) {
                     (None, Ok(n)) => receive::whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
-                    (Some(m), Ok(n)) => m.whole_after_peek(&ctx.rx.buf[..n], buf.len()),
+                    (Some(m), Ok(n)) => m.whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
                     _ => None,
                 };
                 if let Some(len) = whole {

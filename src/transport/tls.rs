@@ -374,7 +374,6 @@ pub struct Session {
     /// A record that failed (decryption, a fatal alert): reported by the next read.
     failed: Option<Error>,
     role: Option<CString>,
-    resumed: bool,
     /// A server's reads stop at record boundaries (see [`RecordCut`]).
     cut: Option<RecordCut>,
 }
@@ -388,21 +387,15 @@ impl Session {
             .and_then(|chain| chain.first())
             .and_then(|c| security::role(c))
             .and_then(|r| CString::new(r).ok());
-        let resumed = matches!(conn.handshake_kind(), Some(rustls::HandshakeKind::Resumed));
         // Application data that came with the end of the handshake.
         let mut plain = Vec::new();
         let _ = conn.reader().read_to_end(&mut plain);
-        Session { conn, plain, start: 0, ended: false, failed: None, role, resumed, cut }
+        Session { conn, plain, start: 0, ended: false, failed: None, role, cut }
     }
 
     /// The role in the peer's certificate.
     pub fn role(&self) -> Option<&CStr> {
         self.role.as_deref()
-    }
-
-    /// The handshake resumed an earlier session.
-    pub fn resumed(&self) -> bool {
-        self.resumed
     }
 
     /// Plaintext is there to take, or the end or a failure to report.
@@ -520,9 +513,6 @@ pub struct Tls {
     pub settings: TlsSettings,
     pub authorize: Option<Authorize>,
     sessions: HashMap<i32, Session>,
-    /// Handshakes completed, in full and resumed (for the benchmark and tests).
-    pub full_handshakes: u64,
-    pub resumed_handshakes: u64,
 }
 
 impl Tls {
@@ -537,11 +527,6 @@ impl Tls {
     /// Keeps the session of a new connection on `fd`, replacing the session of an
     /// earlier socket that had the same number.
     pub fn insert(&mut self, fd: i32, session: Session) {
-        if session.resumed() {
-            self.resumed_handshakes += 1;
-        } else {
-            self.full_handshakes += 1;
-        }
         self.sessions.insert(fd, session);
     }
 

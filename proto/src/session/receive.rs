@@ -32,9 +32,7 @@ use core::time::Duration;
 use super::{Recovery, Timeout, Timeouts, Wait, after_bad_checksum, after_read, after_wait};
 use crate::ascii;
 use crate::error::{Error, Result, errno};
-use crate::frame::{
-    Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, Rules, rtu_integrity, whole_length,
-};
+use crate::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
 
 /// Bytes a client read past the end of the message it was assembling (or, on ASCII,
 /// characters not decoded yet). They are handed out before the line is read again,
@@ -294,14 +292,13 @@ pub fn first_step(s: &Settings, rx: &ReadAhead, room: usize) -> Option<Step> {
 /// to [`Receiver::took`]).
 #[inline]
 pub fn whole_after_peek(s: &Settings, peeked: &[u8], room: usize) -> Option<usize> {
-    // The rules `Assembler::new(..).extended_requests(..).expecting(..)` frames by.
-    let rules = Rules {
-        framing: s.framing,
-        kind: s.kind,
-        extended: s.kind == MsgKind::Confirmation || s.extended,
-        known_total: s.expecting,
-    };
-    whole_length(rules, peeked).filter(|&len| len <= room)
+    assembler(s).whole(peeked).filter(|&len| len <= room)
+}
+
+/// The assembler of a binary receive with these settings.
+#[inline]
+fn assembler(s: &Settings) -> Assembler {
+    Assembler::new(s.framing, s.kind).extended_requests(s.extended).expecting(s.expecting)
 }
 
 /// The step that ends a receive with the whole binary frame `msg[..len]`.
@@ -362,9 +359,7 @@ impl Receiver {
         };
         let body = match s.framing {
             Framing::Ascii => Body::Ascii(ascii::Decoder::with_delimiter(s.ascii_delimiter)),
-            framing => {
-                Body::Binary(Assembler::new(framing, s.kind).extended_requests(s.extended).expecting(s.expecting))
-            }
+            _ => Body::Binary(assembler(s)),
         };
         Receiver {
             body,
@@ -375,11 +370,6 @@ impl Receiver {
             pending: Pending::Nothing,
             finished: None,
         }
-    }
-
-    /// The deadline of the current wait.
-    pub fn deadline(&self) -> Option<Duration> {
-        self.deadline
     }
 
     /// The first step: [`Receiver::step`], with the usual beginnings decided at once
@@ -559,9 +549,9 @@ impl Receiver {
     /// shows one that fits `room`. The driver may then take exactly that message and
     /// report it with [`Receiver::took`] instead of reporting the peek.
     #[inline]
-    pub fn whole_after_peek(&self, peeked: &[u8], room: usize) -> Option<usize> {
+    pub fn whole_after_peek(&self, s: &Settings, peeked: &[u8], room: usize) -> Option<usize> {
         match &self.body {
-            Body::Binary(asm) if self.pending == Pending::Peek => asm.whole(peeked).filter(|&len| len <= room),
+            Body::Binary(_) if self.pending == Pending::Peek => whole_after_peek(s, peeked, room),
             _ => None,
         }
     }

@@ -149,7 +149,7 @@ impl Line {
                             n => {
                                 let whole = match &machine {
                                     None => whole_after_peek(&s, &rx.buf[..n], msg.len()),
-                                    Some(m) => m.whole_after_peek(&rx.buf[..n], msg.len()),
+                                    Some(m) => m.whole_after_peek(&s, &rx.buf[..n], msg.len()),
                                 };
                                 match whole {
                                     Some(len) => {
