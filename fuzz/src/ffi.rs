@@ -430,3 +430,222 @@ pub fn ffi_server(data: &[u8]) {
     free_context(ctx);
     drop(pair);
 }
+
+/// What the authorization callback of [`authorization`] was asked, and how it answers.
+struct Asked {
+    /// (role was NULL, unit id, function, address, nb) of every call, in order.
+    calls: Vec<(bool, c_int, c_int, c_int, c_int)>,
+    /// Bit k set: the k-th call (mod 8) is refused.
+    deny: u8,
+    /// The value a refusal returns: 0, or another value that is not 1.
+    refusal: c_int,
+}
+
+unsafe extern "C" fn decide(
+    _ctx: *mut Modbus,
+    role: *const std::ffi::c_char,
+    unit_id: c_int,
+    function: c_int,
+    address: c_int,
+    nb: c_int,
+    user_data: *mut std::ffi::c_void,
+) -> c_int {
+    // SAFETY: user_data is the `Asked` that `authorization` keeps alive for the call.
+    let asked = unsafe { &mut *user_data.cast::<Asked>() };
+    let k = asked.calls.len();
+    asked.calls.push((role.is_null(), unit_id, function, address, nb));
+    if asked.deny & (1 << (k % 8)) != 0 { asked.refusal } else { 1 }
+}
+
+/// The state a request can change: the mapping's coils and holding registers (the
+/// input tables are compared too), and the records of files 1 to 4.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct Served {
+    bits: Vec<u8>,
+    input_bits: Vec<u8>,
+    registers: Vec<u16>,
+    input_registers: Vec<u16>,
+    files: Vec<Vec<u16>>,
+}
+
+const AUTH_ITEMS: usize = 64;
+const AUTH_FILES: c_int = 4;
+const AUTH_RECORDS: c_int = 16;
+
+/// A server context (TLS or plain TCP) with files 1 to 4 of 16 records, and a mapping
+/// of 64 items per table from address 0, all with distinct values.
+fn auth_server(tls: bool, fd: c_int) -> (*mut Modbus, *mut modbus::ffi::server::modbus_mapping_t) {
+    // SAFETY: valid C strings; the returned context is checked.
+    let ctx = unsafe {
+        if tls {
+            modbus::ffi::tls::modbus_new_tcp_tls(c"127.0.0.1".as_ptr(), 802)
+        } else {
+            modbus_new_tcp(c"127.0.0.1".as_ptr(), 502)
+        }
+    };
+    assert!(!ctx.is_null());
+    let n = AUTH_ITEMS as u32;
+    let mapping = modbus_mapping_new_start_address(0, n, 0, n, 0, n, 0, n);
+    assert!(!mapping.is_null());
+    // SAFETY: live context and mapping; the tables hold AUTH_ITEMS items each.
+    unsafe {
+        assert_eq!(modbus_set_socket(ctx, fd), 0);
+        // Short, so that the sleep before a flush does not slow the fuzzer.
+        assert_eq!(modbus_set_response_timeout(ctx, 0, 1), 0);
+        let m = &*mapping;
+        for i in 0..AUTH_ITEMS {
+            *m.tab_bits.add(i) = (i % 3 == 0) as u8;
+            *m.tab_input_bits.add(i) = (i % 5 == 0) as u8;
+            *m.tab_registers.add(i) = 0x1000 + i as u16;
+            *m.tab_input_registers.add(i) = 0x2000 + i as u16;
+        }
+        for file in 1..=AUTH_FILES {
+            let values: Vec<u16> = (0..AUTH_RECORDS).map(|r| (file * 0x100 + r) as u16).collect();
+            assert_eq!(modbus_set_file_record(ctx, file, 0, AUTH_RECORDS, values.as_ptr()), AUTH_RECORDS);
+        }
+    }
+    (ctx, mapping)
+}
+
+fn served(ctx: *mut Modbus, mapping: *mut modbus::ffi::server::modbus_mapping_t) -> Served {
+    // SAFETY: live mapping whose tables hold AUTH_ITEMS items; live context.
+    unsafe {
+        let m = &*mapping;
+        let files = (1..=AUTH_FILES)
+            .map(|file| {
+                let mut records = vec![0u16; AUTH_RECORDS as usize];
+                assert_eq!(modbus_get_file_record(ctx, file, 0, AUTH_RECORDS, records.as_mut_ptr()), AUTH_RECORDS);
+                records
+            })
+            .collect();
+        Served {
+            bits: std::slice::from_raw_parts(m.tab_bits, AUTH_ITEMS).to_vec(),
+            input_bits: std::slice::from_raw_parts(m.tab_input_bits, AUTH_ITEMS).to_vec(),
+            registers: std::slice::from_raw_parts(m.tab_registers, AUTH_ITEMS).to_vec(),
+            input_registers: std::slice::from_raw_parts(m.tab_input_registers, AUTH_ITEMS).to_vec(),
+            files,
+        }
+    }
+}
+
+/// `authorization`: the server's authorization path through the C API
+/// (`modbus_set_tls_authorization`, `modbus_reply`) on a Modbus/TCP Security context.
+/// Layout: `[deny mask][refusal][unit id][request PDU...]`.
+///
+/// The same request goes to a TLS server context, whose callback refuses the calls
+/// the deny mask picks, and to a plain TCP context with the same mapping and files.
+/// Checked:
+/// - every call is given the request's function code and unit id, and a NULL role
+///   (the socket has no TLS session: no certificate);
+/// - a refused request changes nothing (mapping, files), and its exception cannot
+///   go out as plaintext: modbus_reply fails with EMBTLS and nothing reaches the peer;
+/// - an allowed request changes exactly what the plain server changes, and each
+///   coil, register or file record it changed lies in a range the callback allowed
+///   for a function code that writes that table (a request cannot write past what
+///   it was authorized for);
+/// - calls stop at the first refusal.
+pub fn authorization(data: &[u8]) {
+    let mut c = Cursor::new(data);
+    let deny = c.u8();
+    let refusal = match c.u8() % 3 {
+        0 => 0,
+        1 => 2,
+        _ => -1,
+    };
+    let unit = c.u8();
+    let pdu = &c.rest()[..c.rest().len().min(253)];
+    let mut adu = vec![0x12, 0x34, 0, 0];
+    adu.extend_from_slice(&((pdu.len() + 1) as u16).to_be_bytes());
+    adu.push(unit);
+    adu.extend_from_slice(pdu);
+
+    let tls_pair = Pair::with_bytes(&[]);
+    let plain_pair = Pair::with_bytes(&[]);
+    let (tls, tls_map) = auth_server(true, tls_pair.ours);
+    let (plain, plain_map) = auth_server(false, plain_pair.ours);
+    let before = served(tls, tls_map);
+    assert_eq!(before, served(plain, plain_map));
+    let mut asked = Asked { calls: Vec::new(), deny, refusal };
+    let mut req = adu.clone();
+    // SAFETY: live contexts and mappings; `asked` outlives every call that can reach
+    // the callback (it is unset before `asked` goes away); `req` holds the ADU.
+    let (rc, e) = unsafe {
+        assert_eq!(
+            modbus::ffi::tls::modbus_set_tls_authorization(
+                tls,
+                Some(decide),
+                (&raw mut asked).cast::<std::ffi::c_void>()
+            ),
+            0
+        );
+        modbus::transport::set_errno(0);
+        let rc = modbus_reply(tls, req.as_mut_ptr(), req.len() as c_int, tls_map);
+        let e = errno();
+        assert_eq!(modbus::ffi::tls::modbus_set_tls_authorization(tls, None, std::ptr::null_mut()), 0);
+        (rc, e)
+    };
+    let after = served(tls, tls_map);
+    let function = pdu.first().copied().unwrap_or(0) as c_int;
+    assert!(!asked.calls.is_empty(), "the callback was not asked");
+    for &(role_null, u, f, address, nb) in &asked.calls {
+        assert!(role_null, "a role without a certificate");
+        assert_eq!((u, f), (unit as c_int, function), "unit or function code");
+        assert!((0..=0xFFFF).contains(&address) && (0..=0xFFFF).contains(&nb), "range {address} {nb}");
+    }
+    let refused = asked.calls.iter().enumerate().position(|(k, _)| deny & (1 << (k % 8)) != 0);
+    if let Some(k) = refused {
+        assert_eq!(k + 1, asked.calls.len(), "calls after a refusal");
+        assert_eq!(after, before, "a refused request changed the server's data");
+        assert_eq!((rc, e), (-1, modbus::error::EMBTLS), "the refusal's exception on a socket without a session");
+    } else {
+        let mut preq = adu.clone();
+        // SAFETY: live context and mapping; `preq` holds the ADU.
+        let prc = unsafe { modbus_reply(plain, preq.as_mut_ptr(), preq.len() as c_int, plain_map) };
+        assert_eq!(after, served(plain, plain_map), "an allowed request served unlike plain TCP");
+        if prc > 0 {
+            assert_eq!((rc, e), (-1, modbus::error::EMBTLS), "an answer on a socket without a session");
+        }
+        let allowed = |writes: &[c_int], at: usize| {
+            asked.calls.iter().any(|&(_, _, f, address, nb)| {
+                writes.contains(&f) && (address as usize..address as usize + nb as usize).contains(&at)
+            })
+        };
+        for i in 0..AUTH_ITEMS {
+            if after.bits[i] != before.bits[i] {
+                assert!(allowed(&[0x05, 0x0F], i), "coil {i} changed outside the authorized ranges");
+            }
+            if after.registers[i] != before.registers[i] {
+                // FC 0x17 asks about the written range first: the only one it writes.
+                let by_17 = function == 0x17 && {
+                    let (_, _, _, address, nb) = asked.calls[0];
+                    (address as usize..address as usize + nb as usize).contains(&i)
+                };
+                assert!(allowed(&[0x06, 0x10, 0x16], i) || by_17, "register {i} changed outside the authorized ranges");
+            }
+        }
+        assert_eq!(after.input_bits, before.input_bits);
+        assert_eq!(after.input_registers, before.input_registers);
+        for (k, (a, b)) in after.files.iter().zip(&before.files).enumerate() {
+            if a != b {
+                let file = k as c_int + 1;
+                assert!(
+                    asked.calls.iter().any(|&(_, _, f, address, _)| f == 0x15 && address == file),
+                    "file {file} written without being asked about"
+                );
+            }
+        }
+    }
+    // Nothing went out in plaintext on the TLS context's socket.
+    let mut probe = [0u8; 1];
+    // SAFETY: reading into a live one-byte buffer from our own socket.
+    let n = unsafe { libc::recv(tls_pair.peer, probe.as_mut_ptr().cast(), 1, libc::MSG_DONTWAIT) };
+    assert!(n < 0 && errno() == libc::EAGAIN, "the TLS context wrote plaintext ({n})");
+    // SAFETY: allocated above, freed once.
+    unsafe {
+        modbus_mapping_free(tls_map);
+        modbus_mapping_free(plain_map);
+    }
+    free_context(tls);
+    free_context(plain);
+    drop((tls_pair, plain_pair));
+}

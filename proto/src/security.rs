@@ -7,7 +7,8 @@
 //!   certificate: the certificate's signature and chain are the TLS library's
 //!   business, checked before this is asked.
 //! - [`access`] says what a request asks for, as the authorization callback is
-//!   given it: function code, and an address and a count (two ranges for FC 0x17).
+//!   given it: function code, and ranges of an address and a count (two for FC
+//!   0x17, one per sub-request for file records).
 
 use crate::fc;
 
@@ -97,57 +98,77 @@ pub struct Range {
 }
 
 /// What a request asks for, for the authorization callback: its function code and
-/// the ranges it touches (FC 0x17 writes one range and reads another: the written
-/// one comes first). A request that names no range (FC 07, 0B, 0C, 11, unknown
-/// codes) has one with address 0 and nb 0. Bytes missing from a short request read
-/// as 0 (the server refuses the request afterwards, if allowed).
+/// the ranges it touches, in the order they are asked about ([`Access::ranges`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Access {
+pub struct Access<'a> {
     pub function: u8,
-    pub ranges: [Option<Range>; 2],
+    pdu: &'a [u8],
 }
 
-impl Access {
-    /// The ranges, in the order they are asked about.
-    pub fn ranges(&self) -> impl Iterator<Item = Range> + '_ {
-        self.ranges.iter().flatten().copied()
-    }
-}
-
-/// What the request PDU `pdu` (function code first) asks for:
+/// What the request PDU `pdu` (function code first) asks for. Its ranges:
 /// - reads and multiple writes (01-04, 0F, 10): the start address and the count;
 /// - single writes and mask write (05, 06, 16): the address, count 1;
 /// - 17: the written registers, then the read ones;
 /// - diagnostics (08): the sub-function as the address, count 0;
-/// - file records (14, 15): the first sub-request's file number and record length;
+/// - file records (14, 15): each sub-request's file number and record length, in
+///   the request's order (a server serves every sub-request, so every one is asked
+///   about: asking about the first alone would let a second one through);
 /// - FIFO (18): the FIFO pointer address, count 0;
-/// - device identification (2B): the object id, count 0.
-pub fn access(pdu: &[u8]) -> Access {
-    let word = |at: usize| match pdu.get(at..at + 2) {
-        Some(&[hi, lo]) => u16::from_be_bytes([hi, lo]),
-        _ => 0,
-    };
-    let byte = |at: usize| pdu.get(at).copied().unwrap_or(0) as u16;
-    let function = pdu.first().copied().unwrap_or(0);
-    let range = |address, nb| Some(Range { address, nb });
-    let ranges = match function {
-        fc::READ_COILS
-        | fc::READ_DISCRETE_INPUTS
-        | fc::READ_HOLDING_REGISTERS
-        | fc::READ_INPUT_REGISTERS
-        | fc::WRITE_MULTIPLE_COILS
-        | fc::WRITE_MULTIPLE_REGISTERS => [range(word(1), word(3)), None],
-        fc::WRITE_SINGLE_COIL | fc::WRITE_SINGLE_REGISTER | fc::MASK_WRITE_REGISTER => [range(word(1), 1), None],
-        fc::WRITE_AND_READ_REGISTERS => [range(word(5), word(7)), range(word(1), word(3))],
-        fc::DIAGNOSTICS => [range(word(1), 0), None],
-        // Byte count, then reference type, file number, record number, record length.
-        fc::READ_FILE_RECORD | fc::WRITE_FILE_RECORD => [range(word(3), word(7)), None],
-        fc::READ_FIFO_QUEUE => [range(word(1), 0), None],
-        // MEI type, read device id code, object id.
-        fc::ENCAPSULATED_INTERFACE => [range(byte(3), 0), None],
-        _ => [range(0, 0), None],
-    };
-    Access { function, ranges }
+/// - device identification (2B): the object id, count 0;
+/// - any other code (07, 0B, 0C, 11, unknown): address 0 and count 0.
+///
+/// Every request has at least one range. Bytes missing from a short request read as
+/// 0 (the server refuses the request afterwards, if allowed).
+pub fn access(pdu: &[u8]) -> Access<'_> {
+    Access { function: pdu.first().copied().unwrap_or(0), pdu }
+}
+
+impl<'a> Access<'a> {
+    /// The ranges, in the order they are asked about (see [`access`]).
+    pub fn ranges(&self) -> impl Iterator<Item = Range> + 'a {
+        let pdu = self.pdu;
+        let word = move |at: usize| match pdu.get(at..at + 2) {
+            Some(&[hi, lo]) => u16::from_be_bytes([hi, lo]),
+            _ => 0,
+        };
+        let byte = |at: usize| pdu.get(at).copied().unwrap_or(0) as u16;
+        let range = |address, nb| Some(Range { address, nb });
+        let fixed = match self.function {
+            fc::READ_COILS
+            | fc::READ_DISCRETE_INPUTS
+            | fc::READ_HOLDING_REGISTERS
+            | fc::READ_INPUT_REGISTERS
+            | fc::WRITE_MULTIPLE_COILS
+            | fc::WRITE_MULTIPLE_REGISTERS => [range(word(1), word(3)), None],
+            fc::WRITE_SINGLE_COIL | fc::WRITE_SINGLE_REGISTER | fc::MASK_WRITE_REGISTER => [range(word(1), 1), None],
+            fc::WRITE_AND_READ_REGISTERS => [range(word(5), word(7)), range(word(1), word(3))],
+            fc::DIAGNOSTICS => [range(word(1), 0), None],
+            fc::READ_FILE_RECORD | fc::WRITE_FILE_RECORD => [None, None],
+            fc::READ_FIFO_QUEUE => [range(word(1), 0), None],
+            // MEI type, read device id code, object id.
+            fc::ENCAPSULATED_INTERFACE => [range(byte(3), 0), None],
+            _ => [range(0, 0), None],
+        };
+        // File records: after the byte count, sub-requests of reference type, file
+        // number, record number and record length; a write's carries its records too.
+        let data_per_record = match self.function {
+            fc::READ_FILE_RECORD => Some(0),
+            fc::WRITE_FILE_RECORD => Some(2),
+            _ => None,
+        };
+        let mut at = 2;
+        let subs = core::iter::from_fn(move || {
+            let per = data_per_record?;
+            // The first is asked about even when cut short; others only when whole.
+            if at != 2 && at + 7 > pdu.len() {
+                return None;
+            }
+            let (file, nb) = (word(at + 1), word(at + 5));
+            at += 7 + per * nb as usize;
+            range(file, nb)
+        });
+        fixed.into_iter().flatten().chain(subs)
+    }
 }
 
 /// Where the TLS record being read ends, so that a server never takes bytes of the
@@ -340,31 +361,62 @@ mod tests {
 
     #[test]
     fn what_requests_ask_for() {
-        let r = |address, nb| Some(Range { address, nb });
-        type Case<'a> = (&'a [u8], u8, [Option<Range>; 2]);
+        let r = |address, nb| Range { address, nb };
+        let asked = |pdu: &[u8]| {
+            let a = access(pdu);
+            (a.function, a.ranges().collect::<Vec<_>>())
+        };
+        type Case<'a> = (&'a [u8], u8, &'a [Range]);
         let cases: [Case; 12] = [
-            (&[0x03, 0x00, 0x10, 0x00, 0x7D], 0x03, [r(16, 125), None]),
-            (&[0x01, 0x01, 0x00, 0x07, 0xD0], 0x01, [r(256, 2000), None]),
-            (&[0x06, 0x00, 0x05, 0x12, 0x34], 0x06, [r(5, 1), None]),
-            (&[0x05, 0x00, 0x05, 0xFF, 0x00], 0x05, [r(5, 1), None]),
-            (&[0x10, 0x00, 0x02, 0x00, 0x02, 0x04, 0, 1, 0, 2], 0x10, [r(2, 2), None]),
-            (&[0x16, 0x00, 0x04, 0xF2, 0x00, 0x00, 0x25], 0x16, [r(4, 1), None]),
-            (&[0x17, 0x00, 0x01, 0x00, 0x02, 0x00, 0x09, 0x00, 0x01, 0x02, 0, 7], 0x17, [r(9, 1), r(1, 2)]),
-            (&[0x08, 0x00, 0x0A, 0x00, 0x00], 0x08, [r(10, 0), None]),
-            (&[0x14, 0x07, 0x06, 0x00, 0x04, 0x00, 0x01, 0x00, 0x02], 0x14, [r(4, 2), None]),
-            (&[0x18, 0x04, 0xDE], 0x18, [r(0x04DE, 0), None]),
-            (&[0x2B, 0x0E, 0x04, 0x81], 0x2B, [r(0x81, 0), None]),
-            (&[0x07], 0x07, [r(0, 0), None]),
+            (&[0x03, 0x00, 0x10, 0x00, 0x7D], 0x03, &[r(16, 125)]),
+            (&[0x01, 0x01, 0x00, 0x07, 0xD0], 0x01, &[r(256, 2000)]),
+            (&[0x06, 0x00, 0x05, 0x12, 0x34], 0x06, &[r(5, 1)]),
+            (&[0x05, 0x00, 0x05, 0xFF, 0x00], 0x05, &[r(5, 1)]),
+            (&[0x10, 0x00, 0x02, 0x00, 0x02, 0x04, 0, 1, 0, 2], 0x10, &[r(2, 2)]),
+            (&[0x16, 0x00, 0x04, 0xF2, 0x00, 0x00, 0x25], 0x16, &[r(4, 1)]),
+            (&[0x17, 0x00, 0x01, 0x00, 0x02, 0x00, 0x09, 0x00, 0x01, 0x02, 0, 7], 0x17, &[r(9, 1), r(1, 2)]),
+            (&[0x08, 0x00, 0x0A, 0x00, 0x00], 0x08, &[r(10, 0)]),
+            (&[0x14, 0x07, 0x06, 0x00, 0x04, 0x00, 0x01, 0x00, 0x02], 0x14, &[r(4, 2)]),
+            (&[0x18, 0x04, 0xDE], 0x18, &[r(0x04DE, 0)]),
+            (&[0x2B, 0x0E, 0x04, 0x81], 0x2B, &[r(0x81, 0)]),
+            (&[0x07], 0x07, &[r(0, 0)]),
         ];
         for (pdu, function, ranges) in cases {
-            assert_eq!(access(pdu), Access { function, ranges }, "{pdu:02X?}");
+            assert_eq!(asked(pdu), (function, ranges.to_vec()), "{pdu:02X?}");
         }
         // Short requests read missing bytes as 0, never past the end.
-        assert_eq!(access(&[0x03, 0x00]), Access { function: 3, ranges: [r(0, 0), None] });
-        assert_eq!(access(&[]), Access { function: 0, ranges: [r(0, 0), None] });
-        assert_eq!(
-            access(&[0x17, 0, 1, 0, 2]).ranges().collect::<Vec<_>>(),
-            [Range { address: 0, nb: 0 }, Range { address: 1, nb: 2 }]
-        );
+        assert_eq!(asked(&[0x03, 0x00]), (3, vec![r(0, 0)]));
+        assert_eq!(asked(&[]), (0, vec![r(0, 0)]));
+        assert_eq!(asked(&[0x17, 0, 1, 0, 2]), (0x17, vec![r(0, 0), r(1, 2)]));
+        assert_eq!(asked(&[0x14]), (0x14, vec![r(0, 0)]));
+        assert_eq!(asked(&[0x15, 9, 6, 0, 3]), (0x15, vec![r(3, 0)]));
+    }
+
+    #[test]
+    fn every_file_record_sub_request_is_asked_about() {
+        let r = |address, nb| Range { address, nb };
+        // Read: file 4 records 1-2, file 9 record 0 (3 records), file 1 (1 record).
+        let read = [
+            0x14, 21, 6, 0, 4, 0, 1, 0, 2, 6, 0, 9, 0, 0, 0, 3, 6, 0, 1, 0, 0, 0, 1, //
+        ];
+        assert_eq!(access(&read).ranges().collect::<Vec<_>>(), [r(4, 2), r(9, 3), r(1, 1)]);
+        // Write: file 1 record 0 (1 record), then file 2 record 5 (2 records): the
+        // second sub-request, after the first one's data, is asked about too.
+        let write = [
+            0x15, 20, 6, 0, 1, 0, 0, 0, 1, 0xAA, 0xBB, 6, 0, 2, 0, 5, 0, 2, 1, 2, 3, 4, //
+        ];
+        assert_eq!(access(&write).ranges().collect::<Vec<_>>(), [r(1, 1), r(2, 2)]);
+        // A sub-request cut short after a whole one is not (the server refuses the
+        // request); a record length running past the end ends the walk.
+        assert_eq!(access(&write[..write.len() - 6]).ranges().count(), 1);
+        assert_eq!(access(&[0x15, 9, 6, 0, 1, 0, 0, 0xFF, 0xFF, 0, 0]).ranges().count(), 1);
+        // The most a PDU holds: 35 read sub-requests, each asked about.
+        let mut most = vec![0x14, 245];
+        for k in 0..35u8 {
+            most.extend_from_slice(&[6, 0, k, 0, 0, 0, 1]);
+        }
+        let asked: Vec<_> = access(&most).ranges().collect();
+        assert_eq!(asked.len(), 35);
+        assert!(asked.iter().enumerate().all(|(k, a)| *a == r(k as u16, 1)));
     }
 }
