@@ -3,9 +3,15 @@
  *
  *   bench-client tcp PORT CASE (-n COUNT | -t SECONDS) [-w WARMUP]
  *   bench-client rtu DEVICE CASE (-n COUNT | -t SECONDS) [-w WARMUP]
+ *   bench-client tls PORT CASE ...  Modbus/TCP Security (rsmodbus only; certificates
+ *                                   from MB_TLS_CA, MB_TLS_CERT, MB_TLS_KEY)
  *
  * CASE: r125 (read 125 registers), c2000 (read 2000 coils), w123 (write 123
- * registers), wr121 (write 121 and read 125 registers, FC 23), r1 (read 1 register).
+ * registers), wr121 (write 121 and read 125 registers, FC 23), r1 (read 1 register);
+ * conn: a new connection per transaction (close, connect, read 1 register; over TLS
+ * the handshake resumes the session of the connection before), conn-full (TLS only):
+ * the same with a full handshake every time (a TLS setting set again, to its own
+ * value, drops the context's configurations and with them the session to resume).
  * Prints "RESULT case=... tx=N secs=S tps=T errors=0". Exits 1 on any failed
  * transaction (a benchmark that fails is not a result). With BENCH_COUNTER set, a
  * timed run takes part in an interleaved measurement (bench-counter.h).
@@ -66,12 +72,34 @@ static int r1(modbus_t *ctx)
     return modbus_read_registers(ctx, 0, 1, regs) == 1 ? 0 : -1;
 }
 
+/* A new connection for one transaction. */
+static int conn(modbus_t *ctx)
+{
+    modbus_close(ctx);
+    return modbus_connect(ctx) == 0 ? r1(ctx) : -1;
+}
+
+/* The same over TLS, with no session to resume. */
+static int conn_full(modbus_t *ctx)
+{
+    static const struct mbt_tls_api *tls;
+    if (tls == NULL && (tls = mbt_tls_api("bench-client")) == NULL) {
+        return -1;
+    }
+    modbus_close(ctx);
+    if (tls->set_min_version(ctx, 0x0303 /* MODBUS_TLS_1_2, the default */) != 0) {
+        return -1;
+    }
+    return modbus_connect(ctx) == 0 ? r1(ctx) : -1;
+}
+
 static case_fn case_named(const char *c)
 {
     static const struct {
         const char *name;
         case_fn fn;
-    } cases[] = {{"r125", r125}, {"c2000", c2000}, {"w123", w123}, {"wr121", wr121}, {"r1", r1}};
+    } cases[] = {{"r125", r125}, {"c2000", c2000}, {"w123", w123}, {"wr121", wr121}, {"r1", r1},
+                 {"conn", conn}, {"conn-full", conn_full}};
     for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
         if (strcmp(c, cases[i].name) == 0) {
             return cases[i].fn;
@@ -91,7 +119,7 @@ int main(int argc, char **argv)
     volatile uint64_t *counter = bench_counter_open();
 
     if (argc < 4) {
-        fprintf(stderr, "usage: %s tcp PORT|rtu DEVICE CASE (-n COUNT | -t SECONDS) [-w WARMUP]\n", argv[0]);
+        fprintf(stderr, "usage: %s tcp|tls PORT|rtu DEVICE CASE (-n COUNT | -t SECONDS) [-w WARMUP]\n", argv[0]);
         return 2;
     }
     cs = argv[3];
@@ -112,9 +140,16 @@ int main(int argc, char **argv)
     for (i = 0; i < 256; i++) {
         wregs[i] = (uint16_t) (i * 3);
     }
+    if (one == conn_full && strcmp(argv[1], "tls") != 0) {
+        fprintf(stderr, "conn-full: TLS only\n");
+        return 2;
+    }
     ctx = mbt_connect("bench-client", argv[1], argv[2]);
     if (ctx == NULL) {
         return 1;
+    }
+    if (getenv("MB_DEBUG") != NULL) {
+        modbus_set_debug(ctx, TRUE);
     }
     /* Long enough for the pauses of an interleaved measurement. */
     modbus_set_response_timeout(ctx, 10, 0);

@@ -36,7 +36,10 @@ OURS_DIR = os.environ.get("BENCH_OURS_DIR", os.path.join(ROOT, "target", "releas
 RESULTS = os.environ.get("BENCH_RESULTS", os.path.join(BUILD, "results.md"))  # the report's copy
 QUICK = os.environ.get("BENCH_QUICK", "0") == "1"
 CASES = os.environ.get("BENCH_CASES", "r125 c2000 w123 wr121 r1").split()
-TRANSPORTS = os.environ.get("BENCH_TRANSPORTS", "tcp rtu").split()
+TRANSPORTS = os.environ.get("BENCH_TRANSPORTS", "tcp rtu tls").split()
+# Modbus/TCP Security (transport "tls", ours only: Debian's libmodbus has no TLS):
+# these cases against plain TCP of the same library, then new connections per second.
+TLS_CASES = os.environ.get("BENCH_TLS_CASES", "r125" if QUICK else "r125 r1").split()
 # Every pairing of a case runs SECONDS in all, in slices of SLICE seconds taking turns
 # with the others (see interleaved()).
 SECONDS = float(os.environ.get("BENCH_SECONDS", "0.6" if QUICK else "10"))
@@ -55,6 +58,7 @@ CASE_TITLES = {
     "w123": "write 123 registers",
     "wr121": "write 121 + read 125 (FC 23)",
     "r1": "read 1 register",
+    "conn": "new connection + read 1 register",
 }
 
 STALLS = []  # per case, the slices of each pairing at under half its median rate
@@ -96,9 +100,35 @@ DD, OD, DO, OO, FLOOR, WAIT = ("debian", "debian"), ("ours", "debian"), ("debian
     (None, None), ("wait", None)
 PEEK, TIMEOUT = ("peek", None), ("timeout", None)  # the bare floor plus one of the waiting floor's waits
 DATA = ("data", None)  # the waiting floor plus the conversions of the values (FLOOR_DATA=1)
+# Modbus/TCP Security, ours/ours: over TLS; and with a full handshake per new connection
+# (bench-client's case conn-full instead of conn, whose handshakes resume).
+TLS, TLS_FULL = ("tls", "ours"), ("tls-full", "ours")
 PAIRING_NAMES = {DD: "Debian/Debian", OD: "ours/Debian", DO: "Debian/ours", OO: "ours/ours",
                  FLOOR: "bare floor", WAIT: "waiting floor", PEEK: "floor + peek", TIMEOUT: "floor + timeout",
-                 DATA: "data floor"}
+                 DATA: "data floor", TLS: "TLS ours/ours", TLS_FULL: "TLS ours/ours, full handshakes"}
+TLS_CERTS = None  # the directory of c-tests/tls/make-certs.sh's certificates, once made
+
+
+def tls_certs():
+    """The test certificates, made anew once per run with openssl (in target/bench/tls-certs)."""
+    global TLS_CERTS
+    if TLS_CERTS is None:
+        d = os.path.join(BUILD, "tls-certs")
+        shutil.rmtree(d, ignore_errors=True)
+        subprocess.run(["bash", os.path.join(ROOT, "c-tests", "tls", "make-certs.sh"), d], check=True,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        TLS_CERTS = d
+    return TLS_CERTS
+
+
+def with_tls(env, transport, side):
+    """env plus the certificates of `side` ("client": role Operator; "server") on TLS."""
+    if transport == "tls":
+        d = tls_certs()
+        name = "operator" if side == "client" else "server"
+        env = dict(env, MB_TLS_CA=os.path.join(d, "ca.pem"), MB_TLS_CERT=os.path.join(d, f"{name}.pem"),
+                   MB_TLS_KEY=os.path.join(d, f"{name}.key"))
+    return env
 
 
 def tps_line(tps):
@@ -131,6 +161,9 @@ class Pairing:
 
     def _start(self, transport, case, combo, counter_path, limit_s):
         client_lib, server_lib = combo
+        if combo in (TLS, TLS_FULL):
+            transport, client_lib = "tls", server_lib
+            case = "conn-full" if combo == TLS_FULL else case
         self.client_lib = client_lib
         self.line = PtyPair("mbbench-", 2) if transport == "rtu" else None
         with open(counter_path, "wb") as f:
@@ -140,7 +173,8 @@ class Pairing:
             self.counter = mmap.mmap(fd, 16)
         finally:
             os.close(fd)
-        where = "0" if transport == "tcp" else self.line.a
+        net = transport != "rtu"
+        where = "0" if net else self.line.a
         if server_lib is None:
             # A floor: client_lib None is the bare one, else the waits it makes.
             env = dict(os.environ,
@@ -152,11 +186,10 @@ class Pairing:
             ccmd = [bin_("bench-floor"), "client", "tcp" if transport == "tcp" else "pty",
                     addr if transport == "tcp" else self.line.b, case, str(limit_s)]
         else:
-            self.srv = start([bin_("mb-server"), transport, where], env_for(server_lib))
+            self.srv = start([bin_("mb-server"), transport, where], with_tls(env_for(server_lib), transport, "server"))
             addr = wait_ready(self.srv, "server", 30, server_lib)
-            env = dict(env_for(client_lib), BENCH_COUNTER=counter_path)
-            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else self.line.b, case,
-                    "-t", str(limit_s)]
+            env = dict(with_tls(env_for(client_lib), transport, "client"), BENCH_COUNTER=counter_path)
+            ccmd = [bin_("bench-client"), transport, addr if net else self.line.b, case, "-t", str(limit_s)]
         self.client = start(ccmd, env)
         # Running once its count moves: connected, warmed up, in its timed loop.
         deadline = time.monotonic() + 60
@@ -397,34 +430,36 @@ def callgrind_costs(path):
     return {"total": total, "lib": lib}
 
 
-def cost_run(metric, side, transport, case, lib, n, warm=20):
+def cost_run(metric, side, transport, case, lib, n, warm=20, peer="debian"):
     """Runs `side` (client or server) with `lib` under the metric's tool for n
-    transactions against a Debian peer; returns the parsed counts."""
+    transactions against a `peer` (Debian's library by default); returns the parsed counts."""
     tmp = tempfile.mkdtemp(prefix="mbcost-")
     out = os.path.join(tmp, "out")
     line = PtyPair("mbbench-", 2) if transport == "rtu" else None
+    net = transport != "rtu"
     try:
         prefix = tool_prefix(metric, out)
         def measured_env():
-            e = env_for(lib)
+            e = with_tls(env_for(lib), transport, side)
             if metric == "allocs":
                 e["LD_PRELOAD"] = bin_("alloc-count.so")
                 e["ALLOC_COUNT_OUT"] = out
             return e
         if side == "client":
-            srv = start([bin_("mb-server"), transport, "0" if transport == "tcp" else line.a], env_for("debian"))
-            addr = wait_ready(srv, "server", 30, "debian")
-            ccmd = prefix + [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case,
+            srv = start([bin_("mb-server"), transport, "0" if net else line.a],
+                        with_tls(env_for(peer), transport, "server"))
+            addr = wait_ready(srv, "server", 30, peer)
+            ccmd = prefix + [bin_("bench-client"), transport, addr if net else line.b, case,
                              "-n", str(n), "-w", str(warm)]
             run_client(ccmd, measured_env(), f"{metric} client", timeout=600)
             stop(srv)
         else:
-            scmd = prefix + [bin_("mb-server"), transport, "0" if transport == "tcp" else line.a, str(n + warm)]
+            scmd = prefix + [bin_("mb-server"), transport, "0" if net else line.a, str(n + warm)]
             srv = start(scmd, measured_env())
             addr = wait_ready(srv, f"{metric} server", 120)
-            ccmd = [bin_("bench-client"), transport, addr if transport == "tcp" else line.b, case,
+            ccmd = [bin_("bench-client"), transport, addr if net else line.b, case,
                     "-n", str(n), "-w", str(warm)]
-            run_client(ccmd, env_for("debian"), "client", "debian", timeout=600)
+            run_client(ccmd, with_tls(env_for(peer), transport, "client"), "client", peer, timeout=600)
             # It exits by itself after n + warm replies; its counts are written at exit.
             if wait_output(srv, 600) is None:
                 raise RuntimeError(f"{metric} server: did not exit within 600 s of its last reply (stopped)")
@@ -438,10 +473,10 @@ def cost_run(metric, side, transport, case, lib, n, warm=20):
 METRIC_N = {"strace": 1000, "callgrind": 300, "allocs": 1000}
 
 
-def per_tx(metric, side, transport, case, lib):
+def per_tx(metric, side, transport, case, lib, peer="debian"):
     n = METRIC_N[metric] // (2 if QUICK else 1)
-    a = cost_run(metric, side, transport, case, lib, n)
-    b = cost_run(metric, side, transport, case, lib, 2 * n)
+    a = cost_run(metric, side, transport, case, lib, n, peer=peer)
+    b = cost_run(metric, side, transport, case, lib, 2 * n, peer=peer)
     keys = set(a) | set(b)
     return {k: (b.get(k, 0) - a.get(k, 0)) / n for k in keys}
 
@@ -499,9 +534,9 @@ def throughput_verdict(target, ours, waiting, bare, share_of_waiting):
     return "NOT MET", f"ours {ours:.3f}x, waiting floor {waiting:.3f}x, ours {share_of_waiting:.1%} of it"
 
 
-def verdicts(results, costs):
-    """Each target against this run's measurements, and a closing count."""
-    rows = []
+def verdicts(results, costs, rows):
+    """Each target against this run's measurements (plus `rows`, judged already), and a closing count."""
+    rows = list(rows)
     for (transport, case), run in results.items():
         title = f"{transport.upper()} {CASE_TITLES[case]}"
         target = TCP_RATIO if transport == "tcp" else RTU_RATIO
@@ -569,7 +604,7 @@ def main():
                  f"are the same binaries, only LD_LIBRARY_PATH differs. RTU runs over a socat pty pair.\n")
 
     results = {}
-    for transport in TRANSPORTS if THROUGHPUT else []:
+    for transport in [t for t in TRANSPORTS if t != "tls"] if THROUGHPUT else []:
         combos = [DD, OD, DO, OO, FLOOR, WAIT] + ([DATA] if transport == "tcp" else []) \
             + ([PEEK, TIMEOUT] if transport == "tcp" and FLOOR_PARTS else [])
         # In random orders a client may run first in one cycle and last in the next.
@@ -642,7 +677,7 @@ def main():
         lines.append("\nSlow slices (at under half their pairing's median rate; when the floors have them too, "
                      "the machine or the pty caused them, not a library):\n")
         lines.extend(f"- {s}" for s in STALLS)
-    if METRICS:
+    if METRICS and any(t != "tls" for t in TRANSPORTS):
         lines.append("\n### Cost per transaction (steady state)\n")
         lines.append("Each side is measured against a Debian peer, for N and 2N transactions after the same "
                      "warm-up; the figure is (count(2N) - count(N)) / N, so start-up and teardown cancel out. "
@@ -663,7 +698,7 @@ def main():
             sep += "---:|---:|"
         lines.append(header)
         lines.append(sep)
-        for transport in TRANSPORTS:
+        for transport in [t for t in TRANSPORTS if t != "tls"]:
             for case in METRIC_CASES:
                 for side in ("client", "server"):
                     row = f"| {transport.upper()} | {CASE_TITLES[case]} | {side} |"
@@ -691,13 +726,128 @@ def main():
                         costs[("allocs", transport, case, side)] = (d["total"], o["total"])
                     lines.append(row)
                     log(row)
-    lines.extend(verdicts(results, costs))
+    tls_rows = []
+    if "tls" in TRANSPORTS:
+        tls_lines, tls_rows = tls_section()
+        lines.extend(tls_lines)
+    lines.extend(verdicts(results, costs, tls_rows))
     lines.append(f"\n({time.time() - started:.0f} s; `scripts/bench.sh`{' with BENCH_QUICK=1' if QUICK else ''})")
     text = "\n".join(lines) + "\n"
     os.makedirs(BUILD, exist_ok=True)
     with open(RESULTS, "w") as f:
         f.write(text)
     print(text)
+
+
+# The targets of Modbus/TCP Security: ours over TLS at least 80% of ours over plain TCP
+# (read 125 registers), at most 3 system calls per side per transaction.
+TLS_SHARE, TLS_SYSCALLS = 0.8, 3
+
+
+def tls_resumption_check():
+    """Proof that the connection cases measure what they say: the client's debug trace
+    shows every handshake of case conn after the first resumed, and none of conn-full."""
+    srv = start([bin_("mb-server"), "tls", "0"], with_tls(env_for("ours"), "tls", "server"))
+    try:
+        addr = wait_ready(srv, "TLS server", 30, "ours")
+        seen = {}
+        for case in ("conn", "conn-full"):
+            # The trace starts after the first connect; the warm-up's connection cannot
+            # resume (the first one read nothing, so it never took its ticket); the 3 after it must.
+            out, _ = run_client([bin_("bench-client"), "tls", addr, case, "-n", "3", "-w", "1"],
+                                dict(with_tls(env_for("ours"), "tls", "client"), MB_DEBUG="1"),
+                                f"TLS {case} client", "ours")
+            seen[case] = (out.count("TLS handshake done"), out.count(", resumed"))
+    finally:
+        stop(srv)
+    if seen != {"conn": (4, 3), "conn-full": (4, 0)}:
+        raise RuntimeError(f"TLS handshakes (done, resumed) per case: {seen}; expected conn (4, 3), conn-full (4, 0)")
+
+
+def tls_section():
+    """Modbus/TCP Security: ours over TLS against ours over plain TCP (and Debian's plain
+    TCP for scale), interleaved as above; new connections per second with full and
+    resumed handshakes; system calls, instructions and allocations per transaction.
+    Returns the report's lines and the judged target rows."""
+    lines, rows = ["\n### Modbus/TCP Security (TLS)\n"], []
+    lines.append("Ours against ours over TLS 1.3 (rustls, TLS13_AES_256_GCM_SHA384, P-256 certificates, mutual "
+                 "authentication; the client's certificate has a role), against the same library over plain TCP "
+                 "and Debian's plain TCP (Debian's libmodbus has no TLS). Same binaries, same method as above.\n")
+    if THROUGHPUT:
+        lines.append("| case | Debian/Debian TCP tx/s | ours/ours TCP tx/s | ours/ours TLS tx/s | TLS/TCP (95% CI) | "
+                     "TLS/Debian TCP | CPU/tx client TCP, TLS | CPU/tx server TCP, TLS |")
+        lines.append("|---|---:|---:|---:|---:|---:|---:|---:|")
+        for case in TLS_CASES:
+            log(f"tls {case}: 3 pairings")
+            run = interleaved("tcp", case, [OO, TLS, DD], SECONDS, SLICE)
+            log(f"tls {case} (medians): " + tps_line({c: run.tps(c) for c in (OO, TLS, DD)}))
+            tcp_cpu, tls_cpu = run.cpu_us(OO), run.cpu_us(TLS)
+            share = run.ratio(TLS, OO)
+            lines.append(f"| {CASE_TITLES[case]} | {fmt(run.tps(DD))} | {fmt(run.tps(OO))} | {fmt(run.tps(TLS))} | "
+                         f"{share:.1%} ({run.spread(TLS, OO, percent=True)}) | {run.ratio(TLS, DD):.2f}x | "
+                         f"{tcp_cpu[0]:.2f}, {tls_cpu[0]:.2f} µs | {tcp_cpu[1]:.2f}, {tls_cpu[1]:.2f} µs |")
+            if case == "r125":
+                rows.append((f"TLS {CASE_TITLES[case]}: >= {TLS_SHARE:.0%} of plain TCP (ours/ours)",
+                             "met" if share >= TLS_SHARE else "NOT MET",
+                             f"{share:.1%} ({run.spread(TLS, OO, percent=True)})"))
+        tls_resumption_check()
+        combos = [OO, TLS, TLS_FULL, DD]
+        log("tls conn: 4 pairings")
+        run = interleaved("tcp", "conn", combos, SECONDS, SLICE)
+        log("tls conn (medians): " + tps_line({c: run.tps(c) for c in combos}))
+        lines.append("\nNew connections per second, each: connect (with the TLS handshake), read 1 register, close "
+                     "(bench-client cases `conn` and `conn-full`). A TLS client context keeps its session: its next "
+                     "connection resumes it (TLS 1.3 ticket: no certificate is sent or verified); a full handshake is "
+                     "measured by setting a TLS setting again before each connect (which drops the session). Before "
+                     "the measurement, the client's debug trace proved every `conn` handshake after the first "
+                     "resumed and no `conn-full` one.\n")
+        lines.append("| pairing | connections/s | vs plain TCP, ours (95% CI) | CPU per connection: client + server |")
+        lines.append("|---|---:|---:|---:|")
+        titles = {OO: "plain TCP, ours/ours", TLS: "TLS, resumed handshakes", TLS_FULL: "TLS, full handshakes",
+                  DD: "plain TCP, Debian/Debian"}
+        for c in combos:
+            cpu = run.cpu_us(c)
+            lines.append(f"| {titles[c]} | {fmt(run.tps(c))} | {run.ratio(c, OO):.1%} "
+                         f"({run.spread(c, OO, percent=True)}) | {cpu[0]:.0f} + {cpu[1]:.0f} µs |")
+        lines.append(f"\nHandshakes per second (each with a read and a close): full {fmt(run.tps(TLS_FULL))}, "
+                     f"resumed {fmt(run.tps(TLS))}; plain TCP connections {fmt(run.tps(OO))}.")
+    if METRICS:
+        lines.append("\nCost per transaction, each side measured against our other side (the only TLS peer), "
+                     "the method of the costs above.\n")
+        header, sep = "| case | side |", "|---|---|"
+        if "strace" in METRICS:
+            header += " syscalls/tx TCP | syscalls/tx TLS | TLS: calls |"
+            sep += "---:|---:|---|"
+        if "callgrind" in METRICS:
+            header += " Ir/tx TCP | Ir/tx TLS |"
+            sep += "---:|---:|"
+        if "allocs" in METRICS:
+            header += " allocs/tx TCP | allocs/tx TLS |"
+            sep += "---:|---:|"
+        lines.extend([header, sep])
+        for case in TLS_CASES:
+            for side in ("client", "server"):
+                row = f"| {CASE_TITLES[case]} | {side} |"
+                for metric in ("strace", "callgrind", "allocs"):
+                    if metric not in METRICS:
+                        continue
+                    tcp = per_tx(metric, side, "tcp", case, "ours", peer="ours")
+                    tls = per_tx(metric, side, "tls", case, "ours", peer="ours")
+                    if metric == "strace":
+                        t_tcp = sum(v for k, v in tcp.items() if k != "total")
+                        t_tls = sum(v for k, v in tls.items() if k != "total")
+                        detail = ", ".join(f"{k} {v:.1f}" for k, v in sorted(tls.items(), key=lambda kv: -kv[1])
+                                           if k != "total" and v >= 0.05)
+                        row += f" {t_tcp:.1f} | {t_tls:.1f} | {detail} |"
+                        rows.append((f"TLS {CASE_TITLES[case]}, {side}: <= {TLS_SYSCALLS} system calls",
+                                     "met" if t_tls <= TLS_SYSCALLS else "NOT MET", f"{t_tls:.1f} ({detail})"))
+                    elif metric == "callgrind":
+                        row += f" {fmt(tcp['total'])} | {fmt(tls['total'])} |"
+                    else:
+                        row += f" {tcp['total']:.2f} | {tls['total']:.2f} |"
+                lines.append(row)
+                log(row)
+    return lines, rows
 
 
 def run_main(main_fn):

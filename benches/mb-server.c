@@ -4,6 +4,8 @@
  *
  *   mb-server tcp PORT [MAX_TX]     PORT 0: the kernel picks a free port
  *   mb-server rtu DEVICE [MAX_TX]   slave 1, 115200 8N1
+ *   mb-server tls PORT [MAX_TX]     Modbus/TCP Security (rsmodbus only; certificates
+ *                                   from MB_TLS_CA, MB_TLS_CERT, MB_TLS_KEY)
  *
  * Mapping (start 0): 2000 coils, 2000 discrete inputs, 256 holding and 256 input
  * registers. Prints "READY <port|device>" once it listens, then answers requests one
@@ -26,6 +28,8 @@
 
 #include <modbus.h>
 
+#include "../c-tests/common/mbt-connect.h"
+
 int print_loaded_libmodbus(void);
 
 int main(int argc, char **argv)
@@ -37,15 +41,25 @@ int main(int argc, char **argv)
     int tcp, listen_fd = -1, i;
 
     if (argc < 3) {
-        fprintf(stderr, "usage: %s tcp PORT [MAX_TX] | rtu DEVICE [MAX_TX]\n", argv[0]);
+        fprintf(stderr, "usage: %s tcp|tls PORT [MAX_TX] | rtu DEVICE [MAX_TX]\n", argv[0]);
         return 2;
     }
     /* SIGTERM keeps its default action: libmodbus retries select() on EINTR, so a
      * handler setting a flag would not end a server blocked in modbus_receive. */
     signal(SIGPIPE, SIG_IGN);
-    tcp = strcmp(argv[1], "tcp") == 0;
+    tcp = strcmp(argv[1], "tcp") == 0 || strcmp(argv[1], "tls") == 0; /* TLS: TCP underneath */
     max_tx = argc > 3 ? atol(argv[3]) : 0;
-    ctx = tcp ? modbus_new_tcp("127.0.0.1", atoi(argv[2])) : modbus_new_rtu(argv[2], 115200, 'N', 8, 1);
+    if (strcmp(argv[1], "tls") == 0) {
+        ctx = mbt_new_tls("mb-server", atoi(argv[2]));
+        if (ctx == NULL) {
+            return 1;
+        }
+        /* The handshake in modbus_tcp_accept is bounded by the response timeout: long
+         * enough for a client paused by an interleaved measurement in the middle of it. */
+        modbus_set_response_timeout(ctx, 10, 0);
+    } else {
+        ctx = tcp ? modbus_new_tcp("127.0.0.1", atoi(argv[2])) : modbus_new_rtu(argv[2], 115200, 'N', 8, 1);
+    }
     if (ctx == NULL) {
         fprintf(stderr, "mb-server: new context: %s\n", modbus_strerror(errno));
         return 1;

@@ -28,7 +28,7 @@ if [ "${1:-}" = --repeat ]; then
     program=(benches/repeat.py "$@")
 fi
 scripts/install-deps.sh >/dev/null
-for tool in strace socat valgrind python3 gcc; do
+for tool in strace socat valgrind python3 gcc openssl; do
     command -v "$tool" >/dev/null || { apt-get install -y -qq "$tool" >/dev/null; }
 done
 if [ "${BENCH_PGO:-1}" = 0 ]; then

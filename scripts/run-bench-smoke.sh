@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# A short run of the benchmark suite (about 20 s: read 1 register, TCP and RTU), part
+# A short run of the benchmark suite (read 1 register over TCP and RTU, and read 125
+# registers and new connections over TLS against plain TCP), part
 # of the test command so that the benchmark keeps working between full runs. It checks:
 # every program loaded the library it was meant to (bench.py stops otherwise), the
 # report has all its tables, and the targets judged on counts per transaction are met:
@@ -54,6 +55,17 @@ for transport in ("TCP", "RTU"):
     for side in ("client", "server"):
         check(re.search(rf"^\| {transport} \| read 1 register \| {side} \| [0-9.]+ \| [0-9.]+ \|", text, re.M)
               is not None, f"{transport} {side} cost row")
+# Modbus/TCP Security: TLS against plain TCP, new connections (full and resumed
+# handshakes), costs per TLS transaction.
+check("### Modbus/TCP Security (TLS)" in text, "report has the TLS section")
+check(re.search(r"^\| read 125 registers \|( [0-9,]+ \|){3} [0-9.]+% \([^)]*\) \| [0-9.]+x \|", text, re.M)
+      is not None, "TLS throughput row (read 125 registers) with figures")
+for pairing in ("plain TCP, ours/ours", "TLS, resumed handshakes", "TLS, full handshakes"):
+    check(re.search(rf"^\| {re.escape(pairing)} \| [0-9,]+ \| [0-9.]+% ", text, re.M) is not None,
+          f"connections per second: {pairing}")
+for side in ("client", "server"):
+    check(re.search(rf"^\| read 125 registers \| {side} \| [0-9.]+ \| [0-9.]+ \| [a-z]", text, re.M) is not None,
+          f"TLS {side} cost row")
 check(re.search(r"^\| read 1 register \| [0-9,]+ \|( [0-9.]+% \([^)]*\) \|){3}$", text, re.M) is not None,
       "TCP row of the priced waits (floor + peek, floor + timeout, waiting floor)")
 check(re.search(r"^\| read 1 register \| [0-9.]+x( \| [0-9.]+x \([^)]*\)){2} \| [0-9.]+% \([^)]*\) \|$", text, re.M)
@@ -62,7 +74,9 @@ check(re.search(r"^\| read 1 register \| [0-9.]+x( \| [0-9.]+x \([^)]*\)){2} \| 
 # pty the bytes of a frame may arrive in more reads when the machine is busy, which
 # adds instructions to either library: RTU instruction verdicts are shown, not judged.
 counted = [m for m in re.finditer(r"^\| ([^|]*(system calls|instructions|allocation)[^|]*) \| ([^|]+) \|", text, re.M)]
-check(len(counted) == 10, f"10 verdicts on counts per transaction (found {len(counted)})")
+# TCP and RTU: 2 sides x (system calls on TCP, instructions, allocations) = 10; TLS:
+# system calls per side = 2.
+check(len(counted) == 12, f"12 verdicts on counts per transaction (found {len(counted)})")
 for m in counted:
     target, verdict = m.group(1).strip(), m.group(3).strip()
     if target.startswith("RTU") and m.group(2) == "instructions":
