@@ -34,6 +34,7 @@ MODBUS_BEGIN_DECLS
 #define EMBTLSNAME (EMBTLS + 4)
 #define EMBTLSVERSION (EMBTLS + 5)
 #define EMBTLSCONFIG (EMBTLS + 6)
+#define EMBTLSPASSWORD (EMBTLS + 7)
 
 /* modbus_tls_authorize_t, below: the server's authorization callback; 1 allows the
  * request, 0 refuses it. `role` is NULL when the client's certificate has none. */
@@ -54,6 +55,12 @@ MODBUS_API
 int modbus_set_tls_certificate(modbus_t *ctx,
                                const char *cert_chain_pem_file,
                                const char *private_key_pem_file);
+
+MODBUS_API
+int modbus_set_tls_certificate_with_password(modbus_t *ctx,
+                                             const char *cert_chain_pem_file,
+                                             const char *private_key_pem_file,
+                                             const char *password);
 
 MODBUS_API
 int modbus_set_tls_certificate_pem(modbus_t *ctx,

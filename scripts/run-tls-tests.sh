@@ -124,6 +124,7 @@ server_reported "client refused: TLS: certificate not issued by a trusted CA" "s
 scenario expired
 server_reported "client refused: TLS: certificate expired" "server: expired certificate refused (EMBTLSEXPIRED)"
 scenario noca
+scenario password
 scenario resume
 if grep -q "TLS handshake done: .*resumed" "$WORK/scenario-resume.out"; then
     ok "resume: the second handshake resumed the session"
@@ -212,12 +213,13 @@ if gcc "${CFLAGS_W[@]}" "${ASAN[@]}" examples/tls-server.c -o "$WORK/tls-server-
         "${LDFLAGS[@]}" -ldl; then
     ok "build tls-server and tls-test with -fsanitize=address"
     PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
-    # operator: 4 requests; reader: 4 served; norole: refused before any is served.
-    ASAN_OPTIONS=detect_leaks=1 "$WORK/tls-server-asan" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" 9 \
+    # operator: 4 requests; reader: 4 served; nocert, rogue: refused before any is
+    # served; password: 3 keys accepted, 2 requests each; 1 left for the last client.
+    ASAN_OPTIONS=detect_leaks=1 "$WORK/tls-server-asan" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" 15 \
         >"$WORK/asan-server.out" 2>&1 &
     SERVER_PID=$!
     for _ in $(seq 100); do grep -q serving "$WORK/asan-server.out" && break; sleep 0.05; done
-    for sc in operator reader nocert rogue; do
+    for sc in operator reader nocert rogue password; do
         if ASAN_OPTIONS=detect_leaks=1 timeout 60 "$WORK/tls-test-asan" "$C" 127.0.0.1 "$PORT" "$sc" \
             >"$WORK/asan-$sc.out" 2>&1 && ! grep -q "Sanitizer" "$WORK/asan-$sc.out"; then
             ok "AddressSanitizer: client scenario $sc"

@@ -8,6 +8,11 @@
 #   norole.pem/.key          client without a role
 #   rogue-ca.pem, rogue.pem/.key   another CA, and a client it issued (role Operator)
 #   expired.pem/.key         client of the test CA, valid 2019-2020 (role Operator)
+#   operator-aes.key         operator.key encrypted with the password "secret": PKCS#8,
+#                            PBES2 (PBKDF2-HMAC-SHA256, AES-256-CBC)
+#   operator-scrypt.key      the same with scrypt
+#   operator-pbes1.key       the same with PBES1 (SHA-1, 3DES): not supported
+#   operator-legacy.key      OpenSSL's older encrypted PEM (Proc-Type): not supported
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 D=$1
@@ -63,4 +68,8 @@ key expired.key
 openssl req -new -key expired.key -subj "/CN=expired" -out expired.csr
 openssl ca -batch -config expired-ca/ca.cnf -cert ca.pem -keyfile ca.key -in expired.csr -out expired.pem \
     -startdate 20190101000000Z -enddate 20200101000000Z -extensions ext -notext 2>/dev/null
+openssl pkcs8 -topk8 -v2 aes-256-cbc -in operator.key -passout pass:secret -out operator-aes.key
+openssl pkcs8 -topk8 -scrypt -in operator.key -passout pass:secret -out operator-scrypt.key
+openssl pkcs8 -topk8 -v1 PBE-SHA1-3DES -in operator.key -passout pass:secret -out operator-pbes1.key
+openssl ec -aes256 -in operator.key -passout pass:secret -out operator-legacy.key 2>/dev/null
 rm -f ./*.csr ./*.ext ./*.srl

@@ -23,6 +23,11 @@
  *   many N     N clients at once (processes), each writing and reading back its own
  *              register 10 + i
  *   reconnect  cut: connect, read, then the next connect after a peer's reset works
+ *   password   keys encrypted with a password (make-certs.sh): without it or with a
+ *              wrong one EMBTLSPASSWORD; with it (PBES2 with PBKDF2 or scrypt) the
+ *              client connects and writes as Operator; PBES1 and OpenSSL's older
+ *              encrypted PEM are refused with EINVAL; a password given for a key that
+ *              is not encrypted is not used
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
@@ -214,6 +219,47 @@ int main(int argc, char *argv[])
         e = connect_and_read(ctx, regs);
         check(e == 0, "reconnect: the next connect works", e ? modbus_strerror(e) : NULL);
         modbus_close(ctx);
+        modbus_free(ctx);
+    } else if (strcmp(scenario, "password") == 0) {
+        static const struct {
+            const char *key, *password, *what;
+            int want; /* 0: accepted, else the errno */
+        } keys[] = {
+            {"operator-aes", NULL, "PBES2/AES key without a password: EMBTLSPASSWORD", EMBTLSPASSWORD},
+            {"operator-aes", "wrong", "PBES2/AES key, wrong password: EMBTLSPASSWORD", EMBTLSPASSWORD},
+            {"operator-aes", "", "PBES2/AES key, empty password: EMBTLSPASSWORD", EMBTLSPASSWORD},
+            {"operator-scrypt", "Secret", "scrypt key, wrong password: EMBTLSPASSWORD", EMBTLSPASSWORD},
+            {"operator-pbes1", "secret", "PBES1 (3DES) key: EINVAL, not supported", EINVAL},
+            {"operator-legacy", "secret", "OpenSSL's older encrypted PEM: EINVAL, not supported", EINVAL},
+            {"operator", "unused", "a key that is not encrypted, with a password: accepted", 0},
+            {"operator-aes", "secret", "PBES2/AES key, right password: accepted", 0},
+            {"operator-scrypt", "secret", "scrypt key, right password: accepted", 0},
+        };
+        for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++) {
+            modbus_t *ctx = client(host, port, NULL, 1);
+            errno = 0;
+            int rc = modbus_set_tls_certificate_with_password(ctx, path("operator", "pem"), path(keys[i].key, "key"),
+                                                              keys[i].password);
+            int e = errno;
+            snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, e, modbus_strerror(e));
+            check(keys[i].want ? rc == -1 && e == keys[i].want : rc == 0, keys[i].what, detail);
+            if (keys[i].want == 0 && rc == 0) {
+                /* The decrypted key signs the handshake: the server accepts the Operator. */
+                int ce = connect_and_read(ctx, regs);
+                snprintf(detail, sizeof detail, "%s with %s", ce ? modbus_strerror(ce) : "ok", keys[i].key);
+                check(ce == 0 && modbus_write_register(ctx, 3, 1003) == 1, "password: connect, read and write",
+                      detail);
+                modbus_close(ctx);
+            }
+            modbus_free(ctx);
+        }
+        /* The plain call on an encrypted key says a password is needed. */
+        modbus_t *ctx = client(host, port, NULL, 1);
+        int rc = modbus_set_tls_certificate(ctx, path("operator", "pem"), path("operator-aes", "key"));
+        snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
+        check(rc == -1 && errno == EMBTLSPASSWORD &&
+                  strstr(modbus_strerror(EMBTLSPASSWORD), "password") != NULL,
+              "modbus_set_tls_certificate on an encrypted key: EMBTLSPASSWORD, named by modbus_strerror", detail);
         modbus_free(ctx);
     } else {
         fprintf(stderr, "unknown scenario %s\n", scenario);

@@ -72,6 +72,7 @@ pub const EMBTLSEXPIRED: i32 = EMBTLS + 3;
 pub const EMBTLSNAME: i32 = EMBTLS + 4;
 pub const EMBTLSVERSION: i32 = EMBTLS + 5;
 pub const EMBTLSCONFIG: i32 = EMBTLS + 6;
+pub const EMBTLSPASSWORD: i32 = EMBTLS + 7;
 
 /// An errno value, as libmodbus would set it.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -146,6 +147,7 @@ pub const fn strerror_modbus_c(errnum: i32) -> Option<&'static core::ffi::CStr> 
         EMBTLSNAME => c"TLS: certificate not valid for the peer's name or address",
         EMBTLSVERSION => c"TLS: protocol version not accepted (TLS 1.2 or newer)",
         EMBTLSCONFIG => c"TLS: certificate, key or CA not set",
+        EMBTLSPASSWORD => c"TLS: the private key is encrypted: password missing or wrong",
         _ => return None,
     })
 }

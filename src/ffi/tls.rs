@@ -75,15 +75,37 @@ pub unsafe extern "C" fn modbus_set_tls_certificate(
     cert_chain_pem_file: *const c_char,
     private_key_pem_file: *const c_char,
 ) -> c_int {
+    // SAFETY: forwarded caller contract (no password).
+    unsafe {
+        modbus_set_tls_certificate_with_password(ctx, cert_chain_pem_file, private_key_pem_file, std::ptr::null())
+    }
+}
+
+/// [`modbus_set_tls_certificate`] with a private key encrypted with `password`
+/// (PKCS#8 "ENCRYPTED PRIVATE KEY"; NULL: none). EMBTLSPASSWORD when the key is
+/// encrypted and the password is NULL or does not decrypt it.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; the paths and `password` NULL or
+/// NUL-terminated strings.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_tls_certificate_with_password(
+    ctx: *mut Modbus,
+    cert_chain_pem_file: *const c_char,
+    private_key_pem_file: *const c_char,
+    password: *const c_char,
+) -> c_int {
     // SAFETY: forwarded caller contract.
     let files = unsafe { required(cert_chain_pem_file).and_then(|c| Ok((c, required(private_key_pem_file)?))) };
+    // SAFETY: `password` is NULL or NUL-terminated per the caller.
+    let password = unsafe { opt_cstr(password) };
     // SAFETY: forwarded caller contract.
     unsafe {
         with_tls(ctx, |t| {
             let (chain, key) = files?;
             let chain = tls::read_file(path(chain))?;
             let key = tls::read_file(path(key))?;
-            t.settings.set_certificate_pem(&chain, &key).map(|()| 0)
+            t.settings.set_certificate_pem(&chain, &key, password.map(CStr::to_bytes)).map(|()| 0)
         })
     }
 }
@@ -104,7 +126,7 @@ pub unsafe extern "C" fn modbus_set_tls_certificate_pem(
     unsafe {
         with_tls(ctx, |t| {
             let (chain, key) = texts?;
-            t.settings.set_certificate_pem(chain.to_bytes(), key.to_bytes()).map(|()| 0)
+            t.settings.set_certificate_pem(chain.to_bytes(), key.to_bytes(), None).map(|()| 0)
         })
     }
 }

@@ -41,7 +41,8 @@ use super::{Ready, now, to_timespec, wait_or_wake};
 use crate::core::security;
 pub use crate::core::security::RecordCut;
 use crate::error::{
-    EMBTLS, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSUNKNOWNCA, EMBTLSVERSION, Error, Result, errno,
+    EMBTLS, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSPASSWORD, EMBTLSUNKNOWNCA, EMBTLSVERSION,
+    Error, Result, errno,
 };
 
 /// `MODBUS_TLS_1_2`, `MODBUS_TLS_1_3`: the protocol versions, as on the wire.
@@ -113,6 +114,41 @@ impl Default for TlsSettings {
     }
 }
 
+/// The private key of a PEM text: PKCS#8, PKCS#1 (RSA) or SEC1 (EC), or an encrypted
+/// PKCS#8 key ("ENCRYPTED PRIVATE KEY": PBES2 with PBKDF2 or scrypt and AES-CBC, what
+/// `openssl genpkey -aes256` and `openssl pkcs8 -topk8` write), decrypted with
+/// `password`. EMBTLSPASSWORD: an encrypted key and no password, or a password that
+/// does not decrypt it. EINVAL: no key, or an encryption not supported (PBES1, or
+/// OpenSSL's older "Proc-Type: 4,ENCRYPTED" PEM headers). A password given for a
+/// key that is not encrypted is not used.
+fn private_key(pem: &[u8], password: Option<&[u8]>) -> Result<PrivateKeyDer<'static>> {
+    use pkcs8::der::Decode;
+    const BEGIN: &[u8] = b"-----BEGIN ENCRYPTED PRIVATE KEY-----";
+    const END: &[u8] = b"-----END ENCRYPTED PRIVATE KEY-----";
+    let find = |hay: &[u8], needle: &[u8]| hay.windows(needle.len()).position(|w| w == needle);
+    let Some(begin) = find(pem, BEGIN) else {
+        if find(pem, b"Proc-Type: 4,ENCRYPTED").is_some() {
+            return Err(Error::INVALID);
+        }
+        return PrivateKeyDer::from_pem_slice(pem).map_err(|_| Error::INVALID);
+    };
+    let Some(password) = password else { return Err(Error(EMBTLSPASSWORD)) };
+    let end = find(&pem[begin..], END).ok_or(Error::INVALID)? + begin + END.len();
+    let (_, der) = pkcs8::der::pem::decode_vec(&pem[begin..end]).map_err(|_| Error::INVALID)?;
+    let info = pkcs8::EncryptedPrivateKeyInfo::from_der(&der).map_err(|_| Error::INVALID)?;
+    let plain = info.decrypt(password).map_err(|e| match e {
+        // pkcs5 0.7 reports a bad padding (a wrong password) as EncryptFailed.
+        pkcs8::Error::EncryptedPrivateKey(pkcs8::pkcs5::Error::DecryptFailed | pkcs8::pkcs5::Error::EncryptFailed) => {
+            Error(EMBTLSPASSWORD)
+        }
+        // A wrong password that happens to leave valid padding decrypts to garbage.
+        pkcs8::Error::Asn1(_) | pkcs8::Error::KeyMalformed => Error(EMBTLSPASSWORD),
+        _ => Error::INVALID,
+    })?;
+    pkcs8::PrivateKeyInfo::from_der(plain.as_bytes()).map_err(|_| Error(EMBTLSPASSWORD))?;
+    Ok(PrivateKeyDer::Pkcs8(plain.as_bytes().to_vec().into()))
+}
+
 /// Reads a PEM file; an unreadable file gives the errno of the failure.
 pub fn read_file(path: &std::path::Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(io_error)
@@ -124,13 +160,14 @@ impl TlsSettings {
         self.server = None;
     }
 
-    /// The certificate chain (leaf first) and private key, PEM. EINVAL when either
+    /// The certificate chain (leaf first) and private key, PEM; the key decrypted
+    /// with `password` when it is encrypted (see [`private_key`]). EINVAL when either
     /// holds nothing usable or the key does not belong to the certificate.
-    pub fn set_certificate_pem(&mut self, chain_pem: &[u8], key_pem: &[u8]) -> Result<()> {
+    pub fn set_certificate_pem(&mut self, chain_pem: &[u8], key_pem: &[u8], password: Option<&[u8]>) -> Result<()> {
         let chain: Vec<_> = CertificateDer::pem_slice_iter(chain_pem)
             .collect::<core::result::Result<_, _>>()
             .map_err(|_| Error::INVALID)?;
-        let key = PrivateKeyDer::from_pem_slice(key_pem).map_err(|_| Error::INVALID)?;
+        let key = private_key(key_pem, password)?;
         if chain.is_empty() {
             return Err(Error::INVALID);
         }
@@ -532,5 +569,26 @@ impl Tls {
 
     pub fn remove(&mut self, fd: i32) -> Option<Session> {
         self.sessions.remove(&fd)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The decisions made before any decryption (decryption itself: the `password`
+    /// scenario of scripts/run-tls-tests.sh, with keys openssl encrypts at test time).
+    #[test]
+    fn which_keys_need_a_password() {
+        let encrypted = b"-----BEGIN ENCRYPTED PRIVATE KEY-----\nMAA=\n-----END ENCRYPTED PRIVATE KEY-----\n";
+        assert_eq!(private_key(encrypted, None).err(), Some(Error(EMBTLSPASSWORD)));
+        // Not a PKCS#8 EncryptedPrivateKeyInfo: refused as unreadable, not as a password.
+        assert_eq!(private_key(encrypted, Some(b"secret")).err(), Some(Error::INVALID));
+        // No END line.
+        assert_eq!(private_key(&encrypted[..40], Some(b"secret")).err(), Some(Error::INVALID));
+        let legacy = b"-----BEGIN EC PRIVATE KEY-----\nProc-Type: 4,ENCRYPTED\nDEK-Info: AES-256-CBC,00\n\nMAA=\n-----END EC PRIVATE KEY-----\n";
+        assert_eq!(private_key(legacy, Some(b"secret")).err(), Some(Error::INVALID));
+        assert_eq!(private_key(legacy, None).err(), Some(Error::INVALID));
+        assert_eq!(private_key(b"", None).err(), Some(Error::INVALID));
     }
 }
