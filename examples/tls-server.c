@@ -104,13 +104,19 @@ int main(int argc, char *argv[])
                 }
                 continue;
             }
-            /* One request from this client, answered on its own TLS session. */
+            /* A request from this client, answered on its own TLS session, and any
+             * others that came in the same TLS record: the context holds those, and
+             * poll() would not report them. */
             modbus_set_socket(ctx, fds[i].fd);
-            int rc = modbus_receive(ctx, query);
-            if (rc > 0) {
-                modbus_reply(ctx, query, rc, map);
-                served++;
-            } else if (rc == -1) {
+            int rc;
+            do {
+                rc = modbus_receive(ctx, query);
+                if (rc > 0) {
+                    modbus_reply(ctx, query, rc, map);
+                    served++;
+                }
+            } while (rc > 0 && modbus_get_tls_pending(ctx) > 0);
+            if (rc == -1) {
                 close(fds[i].fd);
                 fds[i] = fds[--nfds];
             }

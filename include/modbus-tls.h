@@ -82,6 +82,8 @@ int modbus_set_tls_authorization(modbus_t *ctx,
 
 MODBUS_API int modbus_get_tls_peer_role(modbus_t *ctx, char *buf, size_t size);
 
+MODBUS_API int modbus_get_tls_pending(modbus_t *ctx);
+
 MODBUS_END_DECLS
 
 #endif /* MODBUS_TLS_H */

@@ -279,3 +279,23 @@ pub unsafe extern "C" fn modbus_get_tls_peer_role(ctx: *mut Modbus, buf: *mut c_
         })
     }
 }
+
+/// The number of bytes received on the context's current socket and not yet taken
+/// by `modbus_receive` (0 without a session): requests that came in the same TLS
+/// record as the one just read. They are already out of the socket, so `poll()`
+/// does not report them: a server that polls calls `modbus_receive` again while
+/// this is above 0. EINVAL when the context is not a TLS one.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_tls_pending(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let fd = g.s;
+            let tls = g.tls.as_deref().ok_or(Error::INVALID)?;
+            Ok(tls.session_ref(fd).map_or(0, |s| s.pending().min(c_int::MAX as usize) as c_int))
+        })
+    }
+}

@@ -502,6 +502,12 @@ impl Session {
         if self.ended { Ok(0) } else { Err(Error(libc::EAGAIN)) }
     }
 
+    /// Plaintext received and not taken yet: the rest of a TLS record that carried
+    /// more than the request or response read from it.
+    pub fn pending(&self) -> usize {
+        self.plain.len() - self.start
+    }
+
     /// The peer ended the session, or a record failed.
     pub fn readable_end(&self) -> bool {
         self.ended || self.failed.is_some()
