@@ -15,7 +15,8 @@
 #   - 64 clients at once on the one server context (its poll() loop);
 #   - faults: garbage instead of a handshake, a client that stops halfway through
 #     the handshake (the server goes on serving others), a connection cut under a
-#     client (the next connect works);
+#     client (the next connect works), records cut in the middle (FIN or RST) on
+#     both sides and peers that leave without close_notify (c-tests/tls/cut.py);
 #   - interoperability with pymodbus, both directions, IPv4 and IPv6;
 #   - AddressSanitizer (with its leak checker) on the C programs: the test client's
 #     scenarios and the example server, built with -fsanitize=address.
@@ -230,6 +231,28 @@ start_server cut server && {
     count_lines "$WORK/scenario-reconnect.out"
     stop_server
 }
+
+# Records cut in the middle, and peers that leave without close_notify
+# (c-tests/tls/cut.py): clients of our poll-loop server first, then our client
+# against a server that sends half of its answer's record.
+start_server cutrecord server && {
+    python3 c-tests/tls/cut.py clients "$PORT" "$C" >"$WORK/cut-clients.out" 2>&1 ||
+        bad "cut.py clients: exit status" "$(tail -n 3 "$WORK/cut-clients.out")"
+    count_lines "$WORK/cut-clients.out"
+    if kill -0 "$SERVER_PID" 2>/dev/null; then ok "server alive after records cut mid-way"; else bad "server alive after records cut mid-way" ""; fi
+    stop_server
+}
+python3 c-tests/tls/cut.py server "$C" >"$WORK/cut-server.out" 2>&1 &
+CUT_PID=$!
+for _ in $(seq 100); do grep -q READY "$WORK/cut-server.out" && break; sleep 0.05; done
+PORT=$(sed -n 's/^READY //p' "$WORK/cut-server.out")
+if [ -n "$PORT" ]; then
+    scenario halfrecord
+else
+    bad "cut.py server started" "$(cat "$WORK/cut-server.out")"
+fi
+kill "$CUT_PID" 2>/dev/null
+wait "$CUT_PID" 2>/dev/null
 
 # AddressSanitizer on both C programs: an instrumented server that exits by itself
 # after its requests (so that the leak checker runs), and the instrumented client's

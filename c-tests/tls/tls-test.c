@@ -23,6 +23,9 @@
  *   many N     N clients at once (processes), each writing and reading back its own
  *              register 10 + i
  *   reconnect  cut: connect, read, then the next connect after a peer's reset works
+ *   halfrecord against c-tests/tls/cut.py's server, which sends half of the answer's
+ *              record and closes: the read fails (ECONNRESET, as when a TCP peer goes
+ *              away) at once, not at the timeout; the next connect and read work
  *   password   keys encrypted with a password (make-certs.sh): without it or with a
  *              wrong one EMBTLSPASSWORD; with it (PBES2 with PBKDF2 or scrypt) the
  *              client connects and writes as Operator; PBES1 and OpenSSL's older
@@ -37,6 +40,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <modbus.h>
@@ -218,6 +222,27 @@ int main(int argc, char *argv[])
         modbus_close(ctx);
         e = connect_and_read(ctx, regs);
         check(e == 0, "reconnect: the next connect works", e ? modbus_strerror(e) : NULL);
+        modbus_close(ctx);
+        modbus_free(ctx);
+    } else if (strcmp(scenario, "halfrecord") == 0) {
+        modbus_t *ctx = client(host, port, "operator", 1);
+        modbus_set_response_timeout(ctx, 5, 0);
+        int rc = modbus_connect(ctx);
+        check(rc == 0, "halfrecord: connect", rc ? modbus_strerror(errno) : NULL);
+        struct timespec t0, t1;
+        clock_gettime(CLOCK_MONOTONIC, &t0);
+        rc = modbus_read_registers(ctx, 5, 1, regs);
+        int e = errno;
+        clock_gettime(CLOCK_MONOTONIC, &t1);
+        double took = (double)(t1.tv_sec - t0.tv_sec) + (double)(t1.tv_nsec - t0.tv_nsec) / 1e9;
+        snprintf(detail, sizeof detail, "rc %d errno %d (%s) after %.2f s", rc, e, modbus_strerror(e), took);
+        check(rc == -1 && e == ECONNRESET && took < 4.0,
+              "halfrecord: a read cut in the middle of the answer's record fails with ECONNRESET, before the timeout",
+              detail);
+        modbus_close(ctx);
+        rc = modbus_connect(ctx) == 0 && modbus_read_registers(ctx, 5, 1, regs) == 1 ? 0 : errno;
+        snprintf(detail, sizeof detail, "%s, value %u", rc ? modbus_strerror(rc) : "ok", regs[0]);
+        check(rc == 0 && regs[0] == 1005, "halfrecord: the next connect and read work", detail);
         modbus_close(ctx);
         modbus_free(ctx);
     } else if (strcmp(scenario, "password") == 0) {
