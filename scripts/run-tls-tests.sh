@@ -203,6 +203,7 @@ PY
 count_lines "$WORK/pipelined.out"
 scenario operator
 scenario many 64
+scenario threads 8
 if kill -0 "$SERVER_PID" 2>/dev/null; then ok "server alive after the faults"; else bad "server alive" ""; fi
 stop_server
 
@@ -231,6 +232,9 @@ start_server cut server && {
     count_lines "$WORK/scenario-reconnect.out"
     stop_server
 }
+
+# Stopping TLS contexts (issue 19's rules): in-process peers, no server needed.
+scenario stop
 
 # Records cut in the middle, and peers that leave without close_notify
 # (c-tests/tls/cut.py): clients of our poll-loop server first, then our client
@@ -269,7 +273,7 @@ if gcc "${CFLAGS_W[@]}" "${ASAN[@]}" examples/tls-server.c -o "$WORK/tls-server-
         >"$WORK/asan-server.out" 2>&1 &
     SERVER_PID=$!
     for _ in $(seq 100); do grep -q serving "$WORK/asan-server.out" && break; sleep 0.05; done
-    for sc in operator reader nocert rogue password; do
+    for sc in operator reader nocert rogue password stop; do
         if ASAN_OPTIONS=detect_leaks=1 timeout 60 "$WORK/tls-test-asan" "$C" 127.0.0.1 "$PORT" "$sc" \
             >"$WORK/asan-$sc.out" 2>&1 && ! grep -q "Sanitizer" "$WORK/asan-$sc.out"; then
             ok "AddressSanitizer: client scenario $sc"

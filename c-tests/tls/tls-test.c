@@ -26,6 +26,14 @@
  *   halfrecord against c-tests/tls/cut.py's server, which sends half of the answer's
  *              record and closes: the read fails (ECONNRESET, as when a TCP peer goes
  *              away) at once, not at the timeout; the next connect and read work
+ *   stop       issue 19's rules on TLS contexts, in this one process (HOST and PORT
+ *              unused): another thread's modbus_close, or a signal handler's, ends a
+ *              client's read from a silent TLS server, a client's handshake with a
+ *              server that never answers it, a server's accept whose client stalls
+ *              in the handshake, and a server's receive from a silent client: -1
+ *              EBADF within 1.5 s (timeouts are 10 s)
+ *   threads N  N threads share one client context, 300 write/read-back pairs each on
+ *              their own register (80 + i): every answer right
  *   password   keys encrypted with a password (make-certs.sh): without it or with a
  *              wrong one EMBTLSPASSWORD; with it (PBES2 with PBKDF2 or scrypt) the
  *              client connects and writes as Operator; PBES1 and OpenSSL's older
@@ -35,10 +43,14 @@
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
 #define _GNU_SOURCE
+#include <arpa/inet.h>
 #include <errno.h>
+#include <pthread.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -103,6 +115,256 @@ static void expect_refusal(const char *host, const char *port, const char *who, 
     check(e == want, what, detail);
     modbus_close(ctx);
     modbus_free(ctx);
+}
+
+/* ---- stop: issue 19's rules on TLS contexts ---- */
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
+}
+
+static void pause_s(double s)
+{
+    struct timespec ts = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
+    while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
+    }
+}
+
+static modbus_t *volatile stop_target; /* what the closer thread or the handler closes */
+static volatile int peer_done;         /* tells a peer thread to go */
+static pthread_t main_thread;
+
+static void *closer(void *arg)
+{
+    (void)arg;
+    pause_s(0.3);
+    modbus_close(stop_target);
+    return NULL;
+}
+
+static void on_usr1(int sig)
+{
+    (void)sig;
+    modbus_close(stop_target);
+}
+
+static void *signaller(void *arg)
+{
+    (void)arg;
+    pause_s(0.3);
+    pthread_kill(main_thread, SIGUSR1);
+    return NULL;
+}
+
+/* A TLS server context listening on a port of 127.0.0.1 the kernel picks. */
+static modbus_t *listening_server(int *listener, int *port)
+{
+    modbus_t *ctx = modbus_new_tcp_tls("127.0.0.1", 0);
+    struct sockaddr_in sa;
+    socklen_t sl = sizeof sa;
+    if (ctx == NULL || modbus_set_tls_certificate(ctx, path("server", "pem"), path("server", "key")) == -1 ||
+        modbus_set_tls_ca(ctx, path("ca", "pem")) == -1) {
+        fprintf(stderr, "server context: %s\n", modbus_strerror(errno));
+        exit(1);
+    }
+    modbus_set_response_timeout(ctx, 10, 0);
+    *listener = modbus_tcp_listen(ctx, 4);
+    if (*listener == -1 || getsockname(*listener, (struct sockaddr *)&sa, &sl) == -1) {
+        fprintf(stderr, "listen: %s\n", modbus_strerror(errno));
+        exit(1);
+    }
+    *port = ntohs(sa.sin_port);
+    return ctx;
+}
+
+struct peer {
+    modbus_t *ctx;
+    int listener, port, raw;
+};
+
+/* Accepts one TLS client, then stays silent until told to go. */
+static void *silent_server(void *arg)
+{
+    struct peer *p = arg;
+    modbus_tcp_accept(p->ctx, &p->listener);
+    while (!peer_done)
+        pause_s(0.01);
+    return NULL;
+}
+
+/* Accepts a TCP connection and never answers the handshake. */
+static void *mute_listener(void *arg)
+{
+    struct peer *p = arg;
+    p->raw = accept(p->listener, NULL, NULL);
+    while (!peer_done)
+        pause_s(0.01);
+    return NULL;
+}
+
+/* A TLS client (operator) that connects, then stays silent until told to go. */
+static void *silent_client(void *arg)
+{
+    struct peer *p = arg;
+    char port[16];
+    snprintf(port, sizeof port, "%d", p->port);
+    p->ctx = client("127.0.0.1", port, "operator", 1);
+    modbus_connect(p->ctx);
+    while (!peer_done)
+        pause_s(0.01);
+    return NULL;
+}
+
+/* Connects over plain TCP and sends nothing. */
+static void *mute_client(void *arg)
+{
+    struct peer *p = arg;
+    struct sockaddr_in sa = {.sin_family = AF_INET, .sin_port = htons((uint16_t)p->port)};
+    sa.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    p->raw = socket(AF_INET, SOCK_STREAM, 0);
+    connect(p->raw, (struct sockaddr *)&sa, sizeof sa);
+    while (!peer_done)
+        pause_s(0.01);
+    return NULL;
+}
+
+/* Starts the stopper: another thread's modbus_close, or a signal whose handler calls it. */
+static pthread_t start_stopper(modbus_t *target, int by_signal)
+{
+    pthread_t t;
+    stop_target = target;
+    pthread_create(&t, NULL, by_signal ? signaller : closer, NULL);
+    return t;
+}
+
+static void stop_scenario(void)
+{
+    char detail[200];
+    uint16_t regs[1];
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_usr1; /* no SA_RESTART */
+    sigaction(SIGUSR1, &sa, NULL);
+    main_thread = pthread_self();
+
+    for (int by_signal = 0; by_signal < 2; by_signal++) {
+        const char *how = by_signal ? "a signal handler's modbus_close" : "another thread's modbus_close";
+        char port[16];
+
+        /* A client reading from a server that never answers. */
+        struct peer srv = {0};
+        srv.ctx = listening_server(&srv.listener, &srv.port);
+        peer_done = 0;
+        pthread_t peer, stopper;
+        pthread_create(&peer, NULL, silent_server, &srv);
+        snprintf(port, sizeof port, "%d", srv.port);
+        modbus_t *ctx = client("127.0.0.1", port, "operator", 1);
+        modbus_set_response_timeout(ctx, 10, 0);
+        int rc = modbus_connect(ctx);
+        check(rc == 0, "stop: connect to the silent server", rc ? modbus_strerror(errno) : NULL);
+        stopper = start_stopper(ctx, by_signal);
+        double t0 = now();
+        rc = modbus_read_registers(ctx, 0, 1, regs);
+        int e = errno;
+        double took = now() - t0;
+        pthread_join(stopper, NULL);
+        snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
+        check(rc == -1 && e == EBADF && took < 1.5, "stop: a client's TLS read ends with EBADF", detail);
+        check(modbus_get_socket(ctx) == -1, "stop: the client's socket is closed", detail);
+        peer_done = 1;
+        pthread_join(peer, NULL);
+        modbus_free(ctx);
+        modbus_close(srv.ctx);
+        close(srv.listener);
+        modbus_free(srv.ctx);
+
+        /* A client whose handshake the server never answers. */
+        struct peer mute = {0};
+        mute.ctx = listening_server(&mute.listener, &mute.port);
+        peer_done = 0;
+        pthread_create(&peer, NULL, mute_listener, &mute);
+        snprintf(port, sizeof port, "%d", mute.port);
+        ctx = client("127.0.0.1", port, "operator", 1);
+        modbus_set_response_timeout(ctx, 10, 0);
+        stopper = start_stopper(ctx, by_signal);
+        t0 = now();
+        rc = modbus_connect(ctx);
+        e = errno;
+        took = now() - t0;
+        pthread_join(stopper, NULL);
+        snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
+        check(rc == -1 && e == EBADF && took < 1.5 && modbus_get_socket(ctx) == -1,
+              "stop: a client's stalled handshake ends with EBADF", detail);
+        peer_done = 1;
+        pthread_join(peer, NULL);
+        close(mute.raw);
+        modbus_free(ctx);
+        close(mute.listener);
+        modbus_free(mute.ctx);
+
+        /* A server accepting a client that stalls in the handshake. */
+        struct peer stall = {0};
+        modbus_t *server = listening_server(&stall.listener, &stall.port);
+        peer_done = 0;
+        pthread_create(&peer, NULL, mute_client, &stall);
+        stopper = start_stopper(server, by_signal);
+        t0 = now();
+        rc = modbus_tcp_accept(server, &stall.listener);
+        e = errno;
+        took = now() - t0;
+        pthread_join(stopper, NULL);
+        snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
+        check(rc == -1 && e == EBADF && took < 1.5, "stop: a server's accept with a stalled handshake ends with EBADF",
+              detail);
+        peer_done = 1;
+        pthread_join(peer, NULL);
+        close(stall.raw);
+        close(stall.listener);
+        modbus_free(server);
+
+        /* A server receiving from a client that sends nothing. */
+        struct peer quiet = {0};
+        server = listening_server(&quiet.listener, &quiet.port);
+        modbus_set_indication_timeout(server, 0, 0); /* wait forever */
+        peer_done = 0;
+        pthread_create(&peer, NULL, silent_client, &quiet);
+        rc = modbus_tcp_accept(server, &quiet.listener);
+        check(rc >= 0, "stop: the server accepts the silent client", rc < 0 ? modbus_strerror(errno) : NULL);
+        uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
+        stopper = start_stopper(server, by_signal);
+        t0 = now();
+        rc = modbus_receive(server, query);
+        e = errno;
+        took = now() - t0;
+        pthread_join(stopper, NULL);
+        snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
+        check(rc == -1 && e == EBADF && took < 1.5, "stop: a server's TLS receive ends with EBADF", detail);
+        peer_done = 1;
+        pthread_join(peer, NULL);
+        modbus_close(quiet.ctx);
+        modbus_free(quiet.ctx);
+        close(quiet.listener);
+        modbus_free(server);
+    }
+}
+
+/* ---- threads: one client context shared by N threads ---- */
+
+static modbus_t *shared;
+
+static void *worker(void *arg)
+{
+    int i = (int)(intptr_t)arg, bad = 0;
+    for (int k = 0; k < 300; k++) {
+        uint16_t v = (uint16_t)(i * 1000 + k), got = 0;
+        if (modbus_write_register(shared, 80 + i, v) != 1 || modbus_read_registers(shared, 80 + i, 1, &got) != 1 ||
+            got != v)
+            bad++;
+    }
+    return (void *)(intptr_t)bad;
 }
 
 int main(int argc, char *argv[])
@@ -224,6 +486,25 @@ int main(int argc, char *argv[])
         check(e == 0, "reconnect: the next connect works", e ? modbus_strerror(e) : NULL);
         modbus_close(ctx);
         modbus_free(ctx);
+    } else if (strcmp(scenario, "stop") == 0) {
+        stop_scenario();
+    } else if (strcmp(scenario, "threads") == 0) {
+        int n = argc > 5 ? atoi(argv[5]) : 8, bad = 0;
+        pthread_t t[16];
+        shared = client(host, port, "operator", 1);
+        int e = connect_and_read(shared, regs);
+        check(e == 0, "threads: connect", e ? modbus_strerror(e) : NULL);
+        for (int i = 0; i < n && i < 16; i++)
+            pthread_create(&t[i], NULL, worker, (void *)(intptr_t)i);
+        for (int i = 0; i < n && i < 16; i++) {
+            void *r;
+            pthread_join(t[i], &r);
+            bad += (int)(intptr_t)r;
+        }
+        snprintf(detail, sizeof detail, "%d threads x 300 write/read-back pairs, %d wrong", n, bad);
+        check(bad == 0, "threads: one TLS context shared by threads, every answer right", detail);
+        modbus_close(shared);
+        modbus_free(shared);
     } else if (strcmp(scenario, "halfrecord") == 0) {
         modbus_t *ctx = client(host, port, "operator", 1);
         modbus_set_response_timeout(ctx, 5, 0);

@@ -372,6 +372,18 @@ pub fn handshake(
     deadline: Option<Duration>,
     stopping: &dyn Fn() -> bool,
 ) -> Result<()> {
+    // A close from another thread or a signal handler shuts the socket down to wake
+    // the wait: what the socket then says (end of stream, reset) is the stop's doing.
+    handshake_steps(fd, conn, cut, deadline, stopping).map_err(|e| if stopping() { Error::STOPPED } else { e })
+}
+
+fn handshake_steps(
+    fd: i32,
+    conn: &mut Connection,
+    cut: Option<&mut RecordCut>,
+    deadline: Option<Duration>,
+    stopping: &dyn Fn() -> bool,
+) -> Result<()> {
     let mut cut = cut;
     loop {
         write_pending(fd, conn, deadline, stopping)?;
