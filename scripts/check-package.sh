@@ -55,6 +55,19 @@ if [ -z "$RUNTIME" ] || [ -z "$DEV" ]; then
 fi
 echo "       $(basename "$RUNTIME"): $(stat -c %s "$RUNTIME") bytes; $(basename "$DEV"): $(stat -c %s "$DEV") bytes"
 
+# --- copyright: every Rust crate linked into the library is named, with its licence ---
+if out=$(python3 debian/embedded-crates.py --check 2>&1); then
+    ok "$out"
+else
+    bad "debian/copyright names the linked crates (debian/embedded-crates.py --check)" "$out"
+fi
+if dpkg-deb --fsys-tarfile "$RUNTIME" | tar -xO ./usr/share/doc/librsmodbus5/copyright 2>/dev/null |
+    grep -q "ring .*: Apache-2.0 AND ISC"; then
+    ok "the runtime package's copyright file names ring and its licence"
+else
+    bad "the runtime package's copyright file names ring and its licence" ""
+fi
+
 # --- control fields ------------------------------------------------------------------
 crate_version=$(sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -n 1)
 api=$(sed -n 's/^Version: *//p' $BUILT/libmodbus.pc)
