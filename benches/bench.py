@@ -798,7 +798,8 @@ def tls_section():
         lines.append("\nNew connections per second, each: connect (with the TLS handshake), read 1 register, close "
                      "(bench-client cases `conn` and `conn-full`). A TLS client context keeps its session: its next "
                      "connection resumes it (TLS 1.3 ticket: no certificate is sent or verified); a full handshake is "
-                     "measured by setting a TLS setting again before each connect (which drops the session). Before "
+                     "measured by setting a TLS setting again before each connect (which drops the session, and makes the "
+                     "client build its configuration again: part of the figure). Before "
                      "the measurement, the client's debug trace proved every `conn` handshake after the first "
                      "resumed and no `conn-full` one.\n")
         lines.append("| pairing | connections/s | vs plain TCP, ours (95% CI) | CPU per connection: client + server |")

@@ -103,7 +103,13 @@ int main(int argc, char **argv)
         int rc;
         if (tcp && modbus_get_socket(ctx) < 0) {
             if (modbus_tcp_accept(ctx, &listen_fd) < 0) {
-                if (errno == EINTR) {
+                /* A failed TLS handshake (a client that went away, or was refused)
+                 * refuses that client, not the next ones. */
+                if (errno == EINTR || errno == ECONNRESET || errno == ETIMEDOUT ||
+                    (errno >= MODBUS_ENOBASE + 64 && errno <= MODBUS_ENOBASE + 71)) {
+                    if (errno != EINTR) {
+                        fprintf(stderr, "mb-server: client refused: %s\n", modbus_strerror(errno));
+                    }
                     continue;
                 }
                 fprintf(stderr, "mb-server: accept: %s\n", modbus_strerror(errno));

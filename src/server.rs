@@ -101,8 +101,10 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 /// [`crate::core::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
 /// for a suppressed RTU broadcast (and, with diagnostics, in listen-only mode).
 pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
-    if g.tls.as_deref().is_some_and(|t| t.authorize.is_some()) && !authorized(g, req) {
-        return refuse(g, req);
+    if g.tls.as_deref().is_some_and(|t| t.authorize.is_some()) && !authorized(g, req)? {
+        // Exception 01, nothing changed; as modbus_reply_exception sends it
+        // (not in listen-only mode, counted by the diagnostics).
+        return reply_exception(g, req, exception::ILLEGAL_FUNCTION as u32);
     }
     let server = Server { framing: g.framing, quirks: g.quirks };
     let mut sink = g.diag();
@@ -127,11 +129,13 @@ pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn M
 
 /// Modbus/TCP Security: asks the application's authorization callback about each
 /// range `req` touches, for the role of the client on the context's socket (R-24 to
-/// R-28 of the specification).
-fn authorized(g: &mut Guard<'_>, req: &[u8]) -> bool {
+/// R-28 of the specification). The callback runs with the context unlocked: if it
+/// makes another socket current, the client that would get the answer is not the
+/// one whose role was asked about, so nothing is served or sent (EINVAL).
+fn authorized(g: &mut Guard<'_>, req: &[u8]) -> Result<bool> {
     let fd = g.s;
-    let Some(tls) = g.tls.as_deref() else { return true };
-    let Some(hook) = tls.authorize.clone() else { return true };
+    let Some(tls) = g.tls.as_deref() else { return Ok(true) };
+    let Some(hook) = tls.authorize.clone() else { return Ok(true) };
     let role: Option<std::ffi::CString> = tls.session_ref(fd).and_then(|s| s.role()).map(ToOwned::to_owned);
     let h = g.framing.header_length();
     let unit = req.get(h - 1).copied().unwrap_or(0);
@@ -139,26 +143,19 @@ fn authorized(g: &mut Guard<'_>, req: &[u8]) -> bool {
     for range in access.ranges() {
         let allowed =
             engine::call_unlocked(g, || hook(role.as_deref(), unit, access.function, range.address, range.nb));
+        if g.s != fd {
+            return Err(Error::INVALID);
+        }
         if !allowed {
             let shown = role.as_deref().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
             g.diag().out(format_args!(
                 "Request 0x{:02X} at {} ({} item(s)) refused for role {shown}\n",
                 access.function, range.address, range.nb
             ));
-            return false;
+            return Ok(false);
         }
     }
-    true
-}
-
-/// The answer to a request the authorization refused: exception 01, ILLEGAL
-/// FUNCTION, nothing changed.
-fn refuse(g: &mut Guard<'_>, req: &[u8]) -> Result<usize> {
-    let mut out = g.spare.take();
-    let len = exception_response(g.framing, req, exception::ILLEGAL_FUNCTION, &mut out);
-    let r = engine::send_msg(g, &mut out[..], len);
-    g.spare.give(out);
-    r
+    Ok(true)
 }
 
 /// `modbus_reply_exception`: sends exception `code` (below `MODBUS_EXCEPTION_MAX`,

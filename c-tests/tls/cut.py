@@ -20,6 +20,7 @@ import socket
 import ssl
 import struct
 import sys
+import time
 
 
 def read_request(tid, address):
@@ -108,6 +109,11 @@ def clients(port, certs):
         s.sendall(record[: len(record) // 2])
         if how == "RST":
             s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        else:
+            # A FIN: a close with unread data (the server's session tickets) would
+            # send a reset instead.
+            s.shutdown(socket.SHUT_WR)
+            time.sleep(0.2)
         s.close()
         served(f"half a request's record and {how}")
     s = socket.create_connection(("127.0.0.1", port), timeout=5)
@@ -116,7 +122,9 @@ def clients(port, certs):
     s.sendall(t.record(read_request(2, 2)))
     answer = struct.unpack(">HHHBBBH", t.read(11))
     check(answer[0] == 2 and answer[6] == 1002, "a whole request answered before the cut", str(answer))
-    s.close()  # FIN, no close_notify
+    s.shutdown(socket.SHUT_WR)  # FIN, no close_notify
+    time.sleep(0.2)
+    s.close()
     served("a client that left without close_notify")
     return 1 if failures else 0
 

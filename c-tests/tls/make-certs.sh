@@ -12,6 +12,7 @@
 #                            PBES2 (PBKDF2-HMAC-SHA256, AES-256-CBC)
 #   operator-scrypt.key      the same with scrypt
 #   operator-pbes1.key       the same with PBES1 (SHA-1, 3DES): not supported
+#   operator-sha1.key        PBES2 with PBKDF2-HMAC-SHA-1: not supported
 #   operator-legacy.key      OpenSSL's older encrypted PEM (Proc-Type): not supported
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
@@ -71,5 +72,7 @@ openssl ca -batch -config expired-ca/ca.cnf -cert ca.pem -keyfile ca.key -in exp
 openssl pkcs8 -topk8 -v2 aes-256-cbc -in operator.key -passout pass:secret -out operator-aes.key
 openssl pkcs8 -topk8 -scrypt -in operator.key -passout pass:secret -out operator-scrypt.key
 openssl pkcs8 -topk8 -v1 PBE-SHA1-3DES -in operator.key -passout pass:secret -out operator-pbes1.key
+openssl pkcs8 -topk8 -v2 aes-256-cbc -v2prf hmacWithSHA1 -in operator.key -passout pass:secret \
+    -out operator-sha1.key
 openssl ec -aes256 -in operator.key -passout pass:secret -out operator-legacy.key 2>/dev/null
 rm -f ./*.csr ./*.ext ./*.srl

@@ -528,6 +528,32 @@ fn served(ctx: *mut Modbus, mapping: *mut modbus::ffi::server::modbus_mapping_t)
     }
 }
 
+/// The ranges a served request touched, read from its PDU independently of the
+/// library: (address, count) of reads and writes, the written then the read range
+/// of FC 0x17, (file, record count) of each file record sub-request.
+fn served_ranges(pdu: &[u8]) -> Vec<(c_int, c_int)> {
+    let word = |at: usize| pdu.get(at..at + 2).map_or(0, |w| u16::from_be_bytes([w[0], w[1]]) as c_int);
+    match pdu.first() {
+        Some(0x01..=0x04 | 0x0F | 0x10) => vec![(word(1), word(3))],
+        Some(0x05 | 0x06 | 0x16) => vec![(word(1), 1)],
+        Some(0x17) => vec![(word(5), word(7)), (word(1), word(3))],
+        Some(&fc @ (0x14 | 0x15)) => {
+            // The sub-requests fill the byte count (a served request's; bytes past it
+            // are not part of the request).
+            let end = (2 + pdu.get(1).copied().unwrap_or(0) as usize).min(pdu.len());
+            let mut ranges = Vec::new();
+            let mut at = 2;
+            while at + 7 <= end {
+                let nb = word(at + 5);
+                ranges.push((word(at + 1), nb));
+                at += 7 + if fc == 0x15 { 2 * nb as usize } else { 0 };
+            }
+            ranges
+        }
+        _ => Vec::new(),
+    }
+}
+
 /// `authorization`: the server's authorization path through the C API
 /// (`modbus_set_tls_authorization`, `modbus_reply`) on a Modbus/TCP Security context.
 /// Layout: `[deny mask][refusal][unit id][request PDU...]`.
@@ -543,6 +569,9 @@ fn served(ctx: *mut Modbus, mapping: *mut modbus::ffi::server::modbus_mapping_t)
 ///   coil, register or file record it changed lies in a range the callback allowed
 ///   for a function code that writes that table (a request cannot write past what
 ///   it was authorized for);
+/// - when the plain server answered it normally, every range the request names (an
+///   independent reading of its PDU: reads, writes, each file record sub-request)
+///   was asked about;
 /// - calls stop at the first refusal.
 pub fn authorization(data: &[u8]) {
     let mut c = Cursor::new(data);
@@ -621,6 +650,21 @@ pub fn authorization(data: &[u8]) {
                     (address as usize..address as usize + nb as usize).contains(&i)
                 };
                 assert!(allowed(&[0x06, 0x10, 0x16], i) || by_17, "register {i} changed outside the authorized ranges");
+            }
+        }
+        // Every range the plain server served must have been asked about, as an
+        // independent reading of the request names it (reads included: a read that
+        // was served unasked changes nothing, so only this sees it).
+        let mut answer = [0u8; 300];
+        // SAFETY: reading into a live buffer from our own socket.
+        let n = unsafe { libc::recv(plain_pair.peer, answer.as_mut_ptr().cast(), answer.len(), libc::MSG_DONTWAIT) };
+        if prc > 0 && n > 7 && answer[7] as c_int == function {
+            for (address, nb) in served_ranges(pdu) {
+                assert!(
+                    asked.calls.iter().any(|&(_, _, f, a, b)| f == function && (a, b) == (address, nb)),
+                    "FC {function:#04x} served {nb} item(s) at {address} without asking: {:?}",
+                    asked.calls
+                );
             }
         }
         assert_eq!(after.input_bits, before.input_bits);

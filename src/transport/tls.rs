@@ -136,6 +136,9 @@ fn private_key(pem: &[u8], password: Option<&[u8]>) -> Result<PrivateKeyDer<'sta
     let end = find(&pem[begin..], END).ok_or(Error::INVALID)? + begin + END.len();
     let (_, der) = pkcs8::der::pem::decode_vec(&pem[begin..end]).map_err(|_| Error::INVALID)?;
     let info = pkcs8::EncryptedPrivateKeyInfo::from_der(&der).map_err(|_| Error::INVALID)?;
+    if !affordable(&info.encryption_algorithm) {
+        return Err(Error::INVALID);
+    }
     let plain = info.decrypt(password).map_err(|e| match e {
         // pkcs5 0.7 reports a bad padding (a wrong password) as EncryptFailed.
         pkcs8::Error::EncryptedPrivateKey(pkcs8::pkcs5::Error::DecryptFailed | pkcs8::pkcs5::Error::EncryptFailed) => {
@@ -147,6 +150,39 @@ fn private_key(pem: &[u8], password: Option<&[u8]>) -> Result<PrivateKeyDer<'sta
     })?;
     pkcs8::PrivateKeyInfo::from_der(plain.as_bytes()).map_err(|_| Error(EMBTLSPASSWORD))?;
     Ok(PrivateKeyDer::Pkcs8(plain.as_bytes().to_vec().into()))
+}
+
+/// The most PBKDF2 iterations a key may ask for (openssl writes 2,048; current advice
+/// is some 600,000 with SHA-256; 10 million take seconds).
+const MAX_PBKDF2_ITERATIONS: u32 = 10_000_000;
+/// The most memory scrypt may need to decrypt a key (128 N r bytes; openssl's
+/// default N = 16384, r = 8 needs 16 MiB), and the most parallel passes.
+const MAX_SCRYPT_MEMORY: u64 = 256 << 20;
+const MAX_SCRYPT_PARALLELIZATION: u16 = 16;
+
+/// Whether decrypting a key with these parameters takes reasonable time and memory
+/// (a key file's parameters could otherwise ask for hours, or more memory than
+/// there is: an allocation failure aborts the process) and the parameters are
+/// valid (scrypt's N a power of two above 1, r and p above 0).
+fn affordable(scheme: &pkcs8::pkcs5::EncryptionScheme<'_>) -> bool {
+    use pkcs8::pkcs5::EncryptionScheme;
+    use pkcs8::pkcs5::pbes2::Kdf;
+    match scheme {
+        EncryptionScheme::Pbes2(params) => match &params.kdf {
+            Kdf::Pbkdf2(k) => (1..=MAX_PBKDF2_ITERATIONS).contains(&k.iteration_count),
+            Kdf::Scrypt(k) => {
+                let (n, r, p) = (k.cost_parameter, u64::from(k.block_size), k.parallelization);
+                n >= 2
+                    && n.is_power_of_two()
+                    && r > 0
+                    && (1..=MAX_SCRYPT_PARALLELIZATION).contains(&p)
+                    && n.checked_mul(r).and_then(|x| x.checked_mul(128)).is_some_and(|m| m <= MAX_SCRYPT_MEMORY)
+            }
+            _ => false,
+        },
+        // PBES1: decrypt refuses it (EINVAL).
+        _ => true,
+    }
 }
 
 /// Reads a PEM file; an unreadable file gives the errno of the failure.
@@ -608,5 +644,52 @@ mod tests {
         assert_eq!(private_key(legacy, Some(b"secret")).err(), Some(Error::INVALID));
         assert_eq!(private_key(legacy, None).err(), Some(Error::INVALID));
         assert_eq!(private_key(b"", None).err(), Some(Error::INVALID));
+    }
+
+    /// A key file's parameters must not make decryption take hours or more memory
+    /// than there is (an allocation failure would abort the process), nor reach a
+    /// panic in the KDF (scrypt with N < 2).
+    #[test]
+    fn hostile_key_parameters_are_refused_before_decryption() {
+        use pkcs8::pkcs5::{EncryptionScheme, pbes2};
+        let iv = [0u8; 16];
+        let scrypt = |n: u64, r: u16, p: u16| {
+            EncryptionScheme::Pbes2(pbes2::Parameters {
+                kdf: pbes2::Kdf::Scrypt(pbes2::ScryptParams {
+                    salt: b"salt",
+                    cost_parameter: n,
+                    block_size: r,
+                    parallelization: p,
+                    key_length: None,
+                }),
+                encryption: pbes2::EncryptionScheme::Aes256Cbc { iv: &iv },
+            })
+        };
+        let pbkdf2 = |iterations: u32| {
+            EncryptionScheme::Pbes2(pbes2::Parameters {
+                kdf: pbes2::Kdf::Pbkdf2(pbes2::Pbkdf2Params {
+                    salt: b"salt",
+                    iteration_count: iterations,
+                    key_length: None,
+                    prf: pbes2::Pbkdf2Prf::HmacWithSha256,
+                }),
+                encryption: pbes2::EncryptionScheme::Aes256Cbc { iv: &iv },
+            })
+        };
+        // What openssl writes.
+        assert!(affordable(&scrypt(16384, 8, 1)));
+        assert!(affordable(&pbkdf2(2048)));
+        assert!(affordable(&pbkdf2(600_000)));
+        // 1 PiB, 0, not a power of two, no block, too many passes.
+        assert!(!affordable(&scrypt(1 << 40, 8, 1)));
+        assert!(!affordable(&scrypt(0, 8, 1)));
+        assert!(!affordable(&scrypt(1, 8, 1)));
+        assert!(!affordable(&scrypt(3000, 8, 1)));
+        assert!(!affordable(&scrypt(16384, 0, 1)));
+        assert!(!affordable(&scrypt(16384, 8, 0)));
+        assert!(!affordable(&scrypt(16384, 8, 1000)));
+        assert!(!affordable(&scrypt(1 << 62, 1 << 15, 1)));
+        assert!(!affordable(&pbkdf2(u32::MAX)));
+        assert!(!affordable(&pbkdf2(0)));
     }
 }
