@@ -46,6 +46,8 @@ SECONDS = float(os.environ.get("BENCH_SECONDS", "0.6" if QUICK else "10"))
 SLICE = float(os.environ.get("BENCH_SLICE", "0.1"))
 METRIC_CASES = os.environ.get("BENCH_METRIC_CASES", "r125" if QUICK else " ".join(CASES)).split()
 METRICS = os.environ.get("BENCH_METRICS", "strace callgrind allocs").split()
+# The costs per TLS transaction measured (default: those of BENCH_METRICS).
+TLS_METRICS = os.environ.get("BENCH_TLS_METRICS", " ".join(METRICS)).split()
 THROUGHPUT = os.environ.get("BENCH_THROUGHPUT", "1") == "1"
 PIN = os.environ.get("BENCH_PIN", "")  # e.g. "1": every process of a measurement on that CPU set
 # TCP: price the waiting floor's two waits one at a time (two more floors per case).
@@ -812,17 +814,17 @@ def tls_section():
                          f"({run.spread(c, OO, percent=True)}) | {cpu[0]:.0f} + {cpu[1]:.0f} µs |")
         lines.append(f"\nHandshakes per second (each with a read and a close): full {fmt(run.tps(TLS_FULL))}, "
                      f"resumed {fmt(run.tps(TLS))}; plain TCP connections {fmt(run.tps(OO))}.")
-    if METRICS:
+    if TLS_METRICS:
         lines.append("\nCost per transaction, each side measured against our other side (the only TLS peer), "
                      "the method of the costs above.\n")
         header, sep = "| case | side |", "|---|---|"
-        if "strace" in METRICS:
+        if "strace" in TLS_METRICS:
             header += " syscalls/tx TCP | syscalls/tx TLS | TLS: calls |"
             sep += "---:|---:|---|"
-        if "callgrind" in METRICS:
+        if "callgrind" in TLS_METRICS:
             header += " Ir/tx TCP | Ir/tx TLS |"
             sep += "---:|---:|"
-        if "allocs" in METRICS:
+        if "allocs" in TLS_METRICS:
             header += " allocs/tx TCP | allocs/tx TLS |"
             sep += "---:|---:|"
         lines.extend([header, sep])
@@ -830,7 +832,7 @@ def tls_section():
             for side in ("client", "server"):
                 row = f"| {CASE_TITLES[case]} | {side} |"
                 for metric in ("strace", "callgrind", "allocs"):
-                    if metric not in METRICS:
+                    if metric not in TLS_METRICS:
                         continue
                     tcp = per_tx(metric, side, "tcp", case, "ours", peer="ours")
                     tls = per_tx(metric, side, "tls", case, "ours", peer="ours")

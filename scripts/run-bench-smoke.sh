@@ -18,7 +18,8 @@ mkdir -p target/bench
 report=target/bench/smoke.md
 rm -f "$report"
 status=0
-BENCH_QUICK=1 BENCH_FLOOR_PARTS=1 BENCH_CASES=r1 BENCH_METRIC_CASES=r1 BENCH_RESULTS="$report" scripts/bench.sh \
+BENCH_QUICK=1 BENCH_FLOOR_PARTS=1 BENCH_CASES=r1 BENCH_METRIC_CASES=r1 BENCH_TLS_METRICS="strace allocs" \
+    BENCH_RESULTS="$report" scripts/bench.sh \
     >/dev/null 2>target/bench/smoke.log || status=$?
 if [ "$status" -ne 0 ]; then
     tail -n 20 target/bench/smoke.log

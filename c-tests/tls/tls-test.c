@@ -57,7 +57,6 @@
 
 #include <modbus.h>
 
-int print_loaded_libmodbus(void);
 
 static int failures;
 
@@ -388,7 +387,7 @@ int main(int argc, char *argv[])
         fprintf(stderr, "usage: %s CERTDIR HOST PORT SCENARIO [N]\n", argv[0]);
         return 2;
     }
-    print_loaded_libmodbus();
+    /* The LIBINFO line: printed before main by ../common/libinfo.c. */
     dir = argv[1];
     const char *host = argv[2], *port = argv[3], *scenario = argv[4];
     uint16_t regs[5];
