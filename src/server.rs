@@ -131,7 +131,8 @@ pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn M
 /// range `req` touches, for the role of the client on the context's socket (R-24 to
 /// R-28 of the specification). The callback runs with the context unlocked: if it
 /// makes another socket current, the client that would get the answer is not the
-/// one whose role was asked about, so nothing is served or sent (EINVAL).
+/// one whose role was asked about, so nothing is served or sent (EINVAL); if the
+/// context was closed meanwhile, the stop ends the reply (EBADF).
 fn authorized(g: &mut Guard<'_>, req: &[u8]) -> Result<bool> {
     let fd = g.s;
     let Some(tls) = g.tls.as_deref() else { return Ok(true) };
@@ -144,7 +145,9 @@ fn authorized(g: &mut Guard<'_>, req: &[u8]) -> Result<bool> {
         let allowed =
             engine::call_unlocked(g, || hook(role.as_deref(), unit, access.function, range.address, range.nb));
         if g.s != fd {
-            return Err(Error::INVALID);
+            // Closed meanwhile (another thread, a signal handler): the stop; or
+            // another socket made current by the callback.
+            return Err(if g.s < 0 || g.stopping() { Error::STOPPED } else { Error::INVALID });
         }
         if !allowed {
             let shown = role.as_deref().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));

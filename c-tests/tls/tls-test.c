@@ -32,6 +32,9 @@
  *              server that never answers it, a server's accept whose client stalls
  *              in the handshake, and a server's receive from a silent client: -1
  *              EBADF within 1.5 s (timeouts are 10 s)
+ *   callback   (in this process) an authorization callback that makes another
+ *              socket current gets modbus_reply -1 EINVAL and nothing sent (the
+ *              client times out); one that closes the context gets -1 EBADF
  *   threads N  N threads share one client context, 300 write/read-back pairs each on
  *              their own register (80 + i): every answer right
  *   password   keys encrypted with a password (make-certs.sh): without it or with a
@@ -365,6 +368,72 @@ static void stop_scenario(void)
     }
 }
 
+/* ---- callback: what modbus_reply does when the callback switches or closes ---- */
+
+static int switch_to; /* the socket the callback makes current; -1: it closes the context */
+
+static int meddling(modbus_t *ctx, const char *role, int unit_id, int function, int address, int nb, void *data)
+{
+    (void)role, (void)unit_id, (void)function, (void)address, (void)nb, (void)data;
+    if (switch_to >= 0)
+        modbus_set_socket(ctx, switch_to);
+    else
+        modbus_close(ctx);
+    return 1;
+}
+
+/* A client that sends one read and waits up to 1 s for its answer. */
+static void *asking_client(void *arg)
+{
+    struct peer *p = arg;
+    char port[16];
+    uint16_t v;
+    snprintf(port, sizeof port, "%d", p->port);
+    p->ctx = client("127.0.0.1", port, "operator", 1);
+    modbus_set_response_timeout(p->ctx, 1, 0);
+    p->raw = modbus_connect(p->ctx) == 0 && modbus_read_registers(p->ctx, 0, 1, &v) == 1 ? 0 : errno;
+    return NULL;
+}
+
+static void callback_scenario(void)
+{
+    char detail[200];
+    for (int closes = 0; closes < 2; closes++) {
+        struct peer c = {0};
+        uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
+        modbus_mapping_t *map = modbus_mapping_new(10, 10, 10, 10);
+        modbus_t *server = listening_server(&c.listener, &c.port);
+        modbus_set_tls_authorization(server, meddling, NULL);
+        pthread_t t;
+        pthread_create(&t, NULL, asking_client, &c);
+        int rc = modbus_tcp_accept(server, &c.listener);
+        check(rc >= 0, "callback: accept", rc < 0 ? modbus_strerror(errno) : NULL);
+        rc = modbus_receive(server, query);
+        check(rc > 0, "callback: the request is received", rc < 0 ? modbus_strerror(errno) : NULL);
+        int accepted = modbus_get_socket(server);
+        switch_to = closes ? -1 : c.listener;
+        errno = 0;
+        int sent = modbus_reply(server, query, rc, map);
+        int e = errno;
+        pthread_join(t, NULL);
+        snprintf(detail, sizeof detail, "modbus_reply %d errno %d (%s); the client: %s", sent, e, modbus_strerror(e),
+                 c.raw ? modbus_strerror(c.raw) : "answered");
+        if (closes)
+            check(sent == -1 && e == EBADF && c.raw != 0,
+                  "callback: a callback that closes the context: modbus_reply -1 EBADF, no answer", detail);
+        else
+            check(sent == -1 && e == EINVAL && c.raw == ETIMEDOUT,
+                  "callback: a callback that switches sockets: modbus_reply -1 EINVAL, nothing sent", detail);
+        if (!closes)
+            close(accepted);
+        modbus_close(c.ctx);
+        modbus_free(c.ctx);
+        close(c.listener);
+        modbus_free(server);
+        modbus_mapping_free(map);
+    }
+}
+
 /* ---- threads: one client context shared by N threads ---- */
 
 static modbus_t *shared;
@@ -502,6 +571,8 @@ int main(int argc, char *argv[])
         modbus_free(ctx);
     } else if (strcmp(scenario, "stop") == 0) {
         stop_scenario();
+    } else if (strcmp(scenario, "callback") == 0) {
+        callback_scenario();
     } else if (strcmp(scenario, "threads") == 0) {
         int n = argc > 5 ? atoi(argv[5]) : 8, bad = 0;
         pthread_t t[16];
