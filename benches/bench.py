@@ -475,6 +475,31 @@ def cost_run(metric, side, transport, case, lib, n, warm=20, peer="debian"):
 METRIC_N = {"strace": 1000, "callgrind": 300, "allocs": 1000}
 
 
+def cost_header(lead, metrics, a, b):
+    """The header and separator of a cost table: the `lead` columns, then per metric
+    the figures of pairing `a` and `b` (and, for system calls, b's calls)."""
+    header, sep = "| " + " | ".join(lead) + " |", "|" + "---|" * len(lead)
+    if "strace" in metrics:
+        header += f" syscalls/tx {a} | syscalls/tx {b} | {b}: calls |"
+        sep += "---:|---:|---|"
+    if "callgrind" in metrics:
+        header += f" Ir/tx {a} | Ir/tx {b} |"
+        sep += "---:|---:|"
+    if "allocs" in metrics:
+        header += f" allocs/tx {a} | allocs/tx {b} |"
+        sep += "---:|---:|"
+    return header, sep
+
+
+def syscalls(counts):
+    """System calls per transaction from strace's counts: the total, and the calls
+    (most frequent first) as text."""
+    total = sum(v for k, v in counts.items() if k != "total")
+    calls = ", ".join(f"{k} {v:.1f}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])
+                      if k != "total" and v >= 0.05)
+    return total, calls
+
+
 def per_tx(metric, side, transport, case, lib, peer="debian"):
     n = METRIC_N[metric] // (2 if QUICK else 1)
     a = cost_run(metric, side, transport, case, lib, n, peer=peer)
@@ -687,19 +712,7 @@ def main():
                      "--tool=callgrind`, total Ir of the whole process (program + libmodbus + libc), with the "
                      "libmodbus.so object's own share in brackets. Allocations: an LD_PRELOAD counter of "
                      "malloc/calloc/realloc/memalign calls.\n")
-        header = "| transport | case | side |"
-        sep = "|---|---|---|"
-        if "strace" in METRICS:
-            header += " syscalls/tx Debian | syscalls/tx ours | ours: calls |"
-            sep += "---:|---:|---|"
-        if "callgrind" in METRICS:
-            header += " Ir/tx Debian | Ir/tx ours |"
-            sep += "---:|---:|"
-        if "allocs" in METRICS:
-            header += " allocs/tx Debian | allocs/tx ours |"
-            sep += "---:|---:|"
-        lines.append(header)
-        lines.append(sep)
+        lines.extend(cost_header(("transport", "case", "side"), METRICS, "Debian", "ours"))
         for transport in [t for t in TRANSPORTS if t != "tls"]:
             for case in METRIC_CASES:
                 for side in ("client", "server"):
@@ -707,12 +720,8 @@ def main():
                     if "strace" in METRICS:
                         d = per_tx("strace", side, transport, case, "debian")
                         o = per_tx("strace", side, transport, case, "ours")
-                        dt = sum(d.values()) - d.get("total", 0)
-                        ot = sum(o.values()) - o.get("total", 0)
-                        detail = ", ".join(f"{k} {v:.1f}" for k, v in sorted(o.items(), key=lambda kv: -kv[1])
-                                           if k != "total" and v >= 0.05)
-                        dd_detail = ", ".join(f"{k} {v:.1f}" for k, v in sorted(d.items(), key=lambda kv: -kv[1])
-                                              if k != "total" and v >= 0.05)
+                        dt, dd_detail = syscalls(d)
+                        ot, detail = syscalls(o)
                         log(f"syscalls {transport} {case} {side}: debian {dd_detail} | ours {detail}")
                         row += f" {dt:.1f} | {ot:.1f} | {detail} |"
                         costs[("syscalls", transport, case, side)] = (dt, ot)
@@ -817,17 +826,7 @@ def tls_section():
     if TLS_METRICS:
         lines.append("\nCost per transaction, each side measured against our other side (the only TLS peer), "
                      "the method of the costs above.\n")
-        header, sep = "| case | side |", "|---|---|"
-        if "strace" in TLS_METRICS:
-            header += " syscalls/tx TCP | syscalls/tx TLS | TLS: calls |"
-            sep += "---:|---:|---|"
-        if "callgrind" in TLS_METRICS:
-            header += " Ir/tx TCP | Ir/tx TLS |"
-            sep += "---:|---:|"
-        if "allocs" in TLS_METRICS:
-            header += " allocs/tx TCP | allocs/tx TLS |"
-            sep += "---:|---:|"
-        lines.extend([header, sep])
+        lines.extend(cost_header(("case", "side"), TLS_METRICS, "TCP", "TLS"))
         for case in TLS_CASES:
             for side in ("client", "server"):
                 row = f"| {CASE_TITLES[case]} | {side} |"
@@ -837,10 +836,8 @@ def tls_section():
                     tcp = per_tx(metric, side, "tcp", case, "ours", peer="ours")
                     tls = per_tx(metric, side, "tls", case, "ours", peer="ours")
                     if metric == "strace":
-                        t_tcp = sum(v for k, v in tcp.items() if k != "total")
-                        t_tls = sum(v for k, v in tls.items() if k != "total")
-                        detail = ", ".join(f"{k} {v:.1f}" for k, v in sorted(tls.items(), key=lambda kv: -kv[1])
-                                           if k != "total" and v >= 0.05)
+                        t_tcp, _ = syscalls(tcp)
+                        t_tls, detail = syscalls(tls)
                         row += f" {t_tcp:.1f} | {t_tls:.1f} | {detail} |"
                         rows.append((f"TLS {CASE_TITLES[case]}, {side}: <= {TLS_SYSCALLS} system calls",
                                      "met" if t_tls <= TLS_SYSCALLS else "NOT MET", f"{t_tls:.1f} ({detail})"))

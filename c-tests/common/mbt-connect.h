@@ -25,7 +25,6 @@
 struct mbt_tls_api {
     modbus_t *(*new_tcp_tls)(const char *ip, int port);
     int (*set_certificate)(modbus_t *ctx, const char *chain_file, const char *key_file);
-    int (*set_certificate_pem)(modbus_t *ctx, const char *chain_pem, const char *key_pem);
     int (*set_ca)(modbus_t *ctx, const char *ca_file);
     int (*set_min_version)(modbus_t *ctx, int version);
 };
@@ -37,10 +36,9 @@ static inline const struct mbt_tls_api *mbt_tls_api(const char *prog)
     if (api.new_tcp_tls == NULL) {
         *(void **) &api.new_tcp_tls = dlsym(RTLD_DEFAULT, "modbus_new_tcp_tls");
         *(void **) &api.set_certificate = dlsym(RTLD_DEFAULT, "modbus_set_tls_certificate");
-        *(void **) &api.set_certificate_pem = dlsym(RTLD_DEFAULT, "modbus_set_tls_certificate_pem");
         *(void **) &api.set_ca = dlsym(RTLD_DEFAULT, "modbus_set_tls_ca");
         *(void **) &api.set_min_version = dlsym(RTLD_DEFAULT, "modbus_set_tls_min_version");
-        if (api.new_tcp_tls == NULL || api.set_certificate == NULL || api.set_certificate_pem == NULL ||
+        if (api.new_tcp_tls == NULL || api.set_certificate == NULL ||
             api.set_ca == NULL || api.set_min_version == NULL) {
             fprintf(stderr, "%s: this libmodbus.so.5 has no TLS (Modbus/TCP Security)\n", prog);
             api.new_tcp_tls = NULL;
