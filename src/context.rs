@@ -4,10 +4,10 @@
 use std::ffi::CStr;
 use std::sync::Arc;
 
-use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
-use crate::core::limits::TCP_SLAVE;
-use crate::core::session::receive::{LineCaps, Settings};
 use crate::error::{Error, Result};
+use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
+use crate::proto::limits::TCP_SLAVE;
+use crate::proto::session::receive::{LineCaps, Settings};
 use crate::stdio::{self, DebugSink};
 use crate::stop::Stop;
 
@@ -17,7 +17,7 @@ pub const QUIRK_MAX_SLAVE: u32 = 1 << 1;
 pub const QUIRK_REPLY_TO_BROADCAST: u32 = 1 << 2;
 
 /// `MODBUS_ERROR_RECOVERY_LINK` and `_PROTOCOL`, and the timeouts: the session rules'.
-pub use crate::core::session::{RECOVERY_LINK, RECOVERY_PROTOCOL, Timeout, Timeouts};
+pub use crate::proto::session::{RECOVERY_LINK, RECOVERY_PROTOCOL, Timeout, Timeouts};
 
 /// The links a context talks over (transport settings), seen from the context.
 pub use crate::transport::link::{
@@ -25,14 +25,14 @@ pub use crate::transport::link::{
 };
 
 /// Bytes read past a message, for the next receive (see [`ReadAhead`]).
-pub use crate::core::session::receive::ReadAhead;
+pub use crate::proto::session::receive::ReadAhead;
 
 /// One Modbus context.
 pub struct Context {
     pub framing: Framing,
     pub link: Link,
     /// What a receive needs of the context, kept where a receive finds it whole
-    /// (see `core::session::receive::Settings`): the slave (unit) id used for requests
+    /// (see `proto::session::receive::Settings`): the slave (unit) id used for requests
     /// (-1 until set on RTU), the error recovery mode, the response, byte and
     /// indication timeouts, and whether the server answers the function codes beyond
     /// libmodbus (set by the server configuration calls: their requests are then

@@ -5,14 +5,14 @@
 use std::time::Duration;
 
 use crate::context::{ClientSocket, Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
-use crate::core::confirm::{self, Rejection};
-use crate::core::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
-use crate::core::request::{Request, next_tid};
-use crate::core::session::receive::{self, Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Step};
-use crate::core::session::{self, Recovery, Timeout};
-use crate::core::{Diag, ascii};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
+use crate::proto::confirm::{self, Rejection};
+use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
+use crate::proto::request::{Request, next_tid};
+use crate::proto::session::receive::{self, Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Step};
+use crate::proto::session::{self, Recovery, Timeout};
+use crate::proto::{Diag, ascii};
 use crate::stop::Stop;
 use crate::transport::tcp::ConnectError;
 use crate::transport::{self, Ready, rtu, tcp, tls};
@@ -411,7 +411,7 @@ pub enum Received {
     Ignored(usize),
 }
 
-/// Carries out the recovery a failure asks for (see `core::session`), unless the
+/// Carries out the recovery a failure asks for (see `proto::session`), unless the
 /// context is being closed under the call.
 fn recover(ctx: &mut Context, recovery: Recovery) {
     if recovery == Recovery::None || ctx.stopping() {
@@ -470,7 +470,7 @@ fn prepare_session(ctx: &mut Context, kind: MsgKind) {
 }
 
 /// libmodbus's `_modbus_receive_msg`, for every framing and line: the one receive
-/// path. The session's machine (`core::session::receive`) decides every step; this
+/// path. The session's machine (`proto::session::receive`) decides every step; this
 /// loop carries each out with its system call and reports the result. What the
 /// machine asks for makes the system-call counts: a TCP client's response is one
 /// read under `SO_RCVTIMEO`; a TCP server peeks and takes a whole request in one
@@ -852,6 +852,6 @@ pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
 /// framing, so that its answer can be framed (see `Context::diagnostics_sent`).
 fn note_diagnostics(ctx: &mut Context, unsealed: &[u8]) {
     let h = ctx.framing.header_length();
-    ctx.diagnostics_sent = (ctx.framing != Framing::Tcp && unsealed.get(h) == Some(&crate::core::fc::DIAGNOSTICS))
+    ctx.diagnostics_sent = (ctx.framing != Framing::Tcp && unsealed.get(h) == Some(&crate::proto::fc::DIAGNOSTICS))
         .then_some(unsealed.len());
 }

@@ -1,7 +1,7 @@
 //! rsmodbus: a memory-safe, binary drop-in replacement for libmodbus (`libmodbus.so.5`).
 //!
 //! Layers, from the wire up (ARCHITECTURE.md has the whole picture):
-//! - [`core`]: the protocol crate `rsmodbus-proto` (framing, lengths, requests,
+//! - [`proto`]: the protocol crate `rsmodbus-proto` (framing, lengths, requests,
 //!   response checks and decoders, server replies). No `unsafe`, no clock, no I/O.
 //! - [`transport`]: file-descriptor I/O for serial lines and TCP (`poll`, never `select`).
 //! - [`context`] and [`engine`]: a `modbus_t` context and the libmodbus flows that drive
@@ -27,7 +27,7 @@
 compile_error!("rsmodbus must be built with panic = \"abort\" (see the panic policy in src/lib.rs)");
 
 /// The protocol crate, under the name the library's modules use.
-pub use rsmodbus_proto as core;
+pub use rsmodbus_proto as proto;
 pub use rsmodbus_proto::error;
 use rsmodbus_proto::server_ext;
 

@@ -1,22 +1,22 @@
 //! Server flows: `modbus_receive`, `modbus_reply` and `modbus_reply_exception` over a
 //! locked context. The decisions are made by the sans-I/O core
-//! ([`crate::core::reply`], and [`crate::server_ext`] for a context configured
+//! ([`crate::proto::reply`], and [`crate::server_ext`] for a context configured
 //! beyond libmodbus); this module only does what the outcome says, in libmodbus's
 //! order: sleep and flush, then send (or not, for an RTU broadcast).
 //!
 //! A context with diagnostics enabled (`modbus_enable_diagnostics`) also reports
 //! here what happened on the line: frames and checksum errors from the receive,
-//! responses sent or not from the replies (see [`crate::core::diagnostics`]). A
+//! responses sent or not from the replies (see [`crate::proto::diagnostics`]). A
 //! context without the extension pays one pointer test per call.
 
 use crate::context::Context;
-use crate::core::Diag;
-use crate::core::diagnostics::Delivery;
-use crate::core::frame::{Framing, MsgKind};
-use crate::core::reply::{Mapping, Outcome, Server, exception_response};
-use crate::core::security;
 use crate::engine::{self, AduBuf, Guard, Received};
 use crate::error::{Error, Result, exception};
+use crate::proto::Diag;
+use crate::proto::diagnostics::Delivery;
+use crate::proto::frame::{Framing, MsgKind};
+use crate::proto::reply::{Mapping, Outcome, Server, exception_response};
+use crate::proto::security;
 use crate::server_ext::BusEvent;
 
 /// `modbus_receive`: waits for one request and returns its length, or 0 for a frame
@@ -98,7 +98,7 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 }
 
 /// `modbus_reply`: answers `req` (at most the bytes the request describes; see
-/// [`crate::core::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
+/// [`crate::proto::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
 /// for a suppressed RTU broadcast (and, with diagnostics, in listen-only mode).
 pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
     if g.tls.as_deref().is_some_and(|t| t.authorize.is_some()) && !authorized(g, req)? {

@@ -8,7 +8,7 @@
 use core::fmt;
 use std::io::Write;
 
-use crate::core::Diag;
+use crate::proto::Diag;
 
 unsafe extern "C" {
     static mut stdout: *mut libc::FILE;

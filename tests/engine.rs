@@ -4,12 +4,12 @@
 //! (Integration tests: they use sockets and time, so they live outside `src/`.)
 
 use modbus::context::{Context, Timeout};
-use modbus::core::ascii;
-use modbus::core::frame::{MAX_ADU_LENGTH, MsgKind};
-use modbus::core::request::Request;
 use modbus::engine::*;
 use modbus::error::Error;
 use modbus::lock::OwnerMutex as Mutex;
+use modbus::proto::ascii;
+use modbus::proto::frame::{MAX_ADU_LENGTH, MsgKind};
+use modbus::proto::request::Request;
 use modbus::transport;
 use std::time::{Duration, Instant};
 
@@ -273,7 +273,7 @@ fn rtu_frame_for_another_slave_is_ignored_and_bad_crc_refused() {
     let mut g = m.lock();
     let frame = |slave: u8| {
         let mut f = vec![slave, 0x06, 0x00, 0x01, 0x00, 0x03];
-        f.extend(modbus::core::crc::crc16(&f).to_le_bytes());
+        f.extend(modbus::proto::crc::crc16(&f).to_le_bytes());
         f
     };
     let mut buf = [0u8; MAX_ADU_LENGTH];
@@ -306,7 +306,7 @@ fn serial_requests_in_pieces_and_back_to_back() {
     let mut g = m.lock();
     let rtu = |body: &[u8]| {
         let mut f = body.to_vec();
-        f.extend(modbus::core::crc::crc16(body).to_le_bytes());
+        f.extend(modbus::proto::crc::crc16(body).to_le_bytes());
         f
     };
     let read = rtu(&[0x11, 0x03, 0x00, 0x6B, 0x00, 0x03]);

@@ -6,11 +6,11 @@
 use std::{ptr, slice};
 
 use modbus::context::Context;
-use modbus::core::crc::crc16;
 use modbus::ffi::Modbus;
 use modbus::ffi::context::{modbus_free, modbus_set_response_timeout, modbus_set_slave, modbus_set_socket};
 use modbus::ffi::into_handle;
 use modbus::ffi::server::*;
+use modbus::proto::crc::crc16;
 use modbus::transport::{close, errno};
 
 fn socket_pair() -> (i32, i32) {
@@ -76,7 +76,7 @@ fn rtu(fd: i32, slave: i32) -> Ctx {
 
 #[test]
 fn report_slave_id_names_the_exported_version() {
-    assert_eq!(modbus::core::reply::VERSION_STRING, modbus::ffi::version::LIBMODBUS_VERSION_STRING);
+    assert_eq!(modbus::proto::reply::VERSION_STRING, modbus::ffi::version::LIBMODBUS_VERSION_STRING);
 }
 
 #[test]

@@ -5,7 +5,7 @@
 
 use std::ffi::c_int;
 
-use modbus::core::frame::{Framing, MAX_ADU_LENGTH};
+use modbus::proto::frame::{Framing, MAX_ADU_LENGTH};
 use modbus::ffi::Modbus;
 use modbus::ffi::client::*;
 use modbus::ffi::context::*;
@@ -377,7 +377,7 @@ pub fn ffi_server(data: &[u8]) {
             modbus_set_slave(ctx, slave);
         }
         if flags & 4 != 0 {
-            modbus_enable_quirks(ctx, modbus::core::reply::QUIRK_REPLY_TO_BROADCAST);
+            modbus_enable_quirks(ctx, modbus::proto::reply::QUIRK_REPLY_TO_BROADCAST);
         }
     }
     // The documented buffer size: MODBUS_TCP_MAX_ADU_LENGTH or MODBUS_RTU_MAX_ADU_LENGTH.

@@ -21,12 +21,12 @@
 
 use std::fmt;
 
-use modbus::core::confirm::{self, Rejection};
-use modbus::core::crc::crc16;
-use modbus::core::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
-use modbus::core::reply::{Outcome, QUIRK_REPLY_TO_BROADCAST, Server, Table, Tables, request_extent};
-use modbus::core::request::Request;
-use modbus::core::{Diag, ascii};
+use modbus::proto::confirm::{self, Rejection};
+use modbus::proto::crc::crc16;
+use modbus::proto::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
+use modbus::proto::reply::{Outcome, QUIRK_REPLY_TO_BROADCAST, Server, Table, Tables, request_extent};
+use modbus::proto::request::Request;
+use modbus::proto::{Diag, ascii};
 use modbus::error::{Error, MODBUS_ENOBASE};
 
 pub mod ffi;
@@ -870,7 +870,7 @@ pub fn client_ascii(data: &[u8]) {
 /// - What `bytes` as a request PDU asks the authorization callback: its function
 ///   code and one or two ranges.
 pub fn security(data: &[u8]) {
-    use modbus::core::security::{MAX_ROLE_LENGTH, RecordCut, access, role};
+    use modbus::proto::security::{MAX_ROLE_LENGTH, RecordCut, access, role};
     let Some((&seed, bytes)) = data.split_first() else { return };
     // Boundaries by a plain parse of the headers.
     let mut expected = Vec::new();

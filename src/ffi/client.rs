@@ -4,14 +4,14 @@
 use std::ffi::c_int;
 use std::slice;
 
-use crate::core::data::registers_from_be;
-use crate::core::fc;
-use crate::core::frame::{MAX_ADU_LENGTH, MsgKind};
-use crate::core::limits::{MAX_PDU_LENGTH, MAX_READ_BITS, MAX_READ_REGISTERS};
-use crate::core::request::{Request, check_read_count, check_write_and_read_counts, check_write_count};
 use crate::engine::{self, AduBuf, Guard, Received};
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, with_ctx};
+use crate::proto::data::registers_from_be;
+use crate::proto::fc;
+use crate::proto::frame::{MAX_ADU_LENGTH, MsgKind};
+use crate::proto::limits::{MAX_PDU_LENGTH, MAX_READ_BITS, MAX_READ_REGISTERS};
+use crate::proto::request::{Request, check_read_count, check_write_and_read_counts, check_write_count};
 
 /// Sends a read of bits and unpacks `nb` of them into `dest`, LSB first.
 fn read_bits(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut u8) -> Result<c_int> {
@@ -21,10 +21,10 @@ fn read_bits(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut
     let done = engine::exchange(g, &Request::ReadBits { function, addr, nb }, &mut rsp);
     if let Ok(done) = &done {
         let h = g.framing.header_length();
-        let packed = crate::core::decode::counted_data(&rsp[h..], done.count as usize);
+        let packed = crate::proto::decode::counted_data(&rsp[h..], done.count as usize);
         // SAFETY: the caller provides `nb` writable bytes at `dest` (checked non-NULL).
         let dest = unsafe { slice::from_raw_parts_mut(dest, nb as usize) };
-        crate::core::data::set_bits_from_bytes(dest, packed);
+        crate::proto::data::set_bits_from_bytes(dest, packed);
     }
     g.spare.give(rsp);
     done.map(|_| nb)
@@ -46,7 +46,7 @@ fn read_registers(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest:
 /// Copies `count` big-endian registers from a read response into `dest`.
 fn store_registers(g: &Guard<'_>, rsp: &AduBuf, count: c_int, dest: *mut u16) {
     let h = g.framing.header_length();
-    let data = crate::core::decode::counted_data(&rsp[h..], 2 * count as usize);
+    let data = crate::proto::decode::counted_data(&rsp[h..], 2 * count as usize);
     // SAFETY: the response count was checked to equal the requested count, for which
     // the caller provides room at `dest` (checked non-NULL).
     let dest = unsafe { slice::from_raw_parts_mut(dest, count as usize) };
@@ -259,7 +259,7 @@ pub unsafe extern "C" fn modbus_report_slave_id(ctx: *mut Modbus, max_dest: c_in
             let n = (done.count as usize).min(max_dest as usize);
             // SAFETY: `dest` is non-NULL and holds `max_dest` >= n bytes.
             let dest = slice::from_raw_parts_mut(dest, n);
-            dest.copy_from_slice(crate::core::decode::counted_data(&rsp[h..], n));
+            dest.copy_from_slice(crate::proto::decode::counted_data(&rsp[h..], n));
             Ok(done.count)
         })
     }

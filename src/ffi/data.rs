@@ -3,7 +3,7 @@
 use std::ffi::{c_int, c_uint};
 use std::slice;
 
-use crate::core::data::{self, FloatOrder};
+use crate::proto::data::{self, FloatOrder};
 
 /// Sets `dest[idx..idx + 8]` to the bits of `value`, LSB first.
 ///

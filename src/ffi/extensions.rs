@@ -5,14 +5,14 @@
 use std::ffi::{c_char, c_int};
 use std::slice;
 
-use crate::core::decode;
-use crate::core::frame::MAX_ADU_LENGTH;
-use crate::core::request::{
-    MAX_DIAGNOSTICS_WORDS, MAX_FIFO_COUNT, MAX_FILE_READ_REGISTERS, MAX_FILE_RECORD, MAX_FILE_WRITE_REGISTERS, Request,
-};
 use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail, with_ctx};
+use crate::proto::decode;
+use crate::proto::frame::MAX_ADU_LENGTH;
+use crate::proto::request::{
+    MAX_DIAGNOSTICS_WORDS, MAX_FIFO_COUNT, MAX_FILE_READ_REGISTERS, MAX_FILE_RECORD, MAX_FILE_WRITE_REGISTERS, Request,
+};
 
 /// Sends `req`; returns the checked response from its PDU on (in `rsp`) and the
 /// check's count.

@@ -10,11 +10,11 @@ use std::mem::{offset_of, size_of};
 use std::ptr;
 use std::slice;
 
-use crate::core::diagnostics::Diagnostics;
-use crate::core::reply::{Mapping, Table, request_extent};
 use crate::engine::Guard;
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail, with_ctx};
+use crate::proto::diagnostics::Diagnostics;
+use crate::proto::reply::{Mapping, Table, request_extent};
 use crate::server_ext::ServerExt;
 use crate::transport::listen;
 

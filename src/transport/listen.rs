@@ -8,8 +8,8 @@
 use std::ffi::CStr;
 use std::mem::{size_of, zeroed};
 
-use crate::core::Diag;
 use crate::error::{Error, Result};
+use crate::proto::Diag;
 use crate::transport::link::Link;
 use crate::transport::tcp::{AddrInfo, gai_error, inet_pton};
 use crate::transport::{Ready, close, last_error, wait_or_wake};

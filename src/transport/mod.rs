@@ -41,7 +41,7 @@ pub fn last_error() -> Error {
 }
 
 /// A context timeout as the `timespec` the waits take.
-pub fn timespec_of(t: crate::core::session::Timeout) -> libc::timespec {
+pub fn timespec_of(t: crate::proto::session::Timeout) -> libc::timespec {
     libc::timespec { tv_sec: t.sec as libc::time_t, tv_nsec: t.usec as libc::c_long * 1000 }
 }
 

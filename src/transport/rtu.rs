@@ -3,8 +3,8 @@
 
 use std::mem::zeroed;
 
-use crate::core::Diag;
 use crate::error::{Error, Result};
+use crate::proto::Diag;
 use crate::transport::link::{RTU_RS232, RTU_RS485, RtuLink};
 use crate::transport::{close, last_error};
 

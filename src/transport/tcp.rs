@@ -6,8 +6,8 @@ use std::ffi::CStr;
 use std::mem::{size_of, zeroed};
 use std::time::Duration;
 
-use crate::core::Diag;
 use crate::error::{Error, Result};
+use crate::proto::Diag;
 use crate::transport::link::{TcpLink, TcpPiLink};
 use crate::transport::{close, errno, last_error, set_option, wait};
 

@@ -38,12 +38,12 @@ use rustls::{
 };
 
 use super::{Ready, now, to_timespec, wait_or_wake};
-use crate::core::security;
-pub use crate::core::security::RecordCut;
 use crate::error::{
     EMBTLS, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSPASSWORD, EMBTLSUNKNOWNCA, EMBTLSVERSION,
     Error, Result, errno,
 };
+use crate::proto::security;
+pub use crate::proto::security::RecordCut;
 
 /// `MODBUS_TLS_1_2`, `MODBUS_TLS_1_3`: the protocol versions, as on the wire.
 pub const TLS_1_2: u16 = 0x0303;
