@@ -236,6 +236,7 @@ start_server cut server && {
 # Stopping TLS contexts (issue 19's rules): in-process peers, no server needed.
 scenario stop
 scenario callback
+scenario sessions
 
 # Records cut in the middle, and peers that leave without close_notify
 # (c-tests/tls/cut.py): clients of our poll-loop server first, then our client
@@ -274,7 +275,7 @@ if gcc "${CFLAGS_W[@]}" "${ASAN[@]}" examples/tls-server.c -o "$WORK/tls-server-
         >"$WORK/asan-server.out" 2>&1 &
     SERVER_PID=$!
     for _ in $(seq 100); do grep -q serving "$WORK/asan-server.out" && break; sleep 0.05; done
-    for sc in operator reader nocert rogue password stop callback; do
+    for sc in operator reader nocert rogue password stop callback sessions; do
         if ASAN_OPTIONS=detect_leaks=1 timeout 60 "$WORK/tls-test-asan" "$C" 127.0.0.1 "$PORT" "$sc" \
             >"$WORK/asan-$sc.out" 2>&1 && ! grep -q "Sanitizer" "$WORK/asan-$sc.out"; then
             ok "AddressSanitizer: client scenario $sc"

@@ -20,6 +20,7 @@ pub const QUIRK_REPLY_TO_BROADCAST: u32 = 1 << 2;
 pub use crate::proto::session::{RECOVERY_LINK, RECOVERY_PROTOCOL, Timeout, Timeouts};
 
 /// The links a context talks over (transport settings), seen from the context.
+pub use crate::transport::line::Line;
 pub use crate::transport::link::{
     Link, RTU_RS232, RTU_RS485, RTU_RTS_DOWN, RTU_RTS_NONE, RTU_RTS_UP, RtsHook, RtuLink, TcpLink, TcpPiLink,
 };
@@ -29,19 +30,17 @@ pub use crate::proto::session::receive::ReadAhead;
 
 /// One Modbus context.
 pub struct Context {
-    pub framing: Framing,
-    pub link: Link,
+    /// The line: its settings, and the descriptor once open (see [`Line`]).
+    pub line: Line,
     /// What a receive needs of the context, kept where a receive finds it whole
-    /// (see `proto::session::receive::Settings`): the slave (unit) id used for requests
-    /// (-1 until set on RTU), the error recovery mode, the response, byte and
-    /// indication timeouts, and whether the server answers the function codes beyond
-    /// libmodbus (set by the server configuration calls: their requests are then
-    /// framed whole; off, a server frames and answers them exactly as libmodbus does).
-    /// The fields of one receive (its kind, what the line can do...) are set by the
-    /// receive itself.
+    /// (see `proto::session::receive::Settings`), and the only place these live: the
+    /// framing, the slave (unit) id used for requests (-1 until set on RTU), the
+    /// error recovery mode, the response, byte and indication timeouts, and whether
+    /// the server answers the function codes beyond libmodbus (set by the server
+    /// configuration calls: their requests are then framed whole; off, a server
+    /// frames and answers them exactly as libmodbus does). The fields of one receive
+    /// (its kind, what the line can do...) are set by the receive itself.
     pub session: Settings,
-    /// The file descriptor (socket or serial line), -1 when closed.
-    pub s: i32,
     pub debug: bool,
     pub quirks: u32,
     /// Last transaction id used (TCP).
@@ -51,35 +50,18 @@ pub struct Context {
     /// Length of header + PDU of the last diagnostics request sent on a serial
     /// framing: its answer is as long, and its PDU says nothing of its length.
     pub diagnostics_sent: Option<usize>,
+    /// A server on a shared bus saw a request for another slave: its answer comes
+    /// next and must be skipped.
+    pub confirmation_to_ignore: bool,
     /// Server-side configuration and diagnostics state beyond libmodbus (see
     /// [`crate::server_ext`]); `None` until a server configuration call, so an
     /// unconfigured context is exactly libmodbus and pays nothing for it.
     pub server_ext: Option<Box<crate::server_ext::ServerExt>>,
-    /// Modbus/TCP Security: the TLS settings and sessions of a context made by
-    /// `modbus_new_tcp_tls[_pi]`; `None` for every other context.
-    pub tls: Option<Box<crate::transport::tls::Tls>>,
     /// Frame buffers lent to one transaction at a time (see [`SpareFrames`]).
     pub spare: SpareFrames,
-    /// `s` is a serial line this context opened (with `O_NONBLOCK`): a read on it
-    /// never blocks. False for a descriptor the application handed over.
-    pub line_nonblocking: bool,
-    /// `s` is a TCP client socket this context connected (see [`ClientSocket`]);
-    /// `None` for any other descriptor.
-    pub client_socket: Option<ClientSocket>,
     /// What a close from a signal handler or another thread needs without the lock
-    /// (see [`crate::stop`]); shared with the handle.
+    /// (see [`crate::stop`]); shared with the handle and the line.
     pub stop: Arc<Stop>,
-}
-
-/// A TCP client socket the context connected itself. Unlike libmodbus's, it is
-/// blocking after the connect, so that the first wait of a confirmation can be the
-/// read itself, bounded by `SO_RCVTIMEO` (one system call instead of a poll and a
-/// read); its sends pass `MSG_DONTWAIT`, so that they never block, as on libmodbus's
-/// non-blocking socket. A descriptor the application hands over is never changed.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct ClientSocket {
-    /// The response timeout the socket's `SO_RCVTIMEO` was last derived from.
-    pub rcvtimeo_for: Option<Timeout>,
 }
 
 /// Frame buffers a context lends to each transaction and takes back: a transaction
@@ -106,9 +88,9 @@ impl SpareFrames {
 
 impl Context {
     fn common(framing: Framing, link: Link, slave: i32) -> Context {
+        let stop = Arc::new(Stop::default());
         Context {
-            framing,
-            link,
+            line: Line::new(link, Arc::clone(&stop)),
             session: Settings {
                 framing,
                 kind: MsgKind::Indication,
@@ -125,18 +107,15 @@ impl Context {
                 ascii_delimiter: b'\n',
                 line: LineCaps { socket: false, reads_without_waiting: false, timed_reads: false },
             },
-            s: -1,
             debug: false,
             quirks: 0,
             t_id: 0,
             rx: ReadAhead::new(),
             diagnostics_sent: None,
+            confirmation_to_ignore: false,
             server_ext: None,
-            tls: None,
             spare: SpareFrames::default(),
-            line_nonblocking: false,
-            client_socket: None,
-            stop: Arc::new(Stop::default()),
+            stop,
         }
     }
 
@@ -171,16 +150,14 @@ impl Context {
             rts_delay: onebyte_time,
             onebyte_time,
             custom_rts: None,
-            confirmation_to_ignore: false,
         };
-        Ok(Context::common(Framing::Rtu, Link::Rtu(link), -1))
+        Ok(Context::common(Framing::Rtu, link.into(), -1))
     }
 
     /// `modbus_new_ascii`: Modbus ASCII on a serial line. Same checks as RTU; the byte
     /// timeout starts at 1 s, the longest gap ASCII allows inside a frame.
     pub fn new_ascii(device: Option<&CStr>, baud: i32, parity: u8, data_bit: i32, stop_bit: i32) -> Result<Context> {
         let mut ctx = Context::new_rtu(device, baud, parity, data_bit, stop_bit)?;
-        ctx.framing = Framing::Ascii;
         ctx.session.framing = Framing::Ascii;
         ctx.session.timeouts.byte = Timeout::new(1, 0);
         Ok(ctx)
@@ -201,7 +178,7 @@ impl Context {
             }
             Some(ip) => ip.to_owned(),
         };
-        Ok(Context::common(Framing::Tcp, Link::Tcp(TcpLink { ip, port }), TCP_SLAVE))
+        Ok(Context::common(Framing::Tcp, TcpLink { ip, port }.into(), TCP_SLAVE))
     }
 
     /// `modbus_new_tcp_pi` (3.1.8+ rules): NULL node is any address, NULL or empty
@@ -212,13 +189,13 @@ impl Context {
             Some(s) if !s.is_empty() => s.to_owned(),
             _ => c"502".to_owned(),
         };
-        Ok(Context::common(Framing::Tcp, Link::TcpPi(TcpPiLink { node, service }), TCP_SLAVE))
+        Ok(Context::common(Framing::Tcp, TcpPiLink { node, service }.into(), TCP_SLAVE))
     }
 
     /// `modbus_new_tcp_tls`: Modbus/TCP Security, TLS over TCP/IPv4.
     pub fn new_tcp_tls(ip: Option<&CStr>, port: i32) -> Result<Context> {
         let mut ctx = Context::new_tcp(ip, port)?;
-        ctx.tls = Some(Box::default());
+        ctx.line.secure();
         Ok(ctx)
     }
 
@@ -229,7 +206,7 @@ impl Context {
             _ => Some(c"802"),
         };
         let mut ctx = Context::new_tcp_pi(node, service)?;
-        ctx.tls = Some(Box::default());
+        ctx.line.secure();
         Ok(ctx)
     }
 
@@ -237,7 +214,6 @@ impl Context {
     /// as serial-to-Ethernet gateways speak them. Slave rules are RTU's.
     pub fn new_rtu_tcp(ip: Option<&CStr>, port: i32) -> Result<Context> {
         let mut ctx = Context::new_tcp(ip, port)?;
-        ctx.framing = Framing::Rtu;
         ctx.session.framing = Framing::Rtu;
         ctx.session.slave = -1;
         Ok(ctx)
@@ -246,24 +222,29 @@ impl Context {
     /// `modbus_new_rtu_tcp_pi`: RTU frames over TCP, any address family.
     pub fn new_rtu_tcp_pi(node: Option<&CStr>, service: Option<&CStr>) -> Result<Context> {
         let mut ctx = Context::new_tcp_pi(node, service)?;
-        ctx.framing = Framing::Rtu;
         ctx.session.framing = Framing::Rtu;
         ctx.session.slave = -1;
         Ok(ctx)
     }
 
     pub fn rtu(&self) -> Option<&RtuLink> {
-        match &self.link {
-            Link::Rtu(r) => Some(r),
-            _ => None,
-        }
+        self.line.serial()
     }
 
     pub fn rtu_mut(&mut self) -> Option<&mut RtuLink> {
-        match &mut self.link {
-            Link::Rtu(r) => Some(r),
-            _ => None,
-        }
+        self.line.serial_mut()
+    }
+
+    /// The framing (held by the session settings).
+    #[inline]
+    pub fn framing(&self) -> Framing {
+        self.session.framing
+    }
+
+    /// The descriptor (socket or serial line), -1 when closed.
+    #[inline]
+    pub fn fd(&self) -> i32 {
+        self.line.fd()
     }
 
     /// The three timeouts, for the session rules.
@@ -274,12 +255,7 @@ impl Context {
 
     /// TCP (MBAP) framing.
     pub fn is_tcp(&self) -> bool {
-        self.framing == Framing::Tcp
-    }
-
-    /// The line is a socket (TCP framing, or RTU framing carried over TCP).
-    pub fn is_socket(&self) -> bool {
-        matches!(self.link, Link::Tcp(_) | Link::TcpPi(_))
+        self.session.framing == Framing::Tcp
     }
 
     /// The debug sink (prints through C stdio when debug is on).
@@ -287,22 +263,16 @@ impl Context {
         DebugSink { enabled: self.debug }
     }
 
-    /// Makes `fd` the context's descriptor (-1: none), as one the context knows
-    /// nothing about: the fast paths of a line it opened itself
-    /// (`line_nonblocking`, `client_socket`) are off until the opener turns them on.
+    /// Makes `fd` the context's descriptor (-1: none), as one the context did not
+    /// open (see [`Line::adopt`]).
     pub fn set_descriptor(&mut self, fd: i32) {
-        self.s = fd;
-        self.line_nonblocking = false;
-        self.client_socket = None;
-        self.stop.set_fd(fd);
+        self.line.adopt(fd);
     }
 
     /// Gives up the descriptor (for the caller to close): -1 from now on, and no
     /// stopper acts on its number any more (see [`Stop::set_fd`]).
     pub fn release_descriptor(&mut self) -> i32 {
-        let fd = self.s;
-        self.set_descriptor(-1);
-        fd
+        self.line.abandon()
     }
 
     /// A call must end now with EBADF: the context is being closed under it (see
@@ -348,7 +318,7 @@ mod tests {
     #[test]
     fn defaults() {
         let c = Context::new_tcp(Some(c"127.0.0.1"), 502).unwrap();
-        assert_eq!((c.session.slave, c.s, c.t_id), (0xFF, -1, 0));
+        assert_eq!((c.session.slave, c.fd(), c.t_id), (0xFF, -1, 0));
         assert_eq!(c.session.timeouts.response, Timeout::new(0, 500_000));
         assert_eq!(c.session.timeouts.byte, Timeout::new(0, 500_000));
         assert!(c.session.timeouts.indication.is_zero());
@@ -395,9 +365,11 @@ mod tests {
             Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap(),
             Context::new_ascii(Some(c"/dev/null"), 9600, b'E', 7, 1).unwrap(),
         ];
-        for c in contexts {
-            assert_eq!(c.session.framing, c.framing);
-            assert_eq!(c.session.slave, if c.framing == Framing::Tcp { 0xFF } else { -1 });
+        let framings =
+            [Framing::Tcp, Framing::Tcp, Framing::Rtu, Framing::Rtu, Framing::Tcp, Framing::Rtu, Framing::Ascii];
+        for (c, framing) in contexts.into_iter().zip(framings) {
+            assert_eq!(c.framing(), framing);
+            assert_eq!(c.session.slave, if framing == Framing::Tcp { 0xFF } else { -1 });
         }
     }
 

@@ -4,18 +4,17 @@
 
 use std::time::Duration;
 
-use crate::context::{ClientSocket, Context, Link, RECOVERY_PROTOCOL, RTU_RTS_NONE, RTU_RTS_UP, RtuLink};
+use crate::context::{Context, RECOVERY_PROTOCOL, RtsHook};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
 use crate::proto::confirm::{self, Rejection};
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::request::{Request, next_tid};
-use crate::proto::session::receive::{self, Dest, Finished, LineCaps, Outcome, ReadHow, Receiver, Step};
-use crate::proto::session::{self, Recovery, Timeout};
+use crate::proto::session::receive::{self, Dest, Finished, Outcome, ReadHow, Receiver, Step};
+use crate::proto::session::{self, Recovery};
 use crate::proto::{Diag, ascii};
-use crate::stop::Stop;
-use crate::transport::tcp::ConnectError;
-use crate::transport::{self, Ready, rtu, tcp, tls};
+use crate::transport::line::RtsSequence;
+use crate::transport::{self, Ready};
 
 /// A locked context. Functions that may call back into the application (the custom
 /// RTS callback) take the guard so they can release the lock around the call.
@@ -39,127 +38,30 @@ pub fn error_print(ctx: &Context, error: Error, context: Option<&str>) {
 
 use crate::transport::describe;
 
-/// `modbus_connect`: the transport opens the line, the context takes its descriptor.
+/// `modbus_connect`: the line opens (and, on a Modbus/TCP Security context, runs
+/// its handshake), bounded by the response timeout.
 pub fn connect(ctx: &mut Context) -> Result<()> {
     ctx.rx.clear();
     let mut diag = ctx.diag();
     let timeout = ctx.session.timeouts.response.duration();
-    let connected = match &mut ctx.link {
-        Link::Rtu(link) => {
-            let fd = rtu::open(link, &mut diag)?;
-            let configured = rtu::configure(fd, link, &mut diag);
-            if let Some(saved) = link.saved_termios {
-                ctx.stop.save_line(&saved);
-            }
-            if let Err(e) = configured {
-                transport::close(fd);
-                ctx.set_descriptor(-1);
-                return Err(e);
-            }
-            ctx.set_descriptor(fd);
-            ctx.line_nonblocking = true;
-            return Ok(());
-        }
-        Link::Tcp(link) => tcp::connect_ipv4(link, timeout, &mut diag),
-        Link::TcpPi(link) => tcp::connect_pi(link, timeout, &mut diag),
-    };
-    match connected {
-        Ok(c) => {
-            ctx.set_descriptor(c.fd);
-            ctx.client_socket = c.blocking.then(ClientSocket::default);
-            if ctx.tls.is_some() {
-                return tls_handshake(ctx, Side::Client);
-            }
-            Ok(())
-        }
-        Err(ConnectError::Before(e)) => Err(e),
-        Err(ConnectError::During(e)) => {
-            ctx.set_descriptor(-1);
-            Err(e)
-        }
-    }
+    ctx.line.open(timeout, ctx.debug, &mut diag)
 }
 
-/// `modbus_close`: the context gives up its descriptor (see `Context::release_descriptor`),
-/// the transport closes it (a serial line gets its saved settings back first).
+/// `modbus_tcp_accept`: the client just accepted on `fd` becomes the context's (on
+/// a Modbus/TCP Security context once its handshake, bounded by the response
+/// timeout, is done).
+pub fn accepted(ctx: &mut Context, fd: i32, peer: Option<&str>) -> Result<()> {
+    let mut diag = ctx.diag();
+    crate::transport::listen::report_accept(&mut diag, peer);
+    let timeout = ctx.session.timeouts.response.duration();
+    ctx.line.accepted(fd, timeout, ctx.debug, &mut diag)
+}
+
+/// `modbus_close`: the line closes its descriptor (a serial line gets its saved
+/// settings back first).
 pub fn close(ctx: &mut Context) {
     ctx.rx.clear();
-    if ctx.s < 0 {
-        return;
-    }
-    match ctx.link {
-        Link::Rtu(_) => {
-            ctx.stop.forget_line();
-            let fd = ctx.release_descriptor();
-            rtu::close_line(fd, ctx.rtu().and_then(|l| l.saved_termios));
-        }
-        Link::Tcp(_) | Link::TcpPi(_) => {
-            if let Some(mut session) = ctx.tls.as_deref_mut().and_then(|t| t.remove(ctx.s)) {
-                session.close(ctx.s);
-            }
-            tcp::close_socket(ctx.release_descriptor())
-        }
-    }
-}
-
-/// Which end of a TLS handshake a context takes.
-#[derive(Clone, Copy, PartialEq, Eq)]
-pub enum Side {
-    Client,
-    Server,
-}
-
-/// The TLS handshake on the context's socket (just connected or accepted), bounded
-/// by the response timeout; the session is kept for the socket. A failure closes the
-/// socket and leaves the context without one.
-pub fn tls_handshake(ctx: &mut Context, side: Side) -> Result<()> {
-    let fd = ctx.s;
-    let deadline = Some(transport::now() + ctx.session.timeouts.response.duration());
-    let stop = std::sync::Arc::clone(&ctx.stop);
-    let host = match &ctx.link {
-        Link::Tcp(l) => l.ip.to_string_lossy().into_owned(),
-        Link::TcpPi(l) => l.node.to_string_lossy().into_owned(),
-        Link::Rtu(_) => return Err(Error::INVALID),
-    };
-    let Some(tls) = ctx.tls.as_deref_mut() else { return Err(Error::INVALID) };
-    let started = match side {
-        Side::Client => tls.settings.connect(&host),
-        Side::Server => tls.settings.accept(),
-    };
-    // A server reads record by record (see `tls::RecordCut`); the handshake's
-    // flights go out at once.
-    let _ = transport::set_option(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1 as libc::c_int);
-    let mut cut = (side == Side::Server).then(tls::RecordCut::default);
-    let done = started.and_then(|mut conn| {
-        tls::handshake(fd, &mut conn, cut.as_mut(), deadline, &|| stop.stopping())?;
-        Ok(conn)
-    });
-    let mut diag = ctx.diag();
-    match done {
-        Ok(conn) => {
-            if ctx.debug {
-                let described = tls::describe_session(&conn);
-                let session = tls::Session::new(conn, cut);
-                let role = session.role().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
-                diag.out(format_args!("TLS handshake done: {described}, peer role {role}\n"));
-                if let Some(tls) = ctx.tls.as_deref_mut() {
-                    tls.insert(fd, session);
-                }
-            } else if let Some(tls) = ctx.tls.as_deref_mut() {
-                tls.insert(fd, tls::Session::new(conn, cut));
-            }
-            Ok(())
-        }
-        Err(e) => {
-            if ctx.debug {
-                diag.err(format_args!("ERROR TLS handshake: {}\n", describe(e.0)));
-            }
-            if !ctx.stopping() {
-                tcp::close_socket(ctx.release_descriptor());
-            }
-            Err(e)
-        }
-    }
+    ctx.line.close();
 }
 
 /// `modbus_flush`: discard what is pending on the line. Returns the bytes dropped
@@ -169,53 +71,18 @@ pub fn flush(ctx: &mut Context) -> Result<usize> {
 }
 
 /// [`flush`], and the error of its last failed system call, if any: the errno
-/// libmodbus's `modbus_flush` leaves behind.
+/// libmodbus's `modbus_flush` leaves behind. A socket's count overflowing 16 bits
+/// switches to PROTOCOL recovery (libmodbus 3.1.11+).
 fn flush_reporting(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
-    let mut buffered = ctx.rx.available().len();
+    let (rc, left) = ctx.line.flush(ctx.rx.available().len());
     ctx.rx.clear();
-    let fd = ctx.s;
-    if let Some(session) = ctx.tls.as_deref_mut().and_then(|t| t.session(fd)) {
-        // Records queued on the socket are decrypted and dropped with the rest.
-        while session.fill(fd, libc::MSG_DONTWAIT).is_ok() && !session.readable_end() {
-            buffered += session.discard();
-        }
-        buffered += session.discard();
+    if rc == Err(Error(libc::EOVERFLOW)) {
+        ctx.session.recovery = RECOVERY_PROTOCOL;
     }
-    let (rc, left) = if ctx.is_socket() {
-        let (rc, left) = flush_socket(ctx);
-        (rc.map(|n| n + buffered), left)
-    } else {
-        let rc = rtu::flush(ctx.s);
-        (rc, rc.err())
-    };
     if let Ok(n) = rc {
         ctx.diag().out(format_args!("Bytes flushed ({n})\n"));
     }
     (rc, left)
-}
-
-/// Drains a socket without waiting. The count is kept in 16 bits as libmodbus 3.1.11+
-/// does; an overflow switches to PROTOCOL recovery and fails with EOVERFLOW. The
-/// second value is the error of the last read, when it failed.
-fn flush_socket(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
-    let mut sink = [0u8; MAX_ADU_LENGTH];
-    let mut total: u16 = 0;
-    loop {
-        let (n, left) = match transport::recv(ctx.s, &mut sink, libc::MSG_DONTWAIT) {
-            Ok(n) => (n, None),
-            Err(e) => (0, Some(e)),
-        };
-        total = match total.checked_add(n as u16) {
-            Some(t) => t,
-            None => {
-                ctx.session.recovery = RECOVERY_PROTOCOL;
-                return (Err(Error(libc::EOVERFLOW)), Some(Error(libc::EOVERFLOW)));
-            }
-        };
-        if n != MAX_ADU_LENGTH {
-            return (Ok(total as usize), left);
-        }
-    }
 }
 
 /// Sleeps the response timeout (error recovery); `Err(STOPPED)` as soon as the
@@ -245,14 +112,18 @@ pub fn pause(ctx: &Context, d: Duration) -> Result<()> {
     }
 }
 
-/// Drives the RTS line through the application's callback (with the context
-/// unlocked, so the callback may call `modbus_get_socket` and friends) or the
-/// built-in ioctl.
+/// Drives the RTS line of a serial context through the application's callback
+/// (with the context unlocked, so the callback may call `modbus_get_socket` and
+/// friends) or the built-in ioctl.
 pub fn set_rts(g: &mut Guard<'_>, on: bool) {
-    let Some(link) = g.rtu() else { return };
-    match link.custom_rts.clone() {
+    let hook = g.line.rts_hook();
+    drive_rts(g, hook.as_ref(), on);
+}
+
+fn drive_rts(g: &mut Guard<'_>, hook: Option<&RtsHook>, on: bool) {
+    match hook {
         Some(hook) => call_unlocked(g, || hook(on)),
-        None => rtu::set_rts_line(g.s, on),
+        None => g.line.set_rts(on),
     }
 }
 
@@ -281,59 +152,38 @@ fn sleep_us(ctx: &Context, us: i64) {
     }
 }
 
-/// Writes one sealed ADU to the line.
+/// Writes one sealed ADU to the line (a TLS session waits for room up to the
+/// response timeout), with the RTS sequence around it when the line has one.
 #[inline]
 fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    if g.tls.is_some() {
-        return write_tls(g, adu);
-    }
-    if g.is_socket() {
-        // A client socket the context made blocking must still never block in a send.
-        transport::send(g.s, adu, if g.client_socket.is_some() { libc::MSG_DONTWAIT } else { 0 })
-    } else {
-        write_serial(g, adu)
+    match g.line.rts_sequence() {
+        None => {
+            let timeout = g.session.timeouts.response.duration();
+            g.line.write(adu, timeout)
+        }
+        Some(rts) => write_with_rts(g, adu, rts),
     }
 }
 
-/// [`write_adu`] on a TLS session: one record, waiting for room up to the response
-/// timeout. A socket without a session (one given by `modbus_set_socket` that this
-/// context did not connect or accept) cannot carry it: EMBTLS.
+/// [`write_adu`] with the RTS sequence.
 #[inline(never)]
-fn write_tls(ctx: &mut Context, adu: &[u8]) -> Result<usize> {
-    let fd = ctx.s;
-    let deadline = Some(transport::now() + ctx.session.timeouts.response.duration());
-    let stop = std::sync::Arc::clone(&ctx.stop);
-    match ctx.tls.as_deref_mut().and_then(|t| t.session(fd)) {
-        Some(session) => session.send(fd, adu, deadline, &|| stop.stopping()),
-        None => Err(Error(crate::error::EMBTLS)),
-    }
-}
-
-/// [`write_adu`] on a serial line (apart, so that a socket's send stays short).
-#[inline(never)]
-fn write_serial(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    if g.rtu().is_none_or(|l| l.rts == RTU_RTS_NONE) { transport::write(g.s, adu) } else { write_with_rts(g, adu) }
-}
-
-/// [`write_adu`] on a serial line with the RTS sequence.
-#[inline(never)]
-fn write_with_rts(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    let Some(&RtuLink { rts, rts_delay, onebyte_time, .. }) = g.rtu() else { return transport::write(g.s, adu) };
+fn write_with_rts(g: &mut Guard<'_>, adu: &[u8], rts: RtsSequence) -> Result<usize> {
     g.diag().err(format_args!("Sending request using RTS signal\n"));
-    set_rts(g, rts == RTU_RTS_UP);
-    sleep_us(g, rts_delay as i64);
-    let rc = transport::write(g.s, adu);
-    sleep_us(g, onebyte_time as i64 * adu.len() as i64 + rts_delay as i64);
-    set_rts(g, rts != RTU_RTS_UP);
+    drive_rts(g, rts.hook.as_ref(), rts.up);
+    sleep_us(g, rts.delay_us);
+    let timeout = g.session.timeouts.response.duration();
+    let rc = g.line.write(adu, timeout);
+    sleep_us(g, rts.onebyte_us * adu.len() as i64 + rts.delay_us);
+    drive_rts(g, rts.hook.as_ref(), !rts.up);
     rc
 }
 
 /// libmodbus's `send_msg`: seal the ADU of `len` bytes in `buf`, print it, send it,
 /// and under LINK recovery retry until it goes out. Returns the bytes sent.
 pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> {
-    let len = g.framing.seal(buf, len);
+    let len = g.framing().seal(buf, len);
     let adu = &buf[..len];
-    if g.debug || g.framing == Framing::Ascii {
+    if g.debug || g.framing() == Framing::Ascii {
         return send_traced_or_encoded(g, adu);
     }
     match write_adu(g, adu) {
@@ -356,7 +206,7 @@ fn send_traced_or_encoded(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
         crate::stdio::out(format_args!("{line}"));
     }
     let mut chars = [0u8; ascii::MAX_ENCODED];
-    let wire = if g.framing == Framing::Ascii {
+    let wire = if g.framing() == Framing::Ascii {
         let n = ascii::encode(adu, &mut chars);
         &chars[..n]
     } else {
@@ -428,7 +278,7 @@ fn recover(ctx: &mut Context, recovery: Recovery) {
         // A bad checksum: the line's own flush, without `modbus_flush`'s trace.
         Recovery::Flush => {
             ctx.rx.clear();
-            let _ = rtu::flush(ctx.s);
+            ctx.line.purge();
         }
         Recovery::Reconnect | Recovery::ReconnectAfterSleep => {
             close(ctx);
@@ -440,30 +290,21 @@ fn recover(ctx: &mut Context, recovery: Recovery) {
     }
 }
 
-/// Below this response timeout a confirmation never reads under `SO_RCVTIMEO`, which
-/// could fire too late (see [`read_within`]).
-const RCVTIMEO_MIN_RESPONSE_TIMEOUT: Duration = Duration::from_millis(200);
-
 /// Completes the context's session settings with those of this receive (its kind,
 /// what the line can do now) for the receive machine.
 #[inline]
 fn prepare_session(ctx: &mut Context, kind: MsgKind) {
-    let socket = ctx.is_socket();
     let confirmation = kind == MsgKind::Confirmation;
-    let ignore = confirmation && ctx.rtu().is_some_and(|l| l.confirmation_to_ignore);
     let s = &mut ctx.session;
-    debug_assert_eq!(s.framing, ctx.framing, "the session's framing is the context's");
     s.kind = kind;
-    s.line = LineCaps { socket, reads_without_waiting: socket || ctx.line_nonblocking, timed_reads: false };
+    s.line = ctx.line.caps(kind, s.timeouts.response);
     s.expecting = None;
     s.read_ahead = false;
     if confirmation {
         s.expecting = ctx.diagnostics_sent.take();
-        s.read_ahead = !ignore;
-        s.line.timed_reads =
-            ctx.client_socket.is_some() && s.timeouts.response.duration() >= RCVTIMEO_MIN_RESPONSE_TIMEOUT;
+        s.read_ahead = !ctx.confirmation_to_ignore;
     }
-    if ctx.framing == Framing::Ascii {
+    if s.framing == Framing::Ascii {
         s.ascii_delimiter =
             ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
     }
@@ -478,22 +319,22 @@ fn prepare_session(ctx: &mut Context, kind: MsgKind) {
 /// until it is empty. A close of the context from a signal handler or another
 /// thread ends the receive after the step it interrupts, with `Error::STOPPED`.
 pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
-    if ctx.debug || ctx.s < 0 {
+    if ctx.debug || ctx.fd() < 0 {
         let mut diag = ctx.diag();
         match kind {
             MsgKind::Indication => diag.out(format_args!("Waiting for an indication...\n")),
             MsgKind::Confirmation => diag.out(format_args!("Waiting for a confirmation...\n")),
         }
-        if ctx.s < 0 {
+        if ctx.fd() < 0 {
             diag.err(format_args!("ERROR The connection is not established.\n"));
             return Err(Error::UNCHANGED);
         }
     }
-    debug_assert!(buf.len() >= ctx.framing.max_adu_length());
+    debug_assert!(buf.len() >= ctx.framing().max_adu_length());
     prepare_session(ctx, kind);
     // The usual first steps need no state of the receive: it is built when a step
     // does not end the receive (see `receive::first_step`).
-    let first = if ctx.tls.is_some() { None } else { receive::first_step(&ctx.session, &ctx.rx, buf.len()) };
+    let first = receive::first_step(&ctx.session, &ctx.rx, buf.len());
     let mut machine: Option<Receiver> = None;
     let mut started = None;
     let mut step = match first {
@@ -509,16 +350,13 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
             m.start(&ctx.session, buf, &mut ctx.rx, transport::now)
         }
     };
-    let tls = ctx.tls.is_some();
     loop {
         let result = match step {
             Step::Frame(len) if !ctx.debug => return Ok(Received::Frame(len)),
             Step::Frame(len) => return finish(ctx, buf, Finished::frame(len)),
             Step::Done(finished) => return finish(ctx, buf, finished),
-            step if tls => tls_step(ctx, buf, step),
             Step::Peek { block } => {
-                let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
-                let peeked = transport::recv(ctx.s, &mut ctx.rx.buf, flags);
+                let peeked = ctx.line.peek(&mut ctx.rx.buf, block);
                 // A whole message queued: taken at once, exactly (never a byte past it).
                 let whole = match (&machine, peeked) {
                     (None, Ok(n)) => receive::whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
@@ -526,7 +364,7 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
                     _ => None,
                 };
                 if let Some(len) = whole {
-                    let read = transport::recv(ctx.s, &mut buf[..len], 0);
+                    let read = ctx.line.read(&mut buf[..len], ReadHow::Ready, ctx.debug);
                     if !ctx.stopping() {
                         step = match &mut machine {
                             None if matches!(read, Ok(n) if n == len) => receive::end(&ctx.session, buf, len),
@@ -543,13 +381,14 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
                 }
                 peeked
             }
-            Step::Read { dest: Dest::Message { from, to }, how: ReadHow::Ready } if ctx.session.line.socket => {
-                transport::recv(ctx.s, &mut buf[from..to], 0)
+            Step::Read { dest, how } => {
+                let room = match dest {
+                    Dest::Message { from, to } => &mut buf[from..to],
+                    Dest::ReadAhead => &mut ctx.rx.buf[..],
+                };
+                ctx.line.read(room, how, ctx.debug)
             }
-            Step::Read { dest: Dest::Message { from, to }, how: ReadHow::Within(timeout) } => {
-                read_within(ctx.s, &mut ctx.client_socket, &mut buf[from..to], timeout, ctx.debug)
-            }
-            step => execute(ctx, buf, step),
+            Step::Wait { until } => ctx.line.wait(until, ctx.debug).map(|()| 0),
         };
         let m = match &mut machine {
             Some(m) => m,
@@ -564,34 +403,6 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
         } else {
             step = m.next(&ctx.session, result, buf, &mut ctx.rx, transport::now);
         }
-    }
-}
-
-/// The system call of a step (but the socket's peek and plain read, which the
-/// receive loop makes itself).
-#[inline(never)]
-fn execute(ctx: &mut Context, buf: &mut [u8], step: Step) -> Result<usize> {
-    match step {
-        Step::Peek { block } => {
-            let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
-            transport::recv(ctx.s, &mut ctx.rx.buf, flags)
-        }
-        Step::Wait { until } => wait_readable(ctx, until).map(|()| 0),
-        Step::Read { dest, how } => {
-            let socket = ctx.is_socket();
-            let room = match dest {
-                Dest::Message { from, to } => &mut buf[from..to],
-                Dest::ReadAhead => &mut ctx.rx.buf[..],
-            };
-            match how {
-                ReadHow::Ready if socket => transport::recv(ctx.s, room, 0),
-                ReadHow::Ready => transport::read(ctx.s, room),
-                ReadHow::Queued if socket => transport::recv(ctx.s, room, libc::MSG_DONTWAIT),
-                ReadHow::Queued => transport::read(ctx.s, room),
-                ReadHow::Within(timeout) => read_within(ctx.s, &mut ctx.client_socket, room, timeout, ctx.debug),
-            }
-        }
-        Step::Done(_) | Step::Frame(_) => unreachable!("handled by the receive loop"),
     }
 }
 
@@ -643,122 +454,6 @@ fn finish_reporting(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Receiv
     result
 }
 
-/// Waits until the line is readable or the monotonic clock reaches `until` (`None`:
-/// forever); a signal does not restart the timeout. A close of the context from a
-/// signal handler or another thread ends it with `Err(STOPPED)`: a socket is shut
-/// down by the closer, a serial line's wait also watches the context's wake-up
-/// descriptor.
-fn wait_readable(ctx: &Context, until: Option<Duration>) -> Result<()> {
-    let wake = if ctx.is_socket() { -1 } else { ctx.stop.wake_fd() };
-    wait_line(&ctx.stop, ctx.s, wake, until, ctx.debug)
-}
-
-/// [`wait_readable`] on the parts of a context it needs.
-fn wait_line(stop: &Stop, fd: i32, wake: i32, until: Option<Duration>, debug: bool) -> Result<()> {
-    loop {
-        if stop.stopping() {
-            return Err(Error::STOPPED);
-        }
-        let mut left = until.map(|u| transport::to_timespec(u.saturating_sub(transport::now())));
-        match transport::wait_or_wake(fd, libc::POLLIN, wake, left.as_mut()) {
-            Ok(Ready::Line) => return Ok(()),
-            Ok(Ready::TimedOut) => return Err(Error::TIMED_OUT),
-            Ok(Ready::Woken) => stop.drain_wake(),
-            Err(e) if e.0 == libc::EINTR => {
-                crate::stdio::DebugSink { enabled: debug }.err(format_args!("A non blocked signal was caught\n"))
-            }
-            Err(e) => return Err(e),
-        }
-    }
-}
-
-/// One step of the receive machine on a TLS session: the same steps, on the
-/// plaintext the session decrypted. A wait ends when plaintext is there (a readable
-/// socket may bring only part of a record, or none of the application's data); a
-/// read takes records from the socket only when no plaintext is left.
-#[inline(never)]
-fn tls_step(ctx: &mut Context, buf: &mut [u8], step: Step) -> Result<usize> {
-    let Context { tls, rx, stop, client_socket, debug, s: fd, .. } = ctx;
-    let fd = *fd;
-    let Some(session) = tls.as_deref_mut().and_then(|t| t.session(fd)) else { return Err(Error(crate::error::EMBTLS)) };
-    match step {
-        Step::Peek { block } => {
-            let flags = if block { 0 } else { libc::MSG_DONTWAIT };
-            while !session.readable() {
-                session.fill(fd, flags)?;
-            }
-            match session.peek(&mut rx.buf) {
-                0 => session.take(&mut []),
-                n => Ok(n),
-            }
-        }
-        Step::Wait { until } => {
-            while !session.readable() {
-                wait_line(stop, fd, -1, until, *debug)?;
-                match session.fill(fd, libc::MSG_DONTWAIT) {
-                    Err(e) if e.0 != libc::EAGAIN && e.0 != libc::EINTR => return Err(e),
-                    _ => {}
-                }
-            }
-            Ok(0)
-        }
-        Step::Read { dest, how } => {
-            let room = match dest {
-                Dest::Message { from, to } => &mut buf[from..to],
-                Dest::ReadAhead => &mut rx.buf[..],
-            };
-            let flags = match how {
-                ReadHow::Queued => libc::MSG_DONTWAIT,
-                ReadHow::Ready => 0,
-                ReadHow::Within(timeout) if receive_timeout_set(fd, client_socket, timeout) => 0,
-                ReadHow::Within(_) => libc::MSG_DONTWAIT,
-            };
-            // One recv at most: a part of a record, or a record with no application
-            // data, leaves nothing to take (EAGAIN), and the machine waits again.
-            if !session.readable() {
-                session.fill(fd, flags)?;
-            }
-            session.take(room)
-        }
-        Step::Done(_) | Step::Frame(_) => unreachable!("handled by the caller"),
-    }
-}
-
-/// The first read of a confirmation on a client socket the context connected (see
-/// [`ClientSocket`]): the read itself waits, one system call where a wait and a read
-/// were two. `SO_RCVTIMEO` runs on the kernel's timer wheel, which may fire up to an
-/// eighth of the time plus a tick or two late, so it is set to 3/4 of the response
-/// timeout; when it fires (EAGAIN), the machine waits for the rest of the response
-/// timeout, which therefore ends when libmodbus's `select` would.
-fn read_within(
-    fd: i32,
-    socket: &mut Option<ClientSocket>,
-    room: &mut [u8],
-    timeout: Timeout,
-    debug: bool,
-) -> Result<usize> {
-    // Without the timer the read must not block: then it only looks.
-    let flags = if receive_timeout_set(fd, socket, timeout) { 0 } else { libc::MSG_DONTWAIT };
-    let read = transport::recv(fd, room, flags);
-    if debug && matches!(read, Err(Error(libc::EINTR))) {
-        crate::stdio::DebugSink { enabled: true }.err(format_args!("A non blocked signal was caught\n"));
-    }
-    read
-}
-
-/// Sets the socket's `SO_RCVTIMEO` to 3/4 of `timeout` unless it already is; false
-/// when it cannot be set (a blocking read could then block for ever).
-fn receive_timeout_set(fd: i32, socket: &mut Option<ClientSocket>, timeout: Timeout) -> bool {
-    let Some(socket) = socket.as_mut() else { return false };
-    if socket.rcvtimeo_for != Some(timeout) {
-        if tcp::set_receive_timeout(fd, timeout.duration() * 3 / 4).is_err() {
-            return false;
-        }
-        socket.rcvtimeo_for = Some(timeout);
-    }
-    true
-}
-
 /// The unit id a request goes to.
 fn unit(ctx: &Context) -> u8 {
     ctx.session.slave as u8
@@ -766,10 +461,10 @@ fn unit(ctx: &Context) -> u8 {
 
 /// Encodes `req` with the next transaction id into `buf`; returns its unsealed length.
 pub fn build_request(ctx: &mut Context, req: &Request<'_>, buf: &mut AduBuf) -> usize {
-    if ctx.framing == Framing::Tcp {
+    if ctx.framing() == Framing::Tcp {
         ctx.t_id = next_tid(ctx.t_id);
     }
-    req.encode(ctx.framing, unit(ctx), ctx.t_id, buf)
+    req.encode(ctx.framing(), unit(ctx), ctx.t_id, buf)
 }
 
 /// A complete client exchange: send `req`, wait for the confirmation, check it.
@@ -809,7 +504,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
         diag.err(format_args!("The responding slave {} isn't the requested slave {}\n", rsp_adu[0], req_adu[0]));
         Err(Rejection::Foreign(Error::BAD_SLAVE))
     } else {
-        confirm::check(ctx.framing, req_adu, rsp_adu, &mut diag)
+        confirm::check(ctx.framing(), req_adu, rsp_adu, &mut diag)
     };
     match checked {
         Ok(count) => Ok(Confirmed { len, count }),
@@ -841,7 +536,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
 /// `modbus_send_raw_request[_tid]`: `raw[0]` is the unit, the rest is the PDU.
 pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
     let mut out: AduBuf = [0; MAX_ADU_LENGTH];
-    let h = g.framing.write_header(&mut out, raw[0], tid);
+    let h = g.framing().write_header(&mut out, raw[0], tid);
     let pdu = &raw[1..];
     out[h..h + pdu.len()].copy_from_slice(pdu);
     note_diagnostics(g, &out[..h + pdu.len()]);
@@ -851,7 +546,7 @@ pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
 /// Remembers the length of a diagnostics request about to go out on a serial
 /// framing, so that its answer can be framed (see `Context::diagnostics_sent`).
 fn note_diagnostics(ctx: &mut Context, unsealed: &[u8]) {
-    let h = ctx.framing.header_length();
-    ctx.diagnostics_sent = (ctx.framing != Framing::Tcp && unsealed.get(h) == Some(&crate::proto::fc::DIAGNOSTICS))
+    let h = ctx.framing().header_length();
+    ctx.diagnostics_sent = (ctx.framing() != Framing::Tcp && unsealed.get(h) == Some(&crate::proto::fc::DIAGNOSTICS))
         .then_some(unsealed.len());
 }

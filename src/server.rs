@@ -23,7 +23,7 @@ use crate::server_ext::BusEvent;
 /// libmodbus filters out (RTU: addressed to another slave, or the answer of that
 /// slave which follows it on a shared bus).
 pub fn receive(g: &mut Guard<'_>, buf: &mut [u8]) -> Result<usize> {
-    if g.framing == Framing::Tcp {
+    if g.framing() == Framing::Tcp {
         let r = engine::receive_msg(g, buf, MsgKind::Indication);
         count_bus(g, &r);
         return Ok(match r? {
@@ -31,7 +31,7 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut [u8]) -> Result<usize> {
             Received::Ignored(_) => 0,
         });
     }
-    let ignore_next = g.rtu().is_some_and(|l| l.confirmation_to_ignore);
+    let ignore_next = g.confirmation_to_ignore;
     if ignore_next {
         // The reply of the slave addressed by the previous request: read it as a
         // confirmation, whatever happens, and drop it.
@@ -54,7 +54,7 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut [u8]) -> Result<usize> {
 
 /// Feeds the diagnostics counters (when enabled) with what a receive got.
 fn count_bus(ctx: &mut Context, r: &Result<Received>) {
-    let framing = ctx.framing;
+    let framing = ctx.framing();
     let Some(ext) = ctx.server_ext.as_deref_mut() else { return };
     let e = match r {
         Ok(_) => BusEvent::Frame,
@@ -68,10 +68,10 @@ fn count_bus(ctx: &mut Context, r: &Result<Received>) {
     ext.bus_event(e);
 }
 
+/// On a shared bus, the answer to a request for another slave follows that
+/// request: the next receive skips it.
 fn set_confirmation_to_ignore(ctx: &mut Context, value: bool) {
-    if let Some(link) = ctx.rtu_mut() {
-        link.confirmation_to_ignore = value;
-    }
+    ctx.confirmation_to_ignore = value && ctx.line.shared_bus();
 }
 
 /// Carries out an outcome: flush first if asked, then send unless suppressed.
@@ -101,12 +101,12 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 /// [`crate::proto::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
 /// for a suppressed RTU broadcast (and, with diagnostics, in listen-only mode).
 pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
-    if g.tls.as_deref().is_some_and(|t| t.authorize.is_some()) && !authorized(g, req)? {
+    if g.line.authorizer().is_some() && !authorized(g, req)? {
         // Exception 01, nothing changed; as modbus_reply_exception sends it
         // (not in listen-only mode, counted by the diagnostics).
         return reply_exception(g, req, exception::ILLEGAL_FUNCTION as u32);
     }
-    let server = Server { framing: g.framing, quirks: g.quirks };
+    let server = Server { framing: g.framing(), quirks: g.quirks };
     let mut sink = g.diag();
     let mut out = g.spare.take();
     let result = match g.server_ext.as_deref_mut() {
@@ -134,20 +134,19 @@ pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn M
 /// one whose role was asked about, so nothing is served or sent (EINVAL); if the
 /// context was closed meanwhile, the stop ends the reply (EBADF).
 fn authorized(g: &mut Guard<'_>, req: &[u8]) -> Result<bool> {
-    let fd = g.s;
-    let Some(tls) = g.tls.as_deref() else { return Ok(true) };
-    let Some(hook) = tls.authorize.clone() else { return Ok(true) };
-    let role: Option<std::ffi::CString> = tls.session_ref(fd).and_then(|s| s.role()).map(ToOwned::to_owned);
-    let h = g.framing.header_length();
+    let fd = g.fd();
+    let Some(hook) = g.line.authorizer() else { return Ok(true) };
+    let role: Option<std::ffi::CString> = g.line.peer_role().map(ToOwned::to_owned);
+    let h = g.framing().header_length();
     let unit = req.get(h - 1).copied().unwrap_or(0);
     let access = security::access(req.get(h..).unwrap_or(&[]));
     for range in access.ranges() {
         let allowed =
             engine::call_unlocked(g, || hook(role.as_deref(), unit, access.function, range.address, range.nb));
-        if g.s != fd {
+        if g.fd() != fd {
             // Closed meanwhile (another thread, a signal handler): the stop; or
             // another socket made current by the callback.
-            return Err(if g.s < 0 || g.stopping() { Error::STOPPED } else { Error::INVALID });
+            return Err(if g.fd() < 0 || g.stopping() { Error::STOPPED } else { Error::INVALID });
         }
         if !allowed {
             let shown = role.as_deref().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
@@ -168,7 +167,7 @@ pub fn reply_exception(g: &mut Guard<'_>, req: &[u8], code: u32) -> Result<usize
     if code >= exception::MAX as u32 {
         return Err(Error::INVALID);
     }
-    let framing = g.framing;
+    let framing = g.framing();
     if let Some(ext) = g.server_ext.as_deref_mut() {
         if !ext.exception_request(framing, req) {
             ext.exception_done(code as u8, Delivery::NotSent);

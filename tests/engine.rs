@@ -24,7 +24,7 @@ fn socket_pair() -> (i32, i32) {
 
 fn tcp_context(fd: i32) -> Mutex<Context> {
     let mut ctx = Context::new_tcp(Some(c"127.0.0.1"), 502).unwrap();
-    ctx.s = fd;
+    ctx.set_descriptor(fd);
     Mutex::new(ctx)
 }
 
@@ -35,10 +35,10 @@ fn read_registers_rsp(tid: u16) -> Vec<u8> {
 }
 
 /// A context whose socket is one it connected itself (blocking, see
-/// `ClientSocket`): its confirmations wait in the read.
+/// `Line::adopt_own`): its confirmations wait in the read.
 fn client_socket_context(fd: i32) -> Mutex<Context> {
     let m = tcp_context(fd);
-    m.lock().client_socket = Some(modbus::context::ClientSocket::default());
+    m.lock().line.adopt_own(fd);
     m
 }
 
@@ -267,7 +267,7 @@ fn not_connected_leaves_errno_alone() {
 fn rtu_frame_for_another_slave_is_ignored_and_bad_crc_refused() {
     let (ours, peer) = socket_pair();
     let mut ctx = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
-    ctx.s = ours;
+    ctx.set_descriptor(ours);
     ctx.session.slave = 0x11;
     let m = Mutex::new(ctx);
     let mut g = m.lock();
@@ -298,9 +298,8 @@ fn serial_requests_in_pieces_and_back_to_back() {
     // SAFETY: fcntl on a descriptor this test owns.
     unsafe { libc::fcntl(ours, libc::F_SETFL, libc::fcntl(ours, libc::F_GETFL) | libc::O_NONBLOCK) };
     let mut ctx = Context::new_rtu(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
-    ctx.s = ours;
+    ctx.line.adopt_own(ours);
     ctx.session.slave = 0x11;
-    ctx.line_nonblocking = true;
     ctx.session.timeouts.byte = modbus::context::Timeout::new(0, 300_000);
     let m = Mutex::new(ctx);
     let mut g = m.lock();
@@ -349,7 +348,7 @@ fn serial_requests_in_pieces_and_back_to_back() {
 fn ascii_exchange_over_a_stream() {
     let (ours, peer) = socket_pair();
     let mut ctx = Context::new_ascii(Some(c"/dev/null"), 9600, b'E', 7, 1).unwrap();
-    ctx.s = ours;
+    ctx.set_descriptor(ours);
     ctx.session.slave = 1;
     let m = Mutex::new(ctx);
     let server = std::thread::spawn(move || {
@@ -388,7 +387,7 @@ fn ascii_exchange_over_a_stream() {
 fn ascii_frames_shorter_than_their_content_are_refused() {
     let (ours, peer) = socket_pair();
     let mut ctx = Context::new_ascii(Some(c"/dev/null"), 9600, b'N', 8, 1).unwrap();
-    ctx.s = ours;
+    ctx.set_descriptor(ours);
     ctx.session.slave = 0xEF;
     let m = Mutex::new(ctx);
     let mut g = m.lock();

@@ -35,6 +35,12 @@
  *   callback   (in this process) an authorization callback that makes another
  *              socket current gets modbus_reply -1 EINVAL and nothing sent (the
  *              client times out); one that closes the context gets -1 EBADF
+ *   sessions   (in this process) one server context, two clients (Operator, Reader):
+ *              modbus_set_socket brings each client's session back (its role);
+ *              a number the application closed and that now names another socket
+ *              never meets the old session (role ENOENT, receive -1 EMBTLS); the
+ *              session of a client that went is dropped once its socket stops being
+ *              current (role ENOENT; receive -1 ECONNRESET, as on a TCP socket)
  *   threads N  N threads share one client context, 300 write/read-back pairs each on
  *              their own register (80 + i): every answer right
  *   password   keys encrypted with a password (make-certs.sh): without it or with a
@@ -434,6 +440,107 @@ static void callback_scenario(void)
     }
 }
 
+/* ---- sessions: TLS sessions belong to their socket ---- */
+
+struct holder {
+    int port;
+    const char *who;
+    modbus_t *ctx;
+    volatile int go;
+};
+
+/* A TLS client that connects, then waits until told to close. */
+static void *holding_client(void *arg)
+{
+    struct holder *h = arg;
+    char port[16];
+    snprintf(port, sizeof port, "%d", h->port);
+    h->ctx = client("127.0.0.1", port, h->who, 1);
+    if (modbus_connect(h->ctx) == -1)
+        check(0, "sessions: a client connects", modbus_strerror(errno));
+    while (!h->go)
+        pause_s(0.01);
+    modbus_close(h->ctx);
+    return NULL;
+}
+
+/* The peer's role on the server's current socket ("ENOENT" when it has none). */
+static const char *role_of(modbus_t *server, char *buf, size_t size)
+{
+    if (modbus_get_tls_peer_role(server, buf, size) == -1)
+        snprintf(buf, size, "%s", errno == ENOENT ? "ENOENT" : modbus_strerror(errno));
+    return buf;
+}
+
+static void sessions_scenario(void)
+{
+    char detail[200], role[64];
+    uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
+    int listener, port, fds[2];
+    modbus_t *server = listening_server(&listener, &port);
+    modbus_set_response_timeout(server, 2, 0);
+    struct holder a = {.port = port, .who = "operator"}, b = {.port = port, .who = "reader"};
+    pthread_t ta, tb;
+    pthread_create(&ta, NULL, holding_client, &a);
+    int fa = modbus_tcp_accept(server, &listener);
+    pthread_create(&tb, NULL, holding_client, &b);
+    int fb = modbus_tcp_accept(server, &listener);
+    check(fa >= 0 && fb >= 0, "sessions: two clients accepted", fa < 0 || fb < 0 ? modbus_strerror(errno) : NULL);
+
+    modbus_set_socket(server, fa);
+    check(strcmp(role_of(server, role, sizeof role), "Operator") == 0,
+          "sessions: modbus_set_socket brings the first client's session back", role);
+    modbus_set_socket(server, fb);
+    check(strcmp(role_of(server, role, sizeof role), "Reader") == 0,
+          "sessions: and the second client's", role);
+    modbus_set_socket(server, fa);
+    check(strcmp(role_of(server, role, sizeof role), "Operator") == 0, "sessions: and the first again", role);
+
+    /* The application closes the first client's socket itself (as a poll loop does),
+       and the number comes back as another socket. */
+    modbus_set_socket(server, fb);
+    close(fa);
+    if (socketpair(AF_UNIX, SOCK_STREAM, 0, fds) == -1 || dup2(fds[0], fa) != fa) {
+        check(0, "sessions: the number is reused", strerror(errno));
+        exit(1);
+    }
+    close(fds[0]);
+    modbus_set_socket(server, fa);
+    check(strcmp(role_of(server, role, sizeof role), "ENOENT") == 0,
+          "sessions: a reused number does not meet the old session (role)", role);
+    errno = 0;
+    int rc = modbus_receive(server, query);
+    snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
+    check(rc == -1 && errno == EMBTLS, "sessions: a reused number: receive -1 EMBTLS", detail);
+
+    /* The second client goes: its session ends with its socket's turn. */
+    b.go = 1;
+    pthread_join(tb, NULL);
+    modbus_set_socket(server, fb);
+    errno = 0;
+    rc = modbus_receive(server, query);
+    snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
+    check(rc == -1 && errno == ECONNRESET, "sessions: a client that went: receive -1 ECONNRESET", detail);
+    modbus_set_socket(server, fa);
+    modbus_set_socket(server, fb);
+    check(strcmp(role_of(server, role, sizeof role), "ENOENT") == 0,
+          "sessions: its session is dropped once its socket is no longer current", role);
+    errno = 0;
+    rc = modbus_receive(server, query);
+    snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
+    check(rc == -1 && errno == ECONNRESET, "sessions: then its receive still says ECONNRESET", detail);
+
+    a.go = 1;
+    pthread_join(ta, NULL);
+    modbus_free(a.ctx);
+    modbus_free(b.ctx);
+    close(fa);
+    close(fds[1]);
+    close(fb);
+    close(listener);
+    modbus_free(server);
+}
+
 /* ---- threads: one client context shared by N threads ---- */
 
 static modbus_t *shared;
@@ -573,6 +680,8 @@ int main(int argc, char *argv[])
         stop_scenario();
     } else if (strcmp(scenario, "callback") == 0) {
         callback_scenario();
+    } else if (strcmp(scenario, "sessions") == 0) {
+        sessions_scenario();
     } else if (strcmp(scenario, "threads") == 0) {
         int n = argc > 5 ? atoi(argv[5]) : 8, bad = 0;
         pthread_t t[16];

@@ -20,7 +20,7 @@ fn read_bits(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut
     let mut rsp = g.spare.take();
     let done = engine::exchange(g, &Request::ReadBits { function, addr, nb }, &mut rsp);
     if let Ok(done) = &done {
-        let h = g.framing.header_length();
+        let h = g.framing().header_length();
         let packed = crate::proto::decode::counted_data(&rsp[h..], done.count as usize);
         // SAFETY: the caller provides `nb` writable bytes at `dest` (checked non-NULL).
         let dest = unsafe { slice::from_raw_parts_mut(dest, nb as usize) };
@@ -45,7 +45,7 @@ fn read_registers(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest:
 
 /// Copies `count` big-endian registers from a read response into `dest`.
 fn store_registers(g: &Guard<'_>, rsp: &AduBuf, count: c_int, dest: *mut u16) {
-    let h = g.framing.header_length();
+    let h = g.framing().header_length();
     let data = crate::proto::decode::counted_data(&rsp[h..], 2 * count as usize);
     // SAFETY: the response count was checked to equal the requested count, for which
     // the caller provides room at `dest` (checked non-NULL).
@@ -255,7 +255,7 @@ pub unsafe extern "C" fn modbus_report_slave_id(ctx: *mut Modbus, max_dest: c_in
         with_ctx(ctx, |g| {
             let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
             let done = engine::exchange(g, &Request::ReportSlaveId, &mut rsp)?;
-            let h = g.framing.header_length();
+            let h = g.framing().header_length();
             let n = (done.count as usize).min(max_dest as usize);
             // SAFETY: `dest` is non-NULL and holds `max_dest` >= n bytes.
             let dest = slice::from_raw_parts_mut(dest, n);

@@ -226,7 +226,7 @@ pub unsafe extern "C" fn modbus_set_indication_timeout(ctx: *mut Modbus, to_sec:
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_get_header_length(ctx: *mut Modbus) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| Ok(g.framing.header_length() as c_int)) }
+    unsafe { with_ctx(ctx, |g| Ok(g.framing().header_length() as c_int)) }
 }
 
 /// Any non-zero flag turns the debug trace on (stdout and stderr).

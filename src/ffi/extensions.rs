@@ -18,7 +18,7 @@ use crate::proto::request::{
 /// check's count.
 fn exchange<'r>(g: &mut Guard<'_>, req: &Request<'_>, rsp: &'r mut AduBuf) -> Result<(&'r [u8], i32)> {
     let done = engine::exchange(g, req, rsp)?;
-    Ok((&rsp[g.framing.header_length()..], done.count))
+    Ok((&rsp[g.framing().header_length()..], done.count))
 }
 
 /// Copies `values` into the C array `dest` of room for them.

@@ -257,7 +257,7 @@ pub unsafe fn with_ctx_result(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -
 /// `handled` is the descriptor it closed (kept open on /dev/null), or -1 when it found
 /// none (the call was opening one): that one gets a whole close.
 fn finish_handler_close(g: &mut Guard<'_>, handled: i32) {
-    if g.s >= 0 && g.s == handled {
+    if g.fd() >= 0 && g.fd() == handled {
         let fd = g.release_descriptor();
         crate::transport::close(fd);
     } else {

@@ -76,7 +76,7 @@ pub unsafe extern "C" fn modbus_rtu_set_serial_mode(ctx: *mut Modbus, mode: c_in
     // SAFETY: forwarded caller contract.
     unsafe {
         with_rtu(ctx, |g| {
-            let fd = g.s;
+            let fd = g.fd();
             let Some(link) = g.rtu_mut() else { return Err(Error::INVALID) };
             rtu::set_serial_mode(fd, link, mode).map(|()| 0)
         })

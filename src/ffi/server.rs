@@ -239,7 +239,7 @@ pub unsafe extern "C" fn modbus_receive(ctx: *mut Modbus, req: *mut u8) -> c_int
         with_ctx(ctx, |g| {
             // SAFETY: the caller's buffer holds the framing's maximum ADU. The receive
             // writes only the bytes it reads, as libmodbus does (even on errors).
-            let caller = slice::from_raw_parts_mut(req, g.framing.max_adu_length());
+            let caller = slice::from_raw_parts_mut(req, g.framing().max_adu_length());
             crate::server::receive(g, caller).map(|n| n as c_int)
         })
     }
@@ -272,7 +272,7 @@ pub unsafe extern "C" fn modbus_reply(
             let bound = if req_length < 0 { usize::MAX } else { req_length as usize };
             // SAFETY: request_extent only asks for prefixes of the request as its own
             // header describes it (and within a non-negative req_length).
-            let extent = request_extent(g.framing, g.session.extended, bound, |n| slice::from_raw_parts(req, n));
+            let extent = request_extent(g.framing(), g.session.extended, bound, |n| slice::from_raw_parts(req, n));
             // SAFETY: the same bytes, now as one slice.
             let req = slice::from_raw_parts(req, extent);
             let mut mapping = CMapping(mb_mapping);
@@ -296,7 +296,7 @@ pub unsafe extern "C" fn modbus_reply_exception(ctx: *mut Modbus, req: *const u8
     unsafe {
         with_ctx(ctx, |g| {
             // SAFETY: the caller's request holds its header and function code.
-            let req = slice::from_raw_parts(req, g.framing.header_length() + 1);
+            let req = slice::from_raw_parts(req, g.framing().header_length() + 1);
             crate::server::reply_exception(g, req, exception_code).map(|n| n as c_int)
         })
     }
@@ -310,7 +310,7 @@ pub unsafe extern "C" fn modbus_reply_exception(ctx: *mut Modbus, req: *const u8
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| listen::listen_ipv4(&g.link, nb_connection, &mut g.diag())) }
+    unsafe { with_ctx(ctx, |g| listen::listen_ipv4(g.line.settings(), nb_connection, &mut g.diag())) }
 }
 
 /// Accepts one client on `*s` and makes it the context's socket (TCP contexts, and RTU
@@ -321,7 +321,9 @@ pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_in
 /// `ctx` must be NULL or a live context; `s` NULL or a valid pointer.
 unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
     // SAFETY: guaranteed by the caller.
-    let checked = unsafe { with_ctx(ctx, |g| if s.is_null() || !g.is_socket() { Err(Error::INVALID) } else { Ok(0) }) };
+    let checked = unsafe {
+        with_ctx(ctx, |g| if s.is_null() || !g.line.accepts_clients() { Err(Error::INVALID) } else { Ok(0) })
+    };
     if checked < 0 {
         return -1;
     }
@@ -344,13 +346,9 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
                 Err(Error::STOPPED)
             }
             Ok((fd, peer)) => {
-                g.set_descriptor(fd);
-                listen::report_accept(&mut g.diag(), peer.as_deref());
-                if g.tls.is_some() {
-                    // Modbus/TCP Security: the client is served only once it has
-                    // authenticated (a failure closes its socket).
-                    crate::engine::tls_handshake(g, crate::engine::Side::Server)?;
-                }
+                // Modbus/TCP Security: the client is served only once it has
+                // authenticated (a failure closes its socket).
+                crate::engine::accepted(g, fd, peer.as_deref())?;
                 Ok(fd)
             }
             Err(e) => {
@@ -389,7 +387,7 @@ pub unsafe extern "C" fn modbus_tcp_accept(ctx: *mut Modbus, s: *mut c_int) -> c
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_pi_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| listen::listen_pi(&g.link, nb_connection, g.debug, &mut g.diag())) }
+    unsafe { with_ctx(ctx, |g| listen::listen_pi(g.line.settings(), nb_connection, g.debug, &mut g.diag())) }
 }
 
 /// Accepts one client (IPv4 or IPv6) on the listening socket `*s`; the new socket

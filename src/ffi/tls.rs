@@ -42,7 +42,7 @@ pub unsafe extern "C" fn modbus_new_tcp_tls_pi(node: *const c_char, service: *co
 unsafe fn with_tls(ctx: *mut Modbus, f: impl FnOnce(&mut Tls) -> Result<c_int>) -> c_int {
     // SAFETY: forwarded caller contract.
     unsafe {
-        with_ctx(ctx, |g| match g.tls.as_deref_mut() {
+        with_ctx(ctx, |g| match g.line.security_mut() {
             Some(t) => f(t),
             None => Err(Error::INVALID),
         })
@@ -264,9 +264,8 @@ pub unsafe extern "C" fn modbus_get_tls_peer_role(ctx: *mut Modbus, buf: *mut c_
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let fd = g.s;
-            let tls = g.tls.as_deref().ok_or(Error::INVALID)?;
-            let role = tls.session_ref(fd).and_then(|s| s.role()).ok_or(Error(libc::ENOENT))?;
+            g.line.security().ok_or(Error::INVALID)?;
+            let role = g.line.peer_role().ok_or(Error(libc::ENOENT))?;
             let bytes = role.to_bytes();
             if size > 0 {
                 let n = bytes.len().min(size - 1);
@@ -293,9 +292,8 @@ pub unsafe extern "C" fn modbus_get_tls_pending(ctx: *mut Modbus) -> c_int {
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let fd = g.s;
-            let tls = g.tls.as_deref().ok_or(Error::INVALID)?;
-            Ok(tls.session_ref(fd).map_or(0, |s| s.pending().min(c_int::MAX as usize) as c_int))
+            g.line.security().ok_or(Error::INVALID)?;
+            Ok(g.line.pending().min(c_int::MAX as usize) as c_int)
         })
     }
 }

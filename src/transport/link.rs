@@ -32,9 +32,6 @@ pub struct RtuLink {
     pub onebyte_time: i32,
     /// `None` means the built-in ioctl that drives the RTS line.
     pub custom_rts: Option<RtsHook>,
-    /// Set when a request for another slave was seen on a shared bus: its answer
-    /// comes next and must be skipped.
-    pub confirmation_to_ignore: bool,
 }
 
 pub struct TcpLink {
@@ -52,4 +49,22 @@ pub enum Link {
     Rtu(RtuLink),
     Tcp(TcpLink),
     TcpPi(TcpPiLink),
+}
+
+impl From<RtuLink> for Link {
+    fn from(link: RtuLink) -> Link {
+        Link::Rtu(link)
+    }
+}
+
+impl From<TcpLink> for Link {
+    fn from(link: TcpLink) -> Link {
+        Link::Tcp(link)
+    }
+}
+
+impl From<TcpPiLink> for Link {
+    fn from(link: TcpPiLink) -> Link {
+        Link::TcpPi(link)
+    }
 }

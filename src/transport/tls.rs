@@ -461,12 +461,14 @@ pub struct Session {
     role: Option<CString>,
     /// A server's reads stop at record boundaries (see [`RecordCut`]).
     cut: Option<RecordCut>,
+    /// The socket's cookie (see `line::socket_cookie`).
+    cookie: u64,
 }
 
 impl Session {
-    /// A connection whose handshake completed; `cut`: the record boundary of a
-    /// server's reads.
-    pub fn new(mut conn: Connection, cut: Option<RecordCut>) -> Self {
+    /// A connection whose handshake completed on the socket of `cookie`; `cut`: the
+    /// record boundary of a server's reads.
+    pub fn new(mut conn: Connection, cut: Option<RecordCut>, cookie: u64) -> Self {
         let role = conn
             .peer_certificates()
             .and_then(|chain| chain.first())
@@ -475,7 +477,12 @@ impl Session {
         // Application data that came with the end of the handshake.
         let mut plain = Vec::new();
         let _ = conn.reader().read_to_end(&mut plain);
-        Session { conn, plain, start: 0, ended: false, failed: None, role, cut }
+        Session { conn, plain, start: 0, ended: false, failed: None, role, cut, cookie }
+    }
+
+    /// The cookie of the socket the session runs on.
+    pub fn cookie(&self) -> u64 {
+        self.cookie
     }
 
     /// The role in the peer's certificate.
@@ -596,33 +603,38 @@ impl Session {
 /// address and a count, true allows.
 pub type Authorize = Arc<dyn Fn(Option<&CStr>, u8, u8, u16, u16) -> bool + Send + Sync>;
 
-/// A context's TLS state: its settings, and the session of each socket it
-/// connected or accepted (a server that serves many clients on one context finds
-/// each client's session from the descriptor `modbus_set_socket` gave it).
+/// A context's TLS state: its settings, its authorization callback, and the
+/// sessions of the sockets it connected or accepted that are not current (a server
+/// that serves many clients on one context finds each client's session again when
+/// `modbus_set_socket` makes its socket current: see `line::Line::adopt`).
 #[derive(Default)]
 pub struct Tls {
     pub settings: TlsSettings,
     pub authorize: Option<Authorize>,
-    sessions: HashMap<i32, Session>,
+    parked: HashMap<i32, Box<Session>>,
 }
 
 impl Tls {
-    pub fn session(&mut self, fd: i32) -> Option<&mut Session> {
-        self.sessions.get_mut(&fd)
+    /// Keeps the session of `fd`, which stops being current.
+    pub fn park(&mut self, fd: i32, session: Box<Session>) {
+        self.parked.insert(fd, session);
     }
 
-    pub fn session_ref(&self, fd: i32) -> Option<&Session> {
-        self.sessions.get(&fd)
+    /// The session parked for `fd`, when `fd` is still the socket it ran on (its
+    /// cookie tells; a session of an earlier socket with the same number is dropped).
+    pub fn unpark(&mut self, fd: i32) -> Option<Box<Session>> {
+        let session = self.parked.remove(&fd)?;
+        (session.cookie() == super::line::socket_cookie(fd)).then_some(session)
     }
 
-    /// Keeps the session of a new connection on `fd`, replacing the session of an
-    /// earlier socket that had the same number.
-    pub fn insert(&mut self, fd: i32, session: Session) {
-        self.sessions.insert(fd, session);
+    /// Drops the session parked for `fd`: that number is a new socket's now.
+    pub fn forget(&mut self, fd: i32) {
+        self.parked.remove(&fd);
     }
 
-    pub fn remove(&mut self, fd: i32) -> Option<Session> {
-        self.sessions.remove(&fd)
+    /// Sessions parked.
+    pub fn parked(&self) -> usize {
+        self.parked.len()
     }
 }
 

@@ -1,0 +1,668 @@
+//! The line a context talks over: how to open it (its [`Link`] settings and, for
+//! Modbus/TCP Security, its [`Tls`] settings) and, once open, the descriptor with
+//! what it is: a serial line, a stream socket, or a TLS session on one.
+//!
+//! Every system call a context makes on its descriptor goes through a [`Line`]: it
+//! opens, accepts, adopts and closes descriptors, and executes the receive machine's
+//! steps (peek, wait, read), writes, flushes and drives the RTS line. The driver
+//! (`engine`) drives steps on a line and never asks which kind it is; a new kind of
+//! line (UDP next) is a new [`Kind`] here, not new branches there. The line is also
+//! the only writer of the stop state's copy of the descriptor ([`Stop::set_fd`]), so
+//! that a close from a signal handler or another thread always acts on the
+//! descriptor the line has.
+//!
+//! TLS sessions belong to their socket: the current socket's session lives in the
+//! line; a server that serves many clients on one context (switching with
+//! `modbus_set_socket`) parks the others' sessions, keyed by descriptor number and
+//! socket cookie, so that a reused number never meets an old session. A session
+//! whose peer has gone is dropped when its socket stops being current.
+
+use std::ffi::CStr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use super::link::{Link, RTU_RTS_NONE, RTU_RTS_UP, RtsHook, RtuLink};
+use super::tcp::{self, ConnectError};
+use super::tls::{self, Session, Tls};
+use super::{Ready, rtu};
+use crate::error::{EMBTLS, Error, Result};
+use crate::proto::Diag;
+use crate::proto::frame::{MAX_ADU_LENGTH, MsgKind};
+use crate::proto::session::Timeout;
+use crate::proto::session::receive::{LineCaps, ReadHow};
+use crate::stop::Stop;
+
+/// Below this response timeout a confirmation never reads under `SO_RCVTIMEO`, which
+/// could fire too late (see [`Line::read`]).
+const RCVTIMEO_MIN_RESPONSE_TIMEOUT: Duration = Duration::from_millis(200);
+
+/// A TCP client socket the context connected itself. Unlike libmodbus's, it is
+/// blocking after the connect, so that the first wait of a confirmation can be the
+/// read itself, bounded by `SO_RCVTIMEO` (one system call instead of a poll and a
+/// read); its sends pass `MSG_DONTWAIT`, so that they never block, as on libmodbus's
+/// non-blocking socket. A descriptor the application hands over is never changed.
+#[derive(Clone, Copy, Debug, Default)]
+struct ClientSocket {
+    /// The response timeout the socket's `SO_RCVTIMEO` was last derived from.
+    rcvtimeo_for: Option<Timeout>,
+}
+
+/// What the descriptor is.
+enum Kind {
+    /// A serial line (or no descriptor on a serial context); `nonblocking` when the
+    /// context opened it (with `O_NONBLOCK`): a read never blocks.
+    Serial { nonblocking: bool },
+    /// A stream socket; `client` when the context connected it itself.
+    Socket { client: Option<ClientSocket> },
+    /// A socket of a Modbus/TCP Security context, with its session (none: a socket
+    /// handed over that this context did not connect or accept, which cannot carry
+    /// Modbus/TCP Security: EMBTLS).
+    Tls { session: Option<Box<Session>>, client: Option<ClientSocket> },
+}
+
+/// The end of a TLS handshake a line takes.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Side {
+    Client,
+    Server,
+}
+
+/// The RTS sequence around a write on a serial line (`modbus_rtu_set_rts`): the
+/// driver runs it, since the application's callback runs with the context unlocked.
+#[derive(Clone)]
+pub struct RtsSequence {
+    /// The level that means "sending".
+    pub up: bool,
+    /// Microseconds before and after the frame.
+    pub delay_us: i64,
+    /// Microseconds one character takes on the line.
+    pub onebyte_us: i64,
+    /// The application's callback, or `None` for the built-in ioctl ([`Line::set_rts`]).
+    pub hook: Option<RtsHook>,
+}
+
+/// A context's line (see the module documentation).
+pub struct Line {
+    settings: Link,
+    security: Option<Box<Tls>>,
+    fd: i32,
+    kind: Kind,
+    stop: Arc<Stop>,
+}
+
+impl Line {
+    /// A line of these settings, not open.
+    pub fn new(settings: Link, stop: Arc<Stop>) -> Line {
+        let mut line = Line { settings, security: None, fd: -1, kind: Kind::Serial { nonblocking: false }, stop };
+        line.kind = line.foreign_kind();
+        line
+    }
+
+    /// Makes the line one of Modbus/TCP Security (a new context's).
+    pub fn secure(&mut self) {
+        self.security = Some(Box::default());
+        self.kind = self.foreign_kind();
+    }
+
+    /// The descriptor, -1 when none.
+    #[inline]
+    pub fn fd(&self) -> i32 {
+        self.fd
+    }
+
+    /// The settings the line opens from (the listening calls read them too).
+    pub fn settings(&self) -> &Link {
+        &self.settings
+    }
+
+    /// A serial line's settings; `None` for a TCP context.
+    pub fn serial(&self) -> Option<&RtuLink> {
+        match &self.settings {
+            Link::Rtu(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    pub fn serial_mut(&mut self) -> Option<&mut RtuLink> {
+        match &mut self.settings {
+            Link::Rtu(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    /// The line is a bus others share (a serial line): a server there sees requests
+    /// for other slaves, and their answers.
+    pub fn shared_bus(&self) -> bool {
+        matches!(self.settings, Link::Rtu(_))
+    }
+
+    /// The line is a stream socket, on which a server may listen and accept.
+    pub fn accepts_clients(&self) -> bool {
+        matches!(self.settings, Link::Tcp(_) | Link::TcpPi(_))
+    }
+
+    /// Modbus/TCP Security's settings; `None` for any other context.
+    pub fn security(&self) -> Option<&Tls> {
+        self.security.as_deref()
+    }
+
+    pub fn security_mut(&mut self) -> Option<&mut Tls> {
+        self.security.as_deref_mut()
+    }
+
+    /// The application's authorization callback, on a Modbus/TCP Security context
+    /// that has one.
+    pub fn authorizer(&self) -> Option<tls::Authorize> {
+        self.security.as_deref().and_then(|t| t.authorize.clone())
+    }
+
+    /// The role in the certificate of the current socket's peer.
+    pub fn peer_role(&self) -> Option<&CStr> {
+        match &self.kind {
+            Kind::Tls { session: Some(s), .. } => s.role(),
+            _ => None,
+        }
+    }
+
+    /// Plaintext received on the current socket and not taken yet (0 without a
+    /// session).
+    pub fn pending(&self) -> usize {
+        match &self.kind {
+            Kind::Tls { session: Some(s), .. } => s.pending(),
+            _ => 0,
+        }
+    }
+
+    /// What the line can do for a receive of `kind` (a confirmation reads under a
+    /// kernel timeout derived from `response` when the socket allows it).
+    #[inline]
+    pub fn caps(&self, kind: MsgKind, response: Timeout) -> LineCaps {
+        let (socket, nonblocking, client) = match &self.kind {
+            Kind::Serial { nonblocking } => (false, *nonblocking, false),
+            Kind::Socket { client } | Kind::Tls { client, .. } => (true, true, client.is_some()),
+        };
+        LineCaps {
+            socket,
+            reads_without_waiting: nonblocking,
+            timed_reads: client
+                && kind == MsgKind::Confirmation
+                && response.duration() >= RCVTIMEO_MIN_RESPONSE_TIMEOUT,
+        }
+    }
+
+    /// What a descriptor the context knows nothing about is, from the settings.
+    fn foreign_kind(&self) -> Kind {
+        match (&self.settings, &self.security) {
+            (Link::Rtu(_), _) => Kind::Serial { nonblocking: false },
+            (_, None) => Kind::Socket { client: None },
+            (_, Some(_)) => Kind::Tls { session: None, client: None },
+        }
+    }
+
+    /// Makes `fd` the line's descriptor, of `kind`; what the old one had is parked
+    /// (a live TLS session) or dropped. The stop state follows.
+    fn install(&mut self, fd: i32, kind: Kind) {
+        let old = std::mem::replace(&mut self.kind, kind);
+        if let (Kind::Tls { session: Some(session), .. }, Some(security)) = (old, self.security.as_deref_mut()) {
+            if self.fd >= 0 && self.fd != fd && !session.readable_end() {
+                security.park(self.fd, session);
+            }
+        }
+        self.fd = fd;
+        self.stop.set_fd(fd);
+    }
+
+    /// `modbus_set_socket`: `fd` (-1: none) as a descriptor the context did not open.
+    /// On a Modbus/TCP Security context, the session of a socket this context
+    /// accepted or connected earlier comes back with its socket.
+    pub fn adopt(&mut self, fd: i32) {
+        let mut kind = self.foreign_kind();
+        if let (Kind::Tls { session, .. }, Some(security)) = (&mut kind, self.security.as_deref_mut()) {
+            if fd >= 0 {
+                // The current session when it is this very socket's, else one parked.
+                let current = match &mut self.kind {
+                    Kind::Tls { session: current, .. } if self.fd == fd => {
+                        current.take().filter(|s| s.cookie() == socket_cookie(fd))
+                    }
+                    _ => None,
+                };
+                *session = current.or_else(|| security.unpark(fd));
+            }
+        }
+        self.install(fd, kind);
+    }
+
+    /// `fd` as a descriptor the context opened itself: a serial line opened
+    /// non-blocking, or a client socket made blocking (see [`ClientSocket`]). For the
+    /// driver's tests; [`Line::open`] does this for real lines.
+    pub fn adopt_own(&mut self, fd: i32) {
+        let kind = match self.foreign_kind() {
+            Kind::Serial { .. } => Kind::Serial { nonblocking: true },
+            Kind::Socket { .. } => Kind::Socket { client: Some(ClientSocket::default()) },
+            Kind::Tls { .. } => Kind::Tls { session: None, client: Some(ClientSocket::default()) },
+        };
+        self.install(fd, kind);
+    }
+
+    /// Gives up the descriptor without closing it (for the caller to close): -1 from
+    /// now on, with nothing of the old descriptor kept.
+    pub fn abandon(&mut self) -> i32 {
+        let fd = self.fd;
+        let kind = self.foreign_kind();
+        self.kind = kind;
+        self.fd = -1;
+        self.stop.set_fd(-1);
+        fd
+    }
+
+    /// `modbus_connect`: opens the line from its settings (serial: open and
+    /// configure; TCP: connect within `timeout`, then the TLS handshake, bounded by
+    /// it too, on a Modbus/TCP Security context).
+    pub fn open(&mut self, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
+        let connected = match &mut self.settings {
+            Link::Rtu(link) => {
+                let fd = rtu::open(link, diag)?;
+                let configured = rtu::configure(fd, link, diag);
+                if let Some(saved) = link.saved_termios {
+                    self.stop.save_line(&saved);
+                }
+                if let Err(e) = configured {
+                    super::close(fd);
+                    self.install(-1, Kind::Serial { nonblocking: false });
+                    return Err(e);
+                }
+                self.install(fd, Kind::Serial { nonblocking: true });
+                return Ok(());
+            }
+            Link::Tcp(link) => tcp::connect_ipv4(link, timeout, diag),
+            Link::TcpPi(link) => tcp::connect_pi(link, timeout, diag),
+        };
+        match connected {
+            Ok(c) => {
+                let client = c.blocking.then(ClientSocket::default);
+                if self.security.is_none() {
+                    self.install(c.fd, Kind::Socket { client });
+                    return Ok(());
+                }
+                self.install(c.fd, Kind::Tls { session: None, client });
+                self.handshake(Side::Client, timeout, debug, diag)
+            }
+            Err(ConnectError::Before(e)) => Err(e),
+            Err(ConnectError::During(e)) => {
+                let kind = self.foreign_kind();
+                self.install(-1, kind);
+                Err(e)
+            }
+        }
+    }
+
+    /// `modbus_tcp_accept`: `fd`, just accepted, becomes the line's socket; on a
+    /// Modbus/TCP Security context the client is served only once it has
+    /// authenticated (the handshake, bounded by `timeout`; a failure closes its
+    /// socket).
+    pub fn accepted(&mut self, fd: i32, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
+        let kind = self.foreign_kind();
+        let secure = matches!(kind, Kind::Tls { .. });
+        self.install(fd, kind);
+        if let Some(security) = self.security.as_deref_mut() {
+            // A session parked under this number was another socket's.
+            security.forget(fd);
+        }
+        if secure { self.handshake(Side::Server, timeout, debug, diag) } else { Ok(()) }
+    }
+
+    /// The TLS handshake on the line's socket (just connected or accepted), bounded
+    /// by `timeout`; the session is kept with the socket. A failure closes the socket
+    /// and leaves the line without one (unless the context is being closed under the
+    /// call: the closer does that).
+    fn handshake(&mut self, side: Side, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
+        let fd = self.fd;
+        let deadline = Some(super::now() + timeout);
+        let host = match &self.settings {
+            Link::Tcp(l) => l.ip.to_string_lossy().into_owned(),
+            Link::TcpPi(l) => l.node.to_string_lossy().into_owned(),
+            Link::Rtu(_) => return Err(Error::INVALID),
+        };
+        let Some(security) = self.security.as_deref_mut() else { return Err(Error::INVALID) };
+        let started = match side {
+            Side::Client => security.settings.connect(&host),
+            Side::Server => security.settings.accept(),
+        };
+        // A server reads record by record (see `tls::RecordCut`); the handshake's
+        // flights go out at once.
+        let _ = super::set_option(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1 as libc::c_int);
+        let mut cut = (side == Side::Server).then(tls::RecordCut::default);
+        let stop = &self.stop;
+        let done = started.and_then(|mut conn| {
+            tls::handshake(fd, &mut conn, cut.as_mut(), deadline, &|| stop.stopping())?;
+            Ok(conn)
+        });
+        match done {
+            Ok(conn) => {
+                let described = debug.then(|| tls::describe_session(&conn));
+                let session = Box::new(Session::new(conn, cut, socket_cookie(fd)));
+                if let Some(described) = described {
+                    let role = session.role().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
+                    diag.out(format_args!("TLS handshake done: {described}, peer role {role}\n"));
+                }
+                if let Kind::Tls { session: slot, .. } = &mut self.kind {
+                    *slot = Some(session);
+                }
+                Ok(())
+            }
+            Err(e) => {
+                if debug {
+                    diag.err(format_args!("ERROR TLS handshake: {}\n", super::describe(e.0)));
+                }
+                if !self.stop.stopping() {
+                    let fd = self.abandon();
+                    tcp::close_socket(fd);
+                }
+                Err(e)
+            }
+        }
+    }
+
+    /// `modbus_close`: a serial line gets the settings it had before back, a TLS
+    /// session sends close_notify; the descriptor is closed.
+    pub fn close(&mut self) {
+        if self.fd < 0 {
+            return;
+        }
+        if let Kind::Tls { session: Some(session), .. } = &mut self.kind {
+            session.close(self.fd);
+        }
+        if let Link::Rtu(link) = &self.settings {
+            self.stop.forget_line();
+            let saved = link.saved_termios;
+            let fd = self.abandon();
+            rtu::close_line(fd, saved);
+        } else {
+            let fd = self.abandon();
+            tcp::close_socket(fd);
+        }
+    }
+
+    /// Looks at what has arrived without taking it (a socket server's first step):
+    /// into `room`, waiting for it when `block`.
+    #[inline]
+    pub fn peek(&mut self, room: &mut [u8], block: bool) -> Result<usize> {
+        match &mut self.kind {
+            Kind::Tls { session, .. } => tls_peek(self.fd, session, room, block),
+            _ => {
+                let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
+                super::recv(self.fd, room, flags)
+            }
+        }
+    }
+
+    /// One read into `room`, as the machine says: when the line is ready (it may
+    /// block), of what is queued (never blocks), or within the kernel timeout set from
+    /// a response timeout on a client socket the context connected (one system call
+    /// where a wait and a read were two: `SO_RCVTIMEO` runs on the kernel's timer
+    /// wheel, which may fire up to an eighth of the time plus a tick or two late, so
+    /// it is set to 3/4 of the response timeout; when it fires (EAGAIN), the machine
+    /// waits for the rest, which therefore ends when libmodbus's `select` would).
+    #[inline]
+    pub fn read(&mut self, room: &mut [u8], how: ReadHow, debug: bool) -> Result<usize> {
+        let fd = self.fd;
+        match &mut self.kind {
+            Kind::Socket { client } => match how {
+                ReadHow::Ready => super::recv(fd, room, 0),
+                ReadHow::Queued => super::recv(fd, room, libc::MSG_DONTWAIT),
+                ReadHow::Within(timeout) => read_within(fd, client, room, timeout, debug),
+            },
+            Kind::Serial { .. } => super::read(fd, room),
+            Kind::Tls { session, client } => tls_read(fd, session, client, room, how),
+        }
+    }
+
+    /// Waits until the line is readable or the monotonic clock reaches `until`
+    /// (`None`: forever); a signal does not restart the timeout. A close of the
+    /// context from a signal handler or another thread ends it with `Err(STOPPED)`: a
+    /// socket is shut down by the closer, a serial line's wait also watches the
+    /// context's wake-up descriptor. On a TLS session, the wait ends when plaintext is
+    /// there (a readable socket may bring only part of a record, or none of the
+    /// application's data).
+    pub fn wait(&mut self, until: Option<Duration>, debug: bool) -> Result<()> {
+        let fd = self.fd;
+        match &mut self.kind {
+            Kind::Serial { .. } => wait_line(&self.stop, fd, self.stop.wake_fd(), until, debug),
+            Kind::Socket { .. } => wait_line(&self.stop, fd, -1, until, debug),
+            Kind::Tls { session, .. } => {
+                let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
+                while !session.readable() {
+                    wait_line(&self.stop, fd, -1, until, debug)?;
+                    match session.fill(fd, libc::MSG_DONTWAIT) {
+                        Err(e) if e.0 != libc::EAGAIN && e.0 != libc::EINTR => return Err(e),
+                        _ => {}
+                    }
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Writes one frame. A socket never blocks in it (a client socket the context
+    /// made blocking passes `MSG_DONTWAIT`); a TLS session sends one record, waiting
+    /// for room up to `timeout`.
+    #[inline]
+    pub fn write(&mut self, frame: &[u8], timeout: Duration) -> Result<usize> {
+        let fd = self.fd;
+        match &mut self.kind {
+            Kind::Socket { client } => super::send(fd, frame, if client.is_some() { libc::MSG_DONTWAIT } else { 0 }),
+            Kind::Serial { .. } => super::write(fd, frame),
+            Kind::Tls { session, .. } => tls_write(fd, session, &self.stop, frame, timeout),
+        }
+    }
+
+    /// The RTS sequence a write on this line needs, if any.
+    #[inline]
+    pub fn rts_sequence(&self) -> Option<RtsSequence> {
+        match &self.settings {
+            Link::Rtu(l) if l.rts != RTU_RTS_NONE => Some(RtsSequence {
+                up: l.rts == RTU_RTS_UP,
+                delay_us: l.rts_delay as i64,
+                onebyte_us: l.onebyte_time as i64,
+                hook: l.custom_rts.clone(),
+            }),
+            _ => None,
+        }
+    }
+
+    /// The application's RTS callback (`modbus_rtu_set_custom_rts`), if any.
+    pub fn rts_hook(&self) -> Option<RtsHook> {
+        self.serial().and_then(|l| l.custom_rts.clone())
+    }
+
+    /// The built-in RTS driver: raises or lowers the RTS modem line.
+    pub fn set_rts(&self, on: bool) {
+        rtu::set_rts_line(self.fd, on);
+    }
+
+    /// `modbus_flush`: drops what has arrived. Returns the bytes dropped (sockets,
+    /// `held` included: what the driver had read ahead from the line; a serial line
+    /// says 0), and the error of the last failed system call, if any. A socket's
+    /// count is kept in 16 bits as libmodbus 3.1.11+ does: an overflow fails with
+    /// EOVERFLOW.
+    pub fn flush(&mut self, held: usize) -> (Result<usize>, Option<Error>) {
+        let fd = self.fd;
+        let buffered = held
+            + match &mut self.kind {
+                Kind::Serial { .. } => {
+                    let rc = rtu::flush(fd);
+                    return (rc, rc.err());
+                }
+                Kind::Socket { .. } | Kind::Tls { session: None, .. } => 0,
+                Kind::Tls { session: Some(session), .. } => {
+                    // Records queued on the socket are decrypted and dropped with the rest.
+                    let mut buffered = 0;
+                    while session.fill(fd, libc::MSG_DONTWAIT).is_ok() && !session.readable_end() {
+                        buffered += session.discard();
+                    }
+                    buffered + session.discard()
+                }
+            };
+        let (rc, left) = drain_socket(fd);
+        (rc.map(|n| n + buffered), left)
+    }
+
+    /// After a bad checksum: discards what the serial line holds (no trace, no
+    /// count); nothing on a socket.
+    pub fn purge(&mut self) {
+        if let Kind::Serial { .. } = self.kind {
+            let _ = rtu::flush(self.fd);
+        }
+    }
+}
+
+/// Drains a socket without waiting (see [`Line::flush`]).
+fn drain_socket(fd: i32) -> (Result<usize>, Option<Error>) {
+    let mut sink = [0u8; MAX_ADU_LENGTH];
+    let mut total: u16 = 0;
+    loop {
+        let (n, left) = match super::recv(fd, &mut sink, libc::MSG_DONTWAIT) {
+            Ok(n) => (n, None),
+            Err(e) => (0, Some(e)),
+        };
+        total = match total.checked_add(n as u16) {
+            Some(t) => t,
+            None => return (Err(Error(libc::EOVERFLOW)), Some(Error(libc::EOVERFLOW))),
+        };
+        if n != MAX_ADU_LENGTH {
+            return (Ok(total as usize), left);
+        }
+    }
+}
+
+/// The socket's cookie (`SO_COOKIE`): the kernel's number for the socket itself,
+/// never reused while the system runs; 0 when the kernel gives none.
+pub fn socket_cookie(fd: i32) -> u64 {
+    /// `SO_COOKIE` of asm-generic/socket.h (x86, ARM, RISC-V...).
+    const SO_COOKIE: libc::c_int = 57;
+    let mut cookie: u64 = 0;
+    let mut len = size_of::<u64>() as libc::socklen_t;
+    // SAFETY: the kernel writes at most `len` bytes into the live u64 and updates
+    // `len`, a live socklen_t.
+    let rc = unsafe { libc::getsockopt(fd, libc::SOL_SOCKET, SO_COOKIE, (&mut cookie as *mut u64).cast(), &mut len) };
+    if rc == 0 { cookie } else { 0 }
+}
+
+/// [`Line::wait`] on the parts of a line it needs.
+fn wait_line(stop: &Stop, fd: i32, wake: i32, until: Option<Duration>, debug: bool) -> Result<()> {
+    loop {
+        if stop.stopping() {
+            return Err(Error::STOPPED);
+        }
+        let mut left = until.map(|u| super::to_timespec(u.saturating_sub(super::now())));
+        match super::wait_or_wake(fd, libc::POLLIN, wake, left.as_mut()) {
+            Ok(Ready::Line) => return Ok(()),
+            Ok(Ready::TimedOut) => return Err(Error::TIMED_OUT),
+            Ok(Ready::Woken) => stop.drain_wake(),
+            Err(e) if e.0 == libc::EINTR => signal_caught(debug),
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// libmodbus's trace of a wait a signal interrupted.
+fn signal_caught(debug: bool) {
+    crate::stdio::DebugSink { enabled: debug }.err(format_args!("A non blocked signal was caught\n"))
+}
+
+/// A read within the kernel timeout (see [`Line::read`]).
+fn read_within(
+    fd: i32,
+    socket: &mut Option<ClientSocket>,
+    room: &mut [u8],
+    timeout: Timeout,
+    debug: bool,
+) -> Result<usize> {
+    // Without the timer the read must not block: then it only looks.
+    let flags = if receive_timeout_set(fd, socket, timeout) { 0 } else { libc::MSG_DONTWAIT };
+    let read = super::recv(fd, room, flags);
+    if debug && matches!(read, Err(Error(libc::EINTR))) {
+        signal_caught(true);
+    }
+    read
+}
+
+/// Sets the socket's `SO_RCVTIMEO` to 3/4 of `timeout` unless it already is; false
+/// when it cannot be set (a blocking read could then block for ever).
+fn receive_timeout_set(fd: i32, socket: &mut Option<ClientSocket>, timeout: Timeout) -> bool {
+    let Some(socket) = socket.as_mut() else { return false };
+    if socket.rcvtimeo_for != Some(timeout) {
+        if tcp::set_receive_timeout(fd, timeout.duration() * 3 / 4).is_err() {
+            return false;
+        }
+        socket.rcvtimeo_for = Some(timeout);
+    }
+    true
+}
+
+/// What a step on a socket of a Modbus/TCP Security context without a session (one
+/// handed over that this context did not connect or accept, or whose session was
+/// dropped when its peer went) ends with: EMBTLS, unless the peer has gone, which a
+/// read of it would say (ECONNRESET, as on a TCP socket).
+#[cold]
+fn no_session(fd: i32) -> Error {
+    let mut byte = [0u8; 1];
+    match super::recv(fd, &mut byte, libc::MSG_PEEK | libc::MSG_DONTWAIT) {
+        Ok(0) => Error::CONN_RESET,
+        Err(e) if e == Error::CONN_RESET => e,
+        _ => Error(EMBTLS),
+    }
+}
+
+/// [`Line::peek`] on a TLS session: the plaintext, decrypted from the socket's
+/// records as needed.
+#[inline(never)]
+fn tls_peek(fd: i32, session: &mut Option<Box<Session>>, room: &mut [u8], block: bool) -> Result<usize> {
+    let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
+    let flags = if block { 0 } else { libc::MSG_DONTWAIT };
+    while !session.readable() {
+        session.fill(fd, flags)?;
+    }
+    match session.peek(room) {
+        0 => session.take(&mut []),
+        n => Ok(n),
+    }
+}
+
+/// [`Line::read`] on a TLS session: takes plaintext; reads records from the socket
+/// only when none is left, one `recv` at most (a part of a record, or a record with
+/// no application data, leaves nothing to take: EAGAIN, and the machine waits again).
+#[inline(never)]
+fn tls_read(
+    fd: i32,
+    session: &mut Option<Box<Session>>,
+    client: &mut Option<ClientSocket>,
+    room: &mut [u8],
+    how: ReadHow,
+) -> Result<usize> {
+    let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
+    let flags = match how {
+        ReadHow::Queued => libc::MSG_DONTWAIT,
+        ReadHow::Ready => 0,
+        ReadHow::Within(timeout) if receive_timeout_set(fd, client, timeout) => 0,
+        ReadHow::Within(_) => libc::MSG_DONTWAIT,
+    };
+    if !session.readable() {
+        session.fill(fd, flags)?;
+    }
+    session.take(room)
+}
+
+/// [`Line::write`] on a TLS session.
+#[inline(never)]
+fn tls_write(
+    fd: i32,
+    session: &mut Option<Box<Session>>,
+    stop: &Stop,
+    frame: &[u8],
+    timeout: Duration,
+) -> Result<usize> {
+    let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
+    let deadline = Some(super::now() + timeout);
+    session.send(fd, frame, deadline, &|| stop.stopping())
+}
