@@ -8,15 +8,17 @@
 //!    against the build tree load this library and not the system's libmodbus;
 //! 3. writes `target/<profile>/libmodbus.pc` (from `libmodbus.pc.in`) and
 //!    `target/<profile>/libmodbus-uninstalled.pc` (for building against the tree);
-//! 4. generates the four public headers with cbindgen into `$OUT_DIR/include/` and,
+//! 4. generates the five public headers with cbindgen into `$OUT_DIR/include/` and,
 //!    when `RSMODBUS_UPDATE_HEADERS=1`, into the committed `include/`. A committed
 //!    header that differs from the generated one only produces a cargo warning here;
-//!    `scripts/check-headers.sh` turns it into a failure.
+//!    `scripts/check-headers.sh` turns it into a failure. The `header` column of
+//!    `abi/exports.txt` says which header declares each function.
 //!
 //! Environment: `RSMODBUS_PREFIX` (default `/usr/local`), `RSMODBUS_LIBDIR` (default
 //! `${exec_prefix}/lib`), `RSMODBUS_INCLUDEDIR` (default `${prefix}/include`) and
 //! `RSMODBUS_UPDATE_HEADERS`.
 
+use std::collections::HashMap;
 use std::env;
 use std::fs;
 use std::io;
@@ -75,43 +77,40 @@ const HEADERS: &[Header] = &[
     Header { file: "modbus-version.h", config: "cbindgen/modbus-version.toml", part: Part::Version },
 ];
 
-/// Which header declares the exported symbol `name`. `extensions` are the symbols
-/// listed as rsmodbus extensions in [`INTENDED_DIFFERENCES`].
-fn part_of(name: &str, extensions: &[String]) -> Part {
-    if name.starts_with("modbus_new_tcp_tls")
-        || name.starts_with("modbus_set_tls_")
-        || name.starts_with("modbus_get_tls_")
-    {
-        Part::Tls
-    } else if name.starts_with("rsmodbus_") || extensions.iter().any(|e| e == name) {
-        Part::Extensions
-    } else if name == "modbus_new_rtu" || name.starts_with("modbus_rtu_") {
-        Part::Rtu
-    } else if name.starts_with("modbus_new_tcp") || name.starts_with("modbus_tcp_") {
-        Part::Tcp
-    } else {
-        Part::Main
+/// The table of the exports, one `name | header | since | page` row each; build.rs
+/// reads the header of each (the format is described at the top of the file).
+const EXPORTS: &str = "abi/exports.txt";
+
+/// The header of each export, from [`EXPORTS`].
+fn export_parts(manifest_dir: &Path) -> Result<HashMap<String, Part>, String> {
+    let text = fs::read_to_string(manifest_dir.join(EXPORTS)).map_err(|e| format!("{EXPORTS}: {e}"))?;
+    let mut parts = HashMap::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let at = format!("{EXPORTS}:{}", i + 1);
+        let fields: Vec<&str> = line.split('|').map(str::trim).collect();
+        let [name, header, since, page] = fields[..] else {
+            return Err(format!("{at}: expected `name | header | since | page`"));
+        };
+        if [name, since, page].contains(&"") {
+            return Err(format!("{at}: empty field"));
+        }
+        let part = match header {
+            "modbus.h" => Part::Main,
+            "modbus.h extensions" => Part::Extensions,
+            "modbus-rtu.h" => Part::Rtu,
+            "modbus-tcp.h" => Part::Tcp,
+            "modbus-tls.h" => Part::Tls,
+            other => return Err(format!("{at}: unknown header `{other}`")),
+        };
+        if parts.insert(name.to_owned(), part).is_some() {
+            return Err(format!("{at}: second row for {name}"));
+        }
     }
-}
-
-/// The list of symbols that differ from Debian's libmodbus on purpose; its
-/// `extension | name | reason` lines name rsmodbus' additions.
-const INTENDED_DIFFERENCES: &str = "abi/symbols-intended-differences.txt";
-
-fn extension_names(manifest_dir: &Path) -> Vec<String> {
-    let Ok(text) = fs::read_to_string(manifest_dir.join(INTENDED_DIFFERENCES)) else {
-        println!("cargo:warning=cannot read {INTENDED_DIFFERENCES}; extensions not recognised");
-        return Vec::new();
-    };
-    text.lines()
-        .filter_map(|line| {
-            let mut fields = line.split('|').map(str::trim);
-            match (fields.next(), fields.next()) {
-                (Some("extension"), Some(name)) if !name.is_empty() => Some(name.to_owned()),
-                _ => None,
-            }
-        })
-        .collect()
+    Ok(parts)
 }
 
 fn main() {
@@ -119,7 +118,7 @@ fn main() {
     println!("cargo:rerun-if-changed=src/ffi");
     println!("cargo:rerun-if-changed=cbindgen");
     println!("cargo:rerun-if-changed=libmodbus.pc.in");
-    println!("cargo:rerun-if-changed={INTENDED_DIFFERENCES}");
+    println!("cargo:rerun-if-changed={EXPORTS}");
     // So that the stale-header warning follows edits of the committed headers, and
     // RSMODBUS_UPDATE_HEADERS=1 repairs a hand-edited header even if it was set before.
     println!("cargo:rerun-if-changed=include");
@@ -231,14 +230,27 @@ fn write_if_changed(path: &Path, contents: &[u8]) -> io::Result<bool> {
     Ok(true)
 }
 
+/// What the headers are made of besides the cbindgen configurations.
+struct Inputs<'a> {
+    manifest_dir: &'a Path,
+    ffi_root: &'a Path,
+    /// The header of each exported symbol that has a row in [`EXPORTS`].
+    parts: HashMap<String, Part>,
+    /// Every exported symbol cbindgen finds.
+    symbols: Vec<String>,
+}
+
 fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
     let ffi_root = manifest_dir.join(FFI_ROOT);
+    let gen_dir = out_dir.join("include");
+    // Headers of an earlier run must not stand in for ones this run cannot make
+    // (scripts/check-headers.sh compares the committed headers with these).
+    let _ = fs::remove_dir_all(&gen_dir);
     if !ffi_root.exists() {
         println!("cargo:warning={FFI_ROOT} does not exist yet; headers not generated");
         return;
     }
     let update = env::var("RSMODBUS_UPDATE_HEADERS").is_ok_and(|v| v == "1");
-    let gen_dir = out_dir.join("include");
 
     // First pass: every exported symbol, to decide which header declares it.
     let symbols: Vec<String> = match load_config(manifest_dir, "cbindgen/modbus.toml")
@@ -250,11 +262,21 @@ fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
             return;
         }
     };
+    let parts = match export_parts(manifest_dir) {
+        Ok(parts) => parts,
+        Err(e) => {
+            println!("cargo:warning=headers not generated: {e}");
+            return;
+        }
+    };
+    for name in symbols.iter().filter(|name| !parts.contains_key(*name)) {
+        println!("cargo:warning={name} has no row in {EXPORTS}: it is declared in no header");
+    }
+    let inputs = Inputs { manifest_dir, ffi_root: &ffi_root, parts, symbols };
 
-    let extensions = extension_names(manifest_dir);
     let mut stale = Vec::new();
     for header in HEADERS {
-        let text = match render_header(manifest_dir, &ffi_root, header, &symbols, &extensions) {
+        let text = match render_header(&inputs, header) {
             Ok(text) => text,
             Err(e) => {
                 println!("cargo:warning=cannot generate {}: {e}", header.file);
@@ -294,16 +316,10 @@ fn run_cbindgen(config: cbindgen::Config, src: Option<&Path>) -> Result<cbindgen
     builder.generate().map_err(|e| e.to_string())
 }
 
-fn render_header(
-    manifest_dir: &Path,
-    ffi_root: &Path,
-    header: &Header,
-    symbols: &[String],
-    extensions: &[String],
-) -> Result<String, String> {
-    let mut text = render(manifest_dir, ffi_root, header.config, header.part, symbols, extensions)?;
+fn render_header(inputs: &Inputs<'_>, header: &Header) -> Result<String, String> {
+    let mut text = render(inputs, header.config, header.part)?;
     if header.part == Part::Main {
-        let extensions = render(manifest_dir, ffi_root, EXTENSIONS_CONFIG, Part::Extensions, symbols, extensions)?;
+        let extensions = render(inputs, EXTENSIONS_CONFIG, Part::Extensions)?;
         let line = format!("{EXTENSIONS_MARKER}\n");
         if !text.contains(&line) {
             return Err(format!("{EXTENSIONS_MARKER} line missing from {}", header.config));
@@ -318,15 +334,8 @@ fn render_header(
 
 /// Runs cbindgen with the configuration `config_rel`, keeping only the symbols of
 /// `part` (none for the version header, which is all configuration text).
-fn render(
-    manifest_dir: &Path,
-    ffi_root: &Path,
-    config_rel: &str,
-    part: Part,
-    symbols: &[String],
-    extensions: &[String],
-) -> Result<String, String> {
-    let mut config = load_config(manifest_dir, config_rel)?;
+fn render(inputs: &Inputs<'_>, config_rel: &str, part: Part) -> Result<String, String> {
+    let mut config = load_config(inputs.manifest_dir, config_rel)?;
     let (major, minor, micro) = LIBMODBUS_VERSION;
     for text in [&mut config.header, &mut config.after_includes, &mut config.trailer].into_iter().flatten() {
         *text = text
@@ -338,9 +347,10 @@ fn render(
     let src = match part {
         Part::Version => None,
         part => {
-            // Leave out every symbol that belongs to another header.
-            config.export.exclude.extend(symbols.iter().filter(|name| part_of(name, extensions) != part).cloned());
-            Some(ffi_root)
+            // Leave out every symbol that belongs to another header, or to none.
+            let elsewhere = |name: &&String| inputs.parts.get(*name) != Some(&part);
+            config.export.exclude.extend(inputs.symbols.iter().filter(elsewhere).cloned());
+            Some(inputs.ffi_root)
         }
     };
     let bindings = run_cbindgen(config, src)?;
