@@ -12,7 +12,9 @@
 //!    when `RSMODBUS_UPDATE_HEADERS=1`, into the committed `include/`. A committed
 //!    header that differs from the generated one only produces a cargo warning here;
 //!    `scripts/check-headers.sh` turns it into a failure. The `header` column of
-//!    `abi/exports.txt` says which header declares each function.
+//!    `abi/exports.txt` says which header declares each function; the `#define`s of
+//!    the error numbers are those of `proto/src/error.rs` (`@ERRNO NAME@` lines of
+//!    the configurations in `cbindgen/`).
 //!
 //! Environment: `RSMODBUS_PREFIX` (default `/usr/local`), `RSMODBUS_LIBDIR` (default
 //! `${exec_prefix}/lib`), `RSMODBUS_INCLUDEDIR` (default `${prefix}/include`) and
@@ -113,12 +115,102 @@ fn export_parts(manifest_dir: &Path) -> Result<HashMap<String, Part>, String> {
     Ok(parts)
 }
 
+/// Where the error numbers are defined, as `pub const NAME: i32 = EXPR;` lines.
+const ERROR_RS: &str = "proto/src/error.rs";
+
+/// The `#define`s of the error numbers, by group: each run of top-level
+/// `pub const NAME: i32 = EXPR;` lines of [`ERROR_RS`] (comments may come between
+/// them; a blank or any other line ends the run), under the name of its first
+/// constant. A line `@ERRNO NAME@` of a cbindgen configuration stands for the group
+/// `NAME`, with each expression spelt in C.
+fn errno_groups(manifest_dir: &Path) -> Result<HashMap<String, String>, String> {
+    let text = fs::read_to_string(manifest_dir.join(ERROR_RS)).map_err(|e| format!("{ERROR_RS}: {e}"))?;
+    let mut groups = HashMap::new();
+    let mut current: Option<(String, String)> = None;
+    for line in text.lines() {
+        if let Some(rest) = line.strip_prefix("pub const ") {
+            if let Some((name, expr)) = rest.strip_suffix(';').and_then(|d| d.split_once(": i32 = ")) {
+                let define =
+                    format!("#define {name} {}\n", c_expression(expr).map_err(|e| format!("{ERROR_RS}: {name}: {e}"))?);
+                current.get_or_insert_with(|| (name.to_owned(), String::new())).1.push_str(&define);
+                continue;
+            }
+        }
+        if current.is_some() && !line.trim_start().starts_with("//") {
+            let (first, defines) = current.take().unwrap_or_default();
+            groups.insert(first, defines);
+        }
+    }
+    if let Some((first, defines)) = current {
+        groups.insert(first, defines);
+    }
+    Ok(groups)
+}
+
+/// A constant expression of [`ERROR_RS`] in C: integer literals, constant names and
+/// `exception::NAME as i32` (the enum's `MODBUS_EXCEPTION_NAME`) joined by `+`.
+fn c_expression(expr: &str) -> Result<String, String> {
+    let terms = expr
+        .split(" + ")
+        .map(|term| {
+            if let Some(code) = term.strip_prefix("exception::").and_then(|t| t.strip_suffix(" as i32")) {
+                Ok(format!("MODBUS_EXCEPTION_{code}"))
+            } else if term.starts_with(|c: char| c.is_ascii_digit())
+                && term.bytes().all(|b| b.is_ascii_digit() || b == b'_')
+            {
+                Ok(term.replace('_', ""))
+            } else if term.starts_with(|c: char| c.is_ascii_uppercase())
+                && term.bytes().all(|b| b.is_ascii_uppercase() || b.is_ascii_digit() || b == b'_')
+            {
+                Ok(term.to_owned())
+            } else {
+                Err(format!("cannot spell `{term}` in C"))
+            }
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(if terms.len() == 1 { terms.concat() } else { format!("({})", terms.join(" + ")) })
+}
+
+/// Fails when a group of error numbers has no `@ERRNO NAME@` line in any
+/// configuration: its numbers would be in no header.
+fn errno_all_used(manifest_dir: &Path, groups: &HashMap<String, String>) -> Result<(), String> {
+    let mut configs = String::new();
+    for rel in HEADERS.iter().map(|h| h.config).chain([EXTENSIONS_CONFIG]) {
+        configs += &fs::read_to_string(manifest_dir.join(rel)).map_err(|e| format!("{rel}: {e}"))?;
+    }
+    let mut unused: Vec<&str> =
+        groups.keys().filter(|name| !configs.contains(&format!("\n@ERRNO {name}@"))).map(String::as_str).collect();
+    unused.sort_unstable();
+    if unused.is_empty() {
+        Ok(())
+    } else {
+        Err(format!("{ERROR_RS}: no `@ERRNO NAME@` line in cbindgen/ for {}", unused.join(", ")))
+    }
+}
+
+/// Replaces every `@ERRNO NAME@` line of `text` with the group `NAME`.
+fn expand_errno(text: &str, groups: &HashMap<String, String>) -> Result<String, String> {
+    let mut out = String::with_capacity(text.len());
+    for line in text.split_inclusive('\n') {
+        match line.trim_end().strip_prefix("@ERRNO ").and_then(|l| l.strip_suffix('@')) {
+            Some(name) => {
+                let defines = groups.get(name).ok_or_else(|| format!("@ERRNO {name}@: no such group in {ERROR_RS}"))?;
+                // The last line of a configuration text has no newline of its own.
+                out.push_str(if line.ends_with('\n') { defines } else { defines.trim_end_matches('\n') });
+            }
+            None => out.push_str(line),
+        }
+    }
+    Ok(out)
+}
+
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-changed=src/ffi");
     println!("cargo:rerun-if-changed=cbindgen");
     println!("cargo:rerun-if-changed=libmodbus.pc.in");
     println!("cargo:rerun-if-changed={EXPORTS}");
+    println!("cargo:rerun-if-changed={ERROR_RS}");
     // So that the stale-header warning follows edits of the committed headers, and
     // RSMODBUS_UPDATE_HEADERS=1 repairs a hand-edited header even if it was set before.
     println!("cargo:rerun-if-changed=include");
@@ -230,7 +322,7 @@ fn write_if_changed(path: &Path, contents: &[u8]) -> io::Result<bool> {
     Ok(true)
 }
 
-/// What the headers are made of besides the cbindgen configurations.
+/// What the headers are made of besides the sources and the cbindgen configurations.
 struct Inputs<'a> {
     manifest_dir: &'a Path,
     ffi_root: &'a Path,
@@ -238,6 +330,8 @@ struct Inputs<'a> {
     parts: HashMap<String, Part>,
     /// Every exported symbol cbindgen finds.
     symbols: Vec<String>,
+    /// The error numbers' `#define`s, by group ([`errno_groups`]).
+    errno: HashMap<String, String>,
 }
 
 fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
@@ -262,17 +356,21 @@ fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
             return;
         }
     };
-    let parts = match export_parts(manifest_dir) {
-        Ok(parts) => parts,
-        Err(e) => {
+    let (parts, errno) = match (export_parts(manifest_dir), errno_groups(manifest_dir)) {
+        (Ok(parts), Ok(errno)) => (parts, errno),
+        (Err(e), _) | (_, Err(e)) => {
             println!("cargo:warning=headers not generated: {e}");
             return;
         }
     };
+    if let Err(e) = errno_all_used(manifest_dir, &errno) {
+        println!("cargo:warning=headers not generated: {e}");
+        return;
+    }
     for name in symbols.iter().filter(|name| !parts.contains_key(*name)) {
         println!("cargo:warning={name} has no row in {EXPORTS}: it is declared in no header");
     }
-    let inputs = Inputs { manifest_dir, ffi_root: &ffi_root, parts, symbols };
+    let inputs = Inputs { manifest_dir, ffi_root: &ffi_root, parts, symbols, errno };
 
     let mut stale = Vec::new();
     for header in HEADERS {
@@ -338,7 +436,8 @@ fn render(inputs: &Inputs<'_>, config_rel: &str, part: Part) -> Result<String, S
     let mut config = load_config(inputs.manifest_dir, config_rel)?;
     let (major, minor, micro) = LIBMODBUS_VERSION;
     for text in [&mut config.header, &mut config.after_includes, &mut config.trailer].into_iter().flatten() {
-        *text = text
+        *text = expand_errno(text, &inputs.errno)
+            .map_err(|e| format!("{config_rel}: {e}"))?
             .replace("@LIBMODBUS_VERSION_MAJOR@", &major.to_string())
             .replace("@LIBMODBUS_VERSION_MINOR@", &minor.to_string())
             .replace("@LIBMODBUS_VERSION_MICRO@", &micro.to_string());
