@@ -8,15 +8,19 @@
 //!    against the build tree load this library and not the system's libmodbus;
 //! 3. writes `target/<profile>/libmodbus.pc` (from `libmodbus.pc.in`) and
 //!    `target/<profile>/libmodbus-uninstalled.pc` (for building against the tree);
-//! 4. generates the four public headers with cbindgen into `$OUT_DIR/include/` and,
+//! 4. generates the five public headers with cbindgen into `$OUT_DIR/include/` and,
 //!    when `RSMODBUS_UPDATE_HEADERS=1`, into the committed `include/`. A committed
 //!    header that differs from the generated one only produces a cargo warning here;
-//!    `scripts/check-headers.sh` turns it into a failure.
+//!    `scripts/check-headers.sh` turns it into a failure. The `header` column of
+//!    `abi/exports.txt` says which header declares each function; the `#define`s of
+//!    the error numbers are those of `proto/src/error.rs` (`@ERRNO NAME@` lines of
+//!    the configurations in `cbindgen/`).
 //!
 //! Environment: `RSMODBUS_PREFIX` (default `/usr/local`), `RSMODBUS_LIBDIR` (default
 //! `${exec_prefix}/lib`), `RSMODBUS_INCLUDEDIR` (default `${prefix}/include`) and
 //! `RSMODBUS_UPDATE_HEADERS`.
 
+use std::collections::HashMap;
 use std::env;
 use std::fs;
 use std::io;
@@ -75,43 +79,129 @@ const HEADERS: &[Header] = &[
     Header { file: "modbus-version.h", config: "cbindgen/modbus-version.toml", part: Part::Version },
 ];
 
-/// Which header declares the exported symbol `name`. `extensions` are the symbols
-/// listed as rsmodbus extensions in [`INTENDED_DIFFERENCES`].
-fn part_of(name: &str, extensions: &[String]) -> Part {
-    if name.starts_with("modbus_new_tcp_tls")
-        || name.starts_with("modbus_set_tls_")
-        || name.starts_with("modbus_get_tls_")
-    {
-        Part::Tls
-    } else if name.starts_with("rsmodbus_") || extensions.iter().any(|e| e == name) {
-        Part::Extensions
-    } else if name == "modbus_new_rtu" || name.starts_with("modbus_rtu_") {
-        Part::Rtu
-    } else if name.starts_with("modbus_new_tcp") || name.starts_with("modbus_tcp_") {
-        Part::Tcp
+/// The table of the exports, one `name | header | since | page` row each; build.rs
+/// reads the header of each (the format is described at the top of the file).
+const EXPORTS: &str = "abi/exports.txt";
+
+/// The header of each export, from [`EXPORTS`].
+fn export_parts(manifest_dir: &Path) -> Result<HashMap<String, Part>, String> {
+    let text = fs::read_to_string(manifest_dir.join(EXPORTS)).map_err(|e| format!("{EXPORTS}: {e}"))?;
+    let mut parts = HashMap::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let at = format!("{EXPORTS}:{}", i + 1);
+        let fields: Vec<&str> = line.split('|').map(str::trim).collect();
+        let [name, header, since, page] = fields[..] else {
+            return Err(format!("{at}: expected `name | header | since | page`"));
+        };
+        if [name, since, page].contains(&"") {
+            return Err(format!("{at}: empty field"));
+        }
+        let part = match header {
+            "modbus.h" => Part::Main,
+            "modbus.h extensions" => Part::Extensions,
+            "modbus-rtu.h" => Part::Rtu,
+            "modbus-tcp.h" => Part::Tcp,
+            "modbus-tls.h" => Part::Tls,
+            other => return Err(format!("{at}: unknown header `{other}`")),
+        };
+        if parts.insert(name.to_owned(), part).is_some() {
+            return Err(format!("{at}: second row for {name}"));
+        }
+    }
+    Ok(parts)
+}
+
+/// Where the error numbers are defined, as `pub const NAME: i32 = EXPR;` lines.
+const ERROR_RS: &str = "proto/src/error.rs";
+
+/// The `#define`s of the error numbers, by group: each run of top-level
+/// `pub const NAME: i32 = EXPR;` lines of [`ERROR_RS`] (comments may come between
+/// them; a blank or any other line ends the run), under the name of its first
+/// constant. A line `@ERRNO NAME@` of a cbindgen configuration stands for the group
+/// `NAME`, with each expression spelt in C.
+fn errno_groups(manifest_dir: &Path) -> Result<HashMap<String, String>, String> {
+    let text = fs::read_to_string(manifest_dir.join(ERROR_RS)).map_err(|e| format!("{ERROR_RS}: {e}"))?;
+    let mut groups = HashMap::new();
+    let mut current: Option<(String, String)> = None;
+    for line in text.lines() {
+        if let Some(rest) = line.strip_prefix("pub const ") {
+            if let Some((name, expr)) = rest.strip_suffix(';').and_then(|d| d.split_once(": i32 = ")) {
+                let define =
+                    format!("#define {name} {}\n", c_expression(expr).map_err(|e| format!("{ERROR_RS}: {name}: {e}"))?);
+                current.get_or_insert_with(|| (name.to_owned(), String::new())).1.push_str(&define);
+                continue;
+            }
+        }
+        if current.is_some() && !line.trim_start().starts_with("//") {
+            let (first, defines) = current.take().unwrap_or_default();
+            groups.insert(first, defines);
+        }
+    }
+    if let Some((first, defines)) = current {
+        groups.insert(first, defines);
+    }
+    Ok(groups)
+}
+
+/// A constant expression of [`ERROR_RS`] in C: integer literals, constant names and
+/// `exception::NAME as i32` (the enum's `MODBUS_EXCEPTION_NAME`) joined by `+`.
+fn c_expression(expr: &str) -> Result<String, String> {
+    let terms = expr
+        .split(" + ")
+        .map(|term| {
+            if let Some(code) = term.strip_prefix("exception::").and_then(|t| t.strip_suffix(" as i32")) {
+                Ok(format!("MODBUS_EXCEPTION_{code}"))
+            } else if term.starts_with(|c: char| c.is_ascii_digit())
+                && term.bytes().all(|b| b.is_ascii_digit() || b == b'_')
+            {
+                Ok(term.replace('_', ""))
+            } else if term.starts_with(|c: char| c.is_ascii_uppercase())
+                && term.bytes().all(|b| b.is_ascii_uppercase() || b.is_ascii_digit() || b == b'_')
+            {
+                Ok(term.to_owned())
+            } else {
+                Err(format!("cannot spell `{term}` in C"))
+            }
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(if terms.len() == 1 { terms.concat() } else { format!("({})", terms.join(" + ")) })
+}
+
+/// Fails when a group of error numbers has no `@ERRNO NAME@` line in any
+/// configuration: its numbers would be in no header.
+fn errno_all_used(manifest_dir: &Path, groups: &HashMap<String, String>) -> Result<(), String> {
+    let mut configs = String::new();
+    for rel in HEADERS.iter().map(|h| h.config).chain([EXTENSIONS_CONFIG]) {
+        configs += &fs::read_to_string(manifest_dir.join(rel)).map_err(|e| format!("{rel}: {e}"))?;
+    }
+    let mut unused: Vec<&str> =
+        groups.keys().filter(|name| !configs.contains(&format!("\n@ERRNO {name}@"))).map(String::as_str).collect();
+    unused.sort_unstable();
+    if unused.is_empty() {
+        Ok(())
     } else {
-        Part::Main
+        Err(format!("{ERROR_RS}: no `@ERRNO NAME@` line in cbindgen/ for {}", unused.join(", ")))
     }
 }
 
-/// The list of symbols that differ from Debian's libmodbus on purpose; its
-/// `extension | name | reason` lines name rsmodbus' additions.
-const INTENDED_DIFFERENCES: &str = "abi/symbols-intended-differences.txt";
-
-fn extension_names(manifest_dir: &Path) -> Vec<String> {
-    let Ok(text) = fs::read_to_string(manifest_dir.join(INTENDED_DIFFERENCES)) else {
-        println!("cargo:warning=cannot read {INTENDED_DIFFERENCES}; extensions not recognised");
-        return Vec::new();
-    };
-    text.lines()
-        .filter_map(|line| {
-            let mut fields = line.split('|').map(str::trim);
-            match (fields.next(), fields.next()) {
-                (Some("extension"), Some(name)) if !name.is_empty() => Some(name.to_owned()),
-                _ => None,
+/// Replaces every `@ERRNO NAME@` line of `text` with the group `NAME`.
+fn expand_errno(text: &str, groups: &HashMap<String, String>) -> Result<String, String> {
+    let mut out = String::with_capacity(text.len());
+    for line in text.split_inclusive('\n') {
+        match line.trim_end().strip_prefix("@ERRNO ").and_then(|l| l.strip_suffix('@')) {
+            Some(name) => {
+                let defines = groups.get(name).ok_or_else(|| format!("@ERRNO {name}@: no such group in {ERROR_RS}"))?;
+                // The last line of a configuration text has no newline of its own.
+                out.push_str(if line.ends_with('\n') { defines } else { defines.trim_end_matches('\n') });
             }
-        })
-        .collect()
+            None => out.push_str(line),
+        }
+    }
+    Ok(out)
 }
 
 fn main() {
@@ -119,7 +209,8 @@ fn main() {
     println!("cargo:rerun-if-changed=src/ffi");
     println!("cargo:rerun-if-changed=cbindgen");
     println!("cargo:rerun-if-changed=libmodbus.pc.in");
-    println!("cargo:rerun-if-changed={INTENDED_DIFFERENCES}");
+    println!("cargo:rerun-if-changed={EXPORTS}");
+    println!("cargo:rerun-if-changed={ERROR_RS}");
     // So that the stale-header warning follows edits of the committed headers, and
     // RSMODBUS_UPDATE_HEADERS=1 repairs a hand-edited header even if it was set before.
     println!("cargo:rerun-if-changed=include");
@@ -231,14 +322,29 @@ fn write_if_changed(path: &Path, contents: &[u8]) -> io::Result<bool> {
     Ok(true)
 }
 
+/// What the headers are made of besides the sources and the cbindgen configurations.
+struct Inputs<'a> {
+    manifest_dir: &'a Path,
+    ffi_root: &'a Path,
+    /// The header of each exported symbol that has a row in [`EXPORTS`].
+    parts: HashMap<String, Part>,
+    /// Every exported symbol cbindgen finds.
+    symbols: Vec<String>,
+    /// The error numbers' `#define`s, by group ([`errno_groups`]).
+    errno: HashMap<String, String>,
+}
+
 fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
     let ffi_root = manifest_dir.join(FFI_ROOT);
+    let gen_dir = out_dir.join("include");
+    // Headers of an earlier run must not stand in for ones this run cannot make
+    // (scripts/check-headers.sh compares the committed headers with these).
+    let _ = fs::remove_dir_all(&gen_dir);
     if !ffi_root.exists() {
         println!("cargo:warning={FFI_ROOT} does not exist yet; headers not generated");
         return;
     }
     let update = env::var("RSMODBUS_UPDATE_HEADERS").is_ok_and(|v| v == "1");
-    let gen_dir = out_dir.join("include");
 
     // First pass: every exported symbol, to decide which header declares it.
     let symbols: Vec<String> = match load_config(manifest_dir, "cbindgen/modbus.toml")
@@ -250,11 +356,25 @@ fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
             return;
         }
     };
+    let (parts, errno) = match (export_parts(manifest_dir), errno_groups(manifest_dir)) {
+        (Ok(parts), Ok(errno)) => (parts, errno),
+        (Err(e), _) | (_, Err(e)) => {
+            println!("cargo:warning=headers not generated: {e}");
+            return;
+        }
+    };
+    if let Err(e) = errno_all_used(manifest_dir, &errno) {
+        println!("cargo:warning=headers not generated: {e}");
+        return;
+    }
+    for name in symbols.iter().filter(|name| !parts.contains_key(*name)) {
+        println!("cargo:warning={name} has no row in {EXPORTS}: it is declared in no header");
+    }
+    let inputs = Inputs { manifest_dir, ffi_root: &ffi_root, parts, symbols, errno };
 
-    let extensions = extension_names(manifest_dir);
     let mut stale = Vec::new();
     for header in HEADERS {
-        let text = match render_header(manifest_dir, &ffi_root, header, &symbols, &extensions) {
+        let text = match render_header(&inputs, header) {
             Ok(text) => text,
             Err(e) => {
                 println!("cargo:warning=cannot generate {}: {e}", header.file);
@@ -294,16 +414,10 @@ fn run_cbindgen(config: cbindgen::Config, src: Option<&Path>) -> Result<cbindgen
     builder.generate().map_err(|e| e.to_string())
 }
 
-fn render_header(
-    manifest_dir: &Path,
-    ffi_root: &Path,
-    header: &Header,
-    symbols: &[String],
-    extensions: &[String],
-) -> Result<String, String> {
-    let mut text = render(manifest_dir, ffi_root, header.config, header.part, symbols, extensions)?;
+fn render_header(inputs: &Inputs<'_>, header: &Header) -> Result<String, String> {
+    let mut text = render(inputs, header.config, header.part)?;
     if header.part == Part::Main {
-        let extensions = render(manifest_dir, ffi_root, EXTENSIONS_CONFIG, Part::Extensions, symbols, extensions)?;
+        let extensions = render(inputs, EXTENSIONS_CONFIG, Part::Extensions)?;
         let line = format!("{EXTENSIONS_MARKER}\n");
         if !text.contains(&line) {
             return Err(format!("{EXTENSIONS_MARKER} line missing from {}", header.config));
@@ -318,18 +432,12 @@ fn render_header(
 
 /// Runs cbindgen with the configuration `config_rel`, keeping only the symbols of
 /// `part` (none for the version header, which is all configuration text).
-fn render(
-    manifest_dir: &Path,
-    ffi_root: &Path,
-    config_rel: &str,
-    part: Part,
-    symbols: &[String],
-    extensions: &[String],
-) -> Result<String, String> {
-    let mut config = load_config(manifest_dir, config_rel)?;
+fn render(inputs: &Inputs<'_>, config_rel: &str, part: Part) -> Result<String, String> {
+    let mut config = load_config(inputs.manifest_dir, config_rel)?;
     let (major, minor, micro) = LIBMODBUS_VERSION;
     for text in [&mut config.header, &mut config.after_includes, &mut config.trailer].into_iter().flatten() {
-        *text = text
+        *text = expand_errno(text, &inputs.errno)
+            .map_err(|e| format!("{config_rel}: {e}"))?
             .replace("@LIBMODBUS_VERSION_MAJOR@", &major.to_string())
             .replace("@LIBMODBUS_VERSION_MINOR@", &minor.to_string())
             .replace("@LIBMODBUS_VERSION_MICRO@", &micro.to_string());
@@ -338,9 +446,10 @@ fn render(
     let src = match part {
         Part::Version => None,
         part => {
-            // Leave out every symbol that belongs to another header.
-            config.export.exclude.extend(symbols.iter().filter(|name| part_of(name, extensions) != part).cloned());
-            Some(ffi_root)
+            // Leave out every symbol that belongs to another header, or to none.
+            let elsewhere = |name: &&String| inputs.parts.get(*name) != Some(&part);
+            config.export.exclude.extend(inputs.symbols.iter().filter(elsewhere).cloned());
+            Some(inputs.ffi_root)
         }
     };
     let bindings = run_cbindgen(config, src)?;

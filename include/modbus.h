@@ -349,6 +349,17 @@ typedef struct _modbus_device_id_object {
 } modbus_device_id_object_t;
 
 /**
+ * rsmodbus extension: the error recovery mode of `ctx`, as `modbus_set_error_recovery`
+ * left it: 0 (`MODBUS_ERROR_RECOVERY_NONE`) or the OR of `MODBUS_ERROR_RECOVERY_LINK`
+ * and `MODBUS_ERROR_RECOVERY_PROTOCOL`. Like libmodbus, the context keeps the low 8
+ * bits of the value set. -1 with EINVAL when `ctx` is NULL.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_get_error_recovery(modbus_t *ctx);
+
+/**
  * Reads the eight exception status outputs of a serial device (FC 07) into
  * `*status`. Returns 1.
  *

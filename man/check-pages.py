@@ -2,11 +2,12 @@
 # SPDX-License-Identifier: MIT OR Apache-2.0
 """Structural checks of the manual (called by scripts/check-man.sh).
 
-    check-pages.py --symbols FILE --headers DIR --pages DIR [--debian-man DIR]
+    check-pages.py --exports FILE --headers DIR --pages DIR [--debian-man DIR]
 
 Prints one "ok   - ..." or "FAIL - ..." line per check:
-  - every exported symbol (FILE: one name per line) has a page NAME.3 in DIR/man3,
-    and every section-3 page documents an exported symbol;
+  - every row of the table of the exports (FILE: abi/exports.txt, rows
+    "name | header | since | page") has its page: man/src/PAGE.md lists the name,
+    and DIR/man3/NAME.3 was made from it; every section-3 page documents a row;
   - every section-3 source has the sections SYNOPSIS, DESCRIPTION, RETURN VALUE,
     ERRORS, EXAMPLE and SEE ALSO, in that order, and an example code block;
   - every function named by a page is declared in its SYNOPSIS, with the prototype
@@ -123,33 +124,49 @@ def shingles(words, n):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--symbols", required=True)
+    ap.add_argument("--exports", required=True)
     ap.add_argument("--headers", required=True)
     ap.add_argument("--pages", required=True)
     ap.add_argument("--debian-man")
     args = ap.parse_args()
 
-    with open(args.symbols, encoding="utf-8") as f:
-        exported = sorted({l.strip() for l in f if l.strip()})
+    rows = {}
+    with open(args.exports, encoding="utf-8") as f:
+        for line in f:
+            if line.strip() and not line.lstrip().startswith("#"):
+                fields = [x.strip() for x in line.split("|")]
+                if len(fields) != 4:
+                    fail("%s: a row is name | header | since | page" % args.exports, line.strip())
+                    continue
+                rows[fields[0]] = fields[3]
+    exported = sorted(rows)
     pages = genman.load_pages()
     by_name = {}
     for p in pages:
         for n in p["names"]:
             by_name[n] = p
 
-    # 1. One page per exported symbol, and no page without a symbol.
+    # 1. Each row's page, and no page without a row.
     man3 = os.path.join(args.pages, "man3")
-    missing = [s for s in exported if not os.path.isfile(os.path.join(man3, s + ".3"))]
-    if missing:
-        fail("every exported symbol has a page in section 3 (%d symbols)" % len(exported),
-             "no page for: " + ", ".join(missing))
+    bad = []
+    for name in exported:
+        source = os.path.join(genman.SRC, rows[name] + ".md")
+        page = next((p for p in pages if p["path"] == source), None)
+        if page is None or page["section"] != "3":
+            bad.append("%s: its page man/src/%s.md does not exist (or is not in section 3)" % (name, rows[name]))
+        elif name not in page["names"]:
+            bad.append("%s: man/src/%s.md does not list it in names:" % (name, rows[name]))
+        elif not os.path.isfile(os.path.join(man3, name + ".3")):
+            bad.append("%s: no %s/%s.3 generated" % (name, man3, name))
+    if bad:
+        fail("every row of %s has its page in section 3 (%d rows)" % (args.exports, len(exported)), *bad)
     else:
-        ok("every exported symbol has a page in section 3 (%d symbols)" % len(exported))
-    stale = sorted(n for p in pages if p["section"] == "3" for n in p["names"] if n not in exported)
+        ok("every row of %s has its page in section 3 (%d rows)" % (args.exports, len(exported)))
+    stale = sorted(n for p in pages if p["section"] == "3" for n in p["names"] if n not in rows)
     if stale:
-        fail("every section-3 page documents an exported symbol", "not exported: " + ", ".join(stale))
+        fail("every section-3 page documents a row of %s" % args.exports, "no row: " + ", ".join(stale))
     else:
-        ok("every section-3 page documents an exported symbol")
+        ok("every section-3 page documents a row of %s" % args.exports)
 
     # 2. Sections.
     bad = []

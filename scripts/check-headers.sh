@@ -6,8 +6,12 @@
 #   generated   include/*.h are byte-identical to the headers build.rs generated with
 #               cbindgen in OUT_DIR (fix: RSMODBUS_UPDATE_HEADERS=1 cargo build)
 #   prototypes  every MODBUS_API prototype equals Debian's (types and parameter
-#               names, whitespace normalised) or is listed in
-#               abi/header-prototypes-additions.txt
+#               names, whitespace normalised) or declares a function that Debian's
+#               headers lack and that has a row in abi/exports.txt; every row is
+#               declared in the header it names (its extensions section: "modbus.h
+#               extensions"). The signatures beyond Debian's are pinned by the
+#               SYNOPSIS of their pages (scripts/check-man.sh) and, for libmodbus'
+#               own, by the ABI probe
 #   c-alone     each header compiles on its own as C89, C99 and C11 with
 #               -Wall -Wextra -Werror -pedantic-errors
 #   cxx-alone   each header compiles on its own as C++98 and C++17, same flags
@@ -38,7 +42,7 @@ EXAMPLES=${LIBMODBUS_EXAMPLES:-/usr/share/doc/libmodbus-dev/examples}
 CC=${CC:-gcc}
 CXX=${CXX:-g++}
 HEADERS=(modbus.h modbus-rtu.h modbus-tcp.h modbus-tls.h modbus-version.h)
-ADDITIONS=abi/header-prototypes-additions.txt
+EXPORTS=abi/exports.txt
 TARGET_DIR=${CARGO_TARGET_DIR:-$ROOT/target}
 LIBDIR=$TARGET_DIR/$PROFILE
 WFLAGS=(-Wall -Wextra -Werror)
@@ -115,16 +119,25 @@ protos() {
         LC_ALL=C sort
 }
 fname() { sed -E 's/^[^(]*[ *]([A-Za-z_][A-Za-z0-9_]*)\(.*/\1/'; }
+# The names a header (or part of one) declares: its functions and extern objects. (A
+# part of modbus.h ends inside its include guard, which the preprocessor reports.)
+declared() {
+    protos "$1" | fname || true
+    sed -n 's/^extern const unsigned int \([A-Za-z_][A-Za-z0-9_]*\);$/\1/p' "$1"
+}
 begin prototypes
+declare -A row_header=()
+while IFS= read -r line; do
+    [[ $line =~ ^[[:space:]]*(#|$) ]] && continue
+    IFS='|' read -r name header _ <<<"$line"
+    name=$(echo $name)
+    row_header[$name]=$(echo $header)
+done <"$EXPORTS"
 if [[ ! -f "$DEB_INC/modbus.h" ]]; then
     err "Debian's headers not found in $DEB_INC (apt-get install libmodbus-dev)"
 else
     protos "$DEB_INC"/modbus.h "$DEB_INC"/modbus-rtu.h "$DEB_INC"/modbus-tcp.h >"$TMP/deb.protos"
     protos include/modbus.h include/modbus-rtu.h include/modbus-tcp.h include/modbus-tls.h >"$TMP/ours.protos"
-    # The additions file holds plain prototypes: normalise them the same way.
-    grep -v '^[[:space:]]*\(#\|$\)' "$ADDITIONS" | sed -E 's/[[:space:]]*\|.*$//; s/^/MODBUS_API /' \
-        >"$TMP/additions.h"
-    protos "$TMP/additions.h" >"$TMP/additions.protos"
     while IFS= read -r p; do
         name=$(fname <<<"$p")
         if grep -qxF -- "$p" "$TMP/ours.protos"; then
@@ -137,23 +150,43 @@ else
             err "$name differs: Debian: $p  ours: $mine"
         fi
     done <"$TMP/deb.protos"
+    nadd=0
     while IFS= read -r p; do
         grep -qxF -- "$p" "$TMP/deb.protos" && continue
-        grep -qxF -- "$p" "$TMP/additions.protos" && continue
         name=$(fname <<<"$p")
-        want=$(grep -E "[ *]$name\(" "$TMP/additions.protos" || true)
-        if [[ -n $want ]]; then
-            err "$name differs from $ADDITIONS: listed: $want  ours: $p"
-        elif ! grep -qE "[ *]$name\(" "$TMP/deb.protos"; then
-            err "unexpected declaration (not in Debian's headers nor $ADDITIONS): $p"
+        # A function of Debian's headers declared differently was reported above.
+        grep -qE "[ *]$name\(" "$TMP/deb.protos" && continue
+        if [[ -n ${row_header[$name]:-} ]]; then
+            nadd=$((nadd + 1))
+        else
+            err "unexpected declaration (not in Debian's headers, no row in $EXPORTS): $p"
         fi
     done <"$TMP/ours.protos"
-    while IFS= read -r p; do
-        grep -qxF -- "$p" "$TMP/ours.protos" ||
-            err "listed in $ADDITIONS but not declared as such: $p"
-    done <"$TMP/additions.protos"
 fi
-end "$(wc -l <"$TMP/ours.protos" 2>/dev/null || echo 0) prototypes: $(wc -l <"$TMP/deb.protos" 2>/dev/null || echo 0) as in Debian's headers + $(wc -l <"$TMP/additions.protos" 2>/dev/null || echo 0) listed additions"
+# Each row in its header; modbus.h's extensions section begins at its comment.
+ext_line=$(grep -n '^ \* rsmodbus extensions\.' include/modbus.h | head -n 1 | cut -d: -f1)
+if [[ -z $ext_line ]]; then
+    err "include/modbus.h has no \" * rsmodbus extensions.\" comment line (the extensions section)"
+else
+    head -n $((ext_line - 1)) include/modbus.h >"$TMP/modbus.h"
+    tail -n +"$ext_line" include/modbus.h >"$TMP/modbus.h extensions"
+    for h in modbus-rtu.h modbus-tcp.h modbus-tls.h; do cp "include/$h" "$TMP/$h"; done
+    declare -A where=()
+    for h in modbus.h "modbus.h extensions" modbus-rtu.h modbus-tcp.h modbus-tls.h; do
+        while read -r name; do where[$name]=$h; done < <(declared "$TMP/$h")
+    done
+    for name in "${!row_header[@]}"; do
+        if [[ -z ${where[$name]:-} ]]; then
+            err "$name (row of $EXPORTS) is not declared; its row says ${row_header[$name]}"
+        elif [[ ${where[$name]} != "${row_header[$name]}" ]]; then
+            err "$name is declared in ${where[$name]}, its row of $EXPORTS says ${row_header[$name]}"
+        fi
+    done
+    for name in "${!where[@]}"; do
+        [[ -n ${row_header[$name]:-} ]] || err "$name is declared in ${where[$name]} but has no row in $EXPORTS"
+    done
+fi
+end "$(wc -l <"$TMP/ours.protos" 2>/dev/null || echo 0) prototypes: $(wc -l <"$TMP/deb.protos" 2>/dev/null || echo 0) as in Debian's headers + ${nadd:-0} beyond them, each a row of $EXPORTS; ${#row_header[@]} rows, each declared in its header"
 
 # --- c-alone / cxx-alone: each header is self-contained -----------------------------
 begin c-alone

@@ -6,9 +6,11 @@
 #   - SONAME is libmodbus.so.5; DT_NEEDED holds only libc.so.6 plus the entries
 #     listed as "needed" in abi/symbols-intended-differences.txt; no RPATH/RUNPATH,
 #     no TEXTREL, no symbol version definitions (Debian's exports are unversioned);
-#   - the defined dynamic symbols are exactly Debian's 74 (abi/debian-libmodbus5.nm)
-#     minus the "omit" entries plus the "api" and "extension" entries, with Debian's
-#     symbol types; all 67 libmodbus 3.1.12 functions are there; the three
+#   - the defined dynamic symbols are exactly the rows of abi/exports.txt, which are
+#     Debian's 74 (abi/debian-libmodbus5.nm) minus the "omit" entries plus the rows
+#     beyond Debian's (libmodbus functions newer than 3.1.6, rsmodbus' own), with
+#     Debian's symbol types; the rows of Debian's symbols carry Debian's minimum
+#     versions; all 67 libmodbus 3.1.12 functions are there; the three
 #     libmodbus_version_* objects are read-only (R) and 4 bytes;
 #   - abi/debian-libmodbus5.nm agrees with abi/debian-libmodbus5.symbols;
 #   - target/<profile>/libmodbus.so.5 and libmodbus.so.5.1.0 resolve to the library;
@@ -30,6 +32,7 @@ LIBDIR=$(cd "$(dirname "$LIB")" && pwd)
 DEB_NM=abi/debian-libmodbus5.nm
 DEB_SYMBOLS=abi/debian-libmodbus5.symbols
 INTENDED=abi/symbols-intended-differences.txt
+EXPORTS=abi/exports.txt
 INCLUDE_DIR=${INCLUDE_DIR:-include}
 CC=${CC:-gcc}
 
@@ -50,7 +53,7 @@ for tool in nm objdump readelf; do
 done
 
 # --- the intended-differences list -------------------------------------------------
-declare -A omit=() add=() needed_ok=()
+declare -A omit=() needed_ok=()
 while IFS= read -r line; do
     [[ $line =~ ^[[:space:]]*(#|$) ]] && continue
     IFS='|' read -r kind name reason <<<"$line"
@@ -63,14 +66,30 @@ while IFS= read -r line; do
     fi
     case $kind in
     omit) omit[$name]=1 ;;
-    api | extension) add[$name]=$kind ;;
     needed) needed_ok[$name]=1 ;;
+    api | extension) err "'$kind' line in $INTENDED: the additions are the rows of $EXPORTS now: $line" ;;
     *) err "unknown kind '$kind' in $INTENDED: $line" ;;
     esac
 done <"$INTENDED"
 
+# --- the table of the exports --------------------------------------------------------
+declare -A row_since=()
+while IFS= read -r line; do
+    [[ $line =~ ^[[:space:]]*(#|$) ]] && continue
+    IFS='|' read -r name header since page extra <<<"$line"
+    name=$(trim "$name")
+    since=$(trim "${since:-}")
+    page=$(trim "${page:-}")
+    if [[ -z $name || -z $since || -z $page || -n ${extra:-} ]]; then
+        err "malformed row in $EXPORTS (need name | header | since | page): $line"
+        continue
+    fi
+    [[ -z ${row_since[$name]:-} ]] || err "$EXPORTS has two rows for $name"
+    row_since[$name]=$since
+done <"$EXPORTS"
+
 # --- Debian's reference list -------------------------------------------------------
-declare -A deb_type=() deb_size=()
+declare -A deb_type=() deb_size=() deb_minver=()
 while read -r name type size; do
     [[ -z $name || $name == \#* ]] && continue
     deb_type[$name]=$type
@@ -86,17 +105,36 @@ if ! diff -u "$TMP/deb-symbols" "$TMP/deb-nm" >"$TMP/deb-diff"; then
     err "$DEB_SYMBOLS and $DEB_NM disagree: $(tr '\n' ' ' <"$TMP/deb-diff")"
 fi
 
+while read -r sym minver _; do
+    deb_minver[${sym%@Base}]=$minver
+done < <(grep '^ [^ ]*@Base ' "$DEB_SYMBOLS")
+
 for name in "${!omit[@]}"; do
     [[ -n ${deb_type[$name]:-} ]] || err "$INTENDED omits $name, which Debian does not export"
+    [[ -z ${row_since[$name]:-} ]] || err "$EXPORTS has a row for $name, which $INTENDED omits"
 done
-for name in "${!add[@]}"; do
-    [[ -z ${deb_type[$name]:-} ]] || err "$INTENDED adds $name, which Debian already exports"
+# The rows beyond Debian's symbols are the additions: libmodbus functions newer than
+# Debian's 3.1.6, or rsmodbus' own. The rows of Debian's symbols keep its versions.
+declare -A add=()
+for name in "${!row_since[@]}"; do
+    since=${row_since[$name]}
+    if [[ -n ${deb_type[$name]:-} ]]; then
+        [[ $since == "${deb_minver[$name]:-}" ]] ||
+            err "$EXPORTS: $name since $since, but Debian's symbols file says ${deb_minver[$name]:-nothing}"
+    elif [[ $since == rsmodbus ]]; then
+        add[$name]=extension
+    elif [[ $since =~ ^[0-9]+\.[0-9]+\.[0-9]+$ && $(printf '%s\n' 3.1.6 "$since" | sort -V | tail -n 1) != 3.1.6 ]]; then
+        add[$name]=api
+    else
+        err "$EXPORTS: $name since $since, but Debian's libmodbus5 3.1.6 does not export it (a later libmodbus version, or rsmodbus)"
+    fi
 done
 
-# Expected: Debian - omit + api + extension.
+# Expected: Debian - omit + the additions; every one of them a row.
 declare -A want_type=() want_size=()
 for name in "${!deb_type[@]}"; do
     [[ -n ${omit[$name]:-} ]] && continue
+    [[ -n ${row_since[$name]:-} ]] || err "$name (exported by Debian's libmodbus, not omitted in $INTENDED) has no row in $EXPORTS"
     want_type[$name]=${deb_type[$name]}
     want_size[$name]=${deb_size[$name]}
 done
@@ -147,7 +185,7 @@ nmissing=0
 nunexpected=0
 for name in $(printf '%s\n' "${!want_type[@]}" | LC_ALL=C sort); do
     if [[ -z ${our_type[$name]:-} ]]; then
-        err "missing symbol: $name (${add[$name]:-exported by Debian libmodbus})"
+        err "missing symbol: $name (${add[$name]:+row of $EXPORTS, }${add[$name]:-exported by Debian libmodbus})"
         nmissing=$((nmissing + 1))
         continue
     fi
@@ -162,7 +200,7 @@ for name in $(printf '%s\n' "${!our_type[@]}" | LC_ALL=C sort); do
         if [[ -n ${omit[$name]:-} ]]; then
             err "exported symbol $name is listed as omitted in $INTENDED"
         else
-            err "unexpected exported symbol: $name (type ${our_type[$name]}; not in Debian's list nor in $INTENDED)"
+            err "unexpected exported symbol: $name (type ${our_type[$name]}; not in Debian's list, no row in $EXPORTS)"
         fi
         nunexpected=$((nunexpected + 1))
     fi

@@ -26,6 +26,12 @@ pub mod errno {
     pub const ECONNREFUSED: i32 = 111;
 }
 
+// The C headers' `#define`s of MODBUS_ENOBASE and of the EMB* numbers are made from
+// these lines by the library's build.rs: a line `@ERRNO NAME@` of a cbindgen
+// configuration stands for the run of top-level `pub const ...: i32` lines that
+// begins with NAME (up to a blank line), each expression spelt in C. Keep them to
+// sums of literals, earlier constants and `exception::NAME as i32`.
+
 /// libmodbus's base for its own error numbers ("random number to avoid errno conflicts").
 pub const MODBUS_ENOBASE: i32 = 112_345_678;
 
@@ -56,6 +62,7 @@ pub const EMBXNACK: i32 = MODBUS_ENOBASE + exception::NEGATIVE_ACKNOWLEDGE as i3
 pub const EMBXMEMPAR: i32 = MODBUS_ENOBASE + exception::MEMORY_PARITY as i32;
 pub const EMBXGPATH: i32 = MODBUS_ENOBASE + exception::GATEWAY_PATH as i32;
 pub const EMBXGTAR: i32 = MODBUS_ENOBASE + exception::GATEWAY_TARGET as i32;
+
 pub const EMBBADCRC: i32 = EMBXGTAR + 1;
 pub const EMBBADDATA: i32 = EMBXGTAR + 2;
 pub const EMBBADEXC: i32 = EMBXGTAR + 3;

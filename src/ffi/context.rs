@@ -96,6 +96,19 @@ pub unsafe extern "C" fn modbus_set_error_recovery(
     }
 }
 
+/// rsmodbus extension: the error recovery mode of `ctx`, as `modbus_set_error_recovery`
+/// left it: 0 (`MODBUS_ERROR_RECOVERY_NONE`) or the OR of `MODBUS_ERROR_RECOVERY_LINK`
+/// and `MODBUS_ERROR_RECOVERY_PROTOCOL`. Like libmodbus, the context keeps the low 8
+/// bits of the value set. -1 with EINVAL when `ctx` is NULL.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_error_recovery(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| Ok(g.session.recovery)) }
+}
+
 /// Uses `s` as the context's socket or serial descriptor (not validated).
 ///
 /// # Safety
@@ -277,5 +290,31 @@ pub extern "C" fn modbus_strerror(errnum: c_int) -> *const c_char {
         Some(s) => s.as_ptr(),
         // SAFETY: strerror accepts any number and returns a C string.
         None => unsafe { libc::strerror(errnum) },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::context::{RECOVERY_LINK, RECOVERY_PROTOCOL};
+
+    #[test]
+    fn error_recovery_reads_back_as_set() {
+        // SAFETY: the context is made here, used only here and freed once; NULL is a
+        // valid argument.
+        unsafe {
+            let ctx = crate::ffi::tcp::modbus_new_tcp(c"127.0.0.1".as_ptr(), 1502);
+            assert!(!ctx.is_null());
+            assert_eq!(modbus_get_error_recovery(ctx), 0);
+            let both = (RECOVERY_LINK | RECOVERY_PROTOCOL) as modbus_error_recovery_mode;
+            assert_eq!(modbus_set_error_recovery(ctx, both), 0);
+            assert_eq!(modbus_get_error_recovery(ctx), 6);
+            // The low 8 bits are kept, as libmodbus keeps them.
+            assert_eq!(modbus_set_error_recovery(ctx, 0x0104), 0);
+            assert_eq!(modbus_get_error_recovery(ctx), RECOVERY_PROTOCOL);
+            modbus_free(ctx);
+            assert_eq!(modbus_get_error_recovery(std::ptr::null_mut()), -1);
+            assert_eq!(crate::transport::errno(), libc::EINVAL);
+        }
     }
 }

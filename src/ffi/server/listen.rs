@@ -1,0 +1,107 @@
+//! modbus-tcp.h: the listening socket and the accept of a client, IPv4 and any
+//! address family.
+
+use std::ffi::c_int;
+
+use crate::error::Error;
+use crate::ffi::{Modbus, fail, with_ctx};
+use crate::transport::listen;
+
+/// Opens an IPv4 listening socket on the context's address and port, for up to
+/// `nb_connection` pending clients. Returns the socket; the caller owns it.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| listen::listen_ipv4(g.line.settings(), nb_connection, &mut g.diag())) }
+}
+
+/// Accepts one client on `*s` and makes it the context's socket (TCP contexts, and RTU
+/// framing over TCP). The context is not locked while waiting; a close of the context
+/// (from a signal handler or another thread) ends the wait with EBADF.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `s` NULL or a valid pointer.
+unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    let checked = unsafe {
+        with_ctx(ctx, |g| if s.is_null() || !g.line.accepts_clients() { Err(Error::INVALID) } else { Ok(0) })
+    };
+    if checked < 0 {
+        return -1;
+    }
+    // SAFETY: `ctx` is live (the call above succeeded on it); the reference taken here
+    // keeps it so while the lock is not held.
+    let Some(handle) = (unsafe { crate::ffi::acquire(ctx) }) else { return fail(Error::INVALID) };
+    // SAFETY: `s` is non-NULL and valid per the caller.
+    let listen_fd = unsafe { *s };
+    let stop = handle.stop();
+    let closes = stop.closes();
+    stop.set_accepting(true);
+    let accepted = listen::accept(listen_fd, stop.wake_fd(), &|| stop.closes() != closes);
+    stop.set_accepting(false);
+    // SAFETY: forwarded caller contract.
+    let rc = unsafe {
+        crate::ffi::with_ctx_result(ctx, |g| match accepted {
+            Ok((fd, _)) if g.stop.closes() != closes => {
+                // Closed while the client was being accepted.
+                crate::transport::close(fd);
+                Err(Error::STOPPED)
+            }
+            Ok((fd, peer)) => {
+                // Modbus/TCP Security: the client is served only once it has
+                // authenticated (a failure closes its socket).
+                crate::engine::accepted(g, fd, peer.as_deref())?;
+                Ok(fd)
+            }
+            Err(e) => {
+                // As libmodbus: the context's socket is accept's -1, unless the
+                // context was closed while waiting (nothing left to change).
+                if g.stop.closes() == closes {
+                    g.set_descriptor(-1);
+                }
+                Err(e)
+            }
+        })
+    };
+    // SAFETY: the reference taken above.
+    unsafe { crate::ffi::release(ctx) };
+    // errno after the release: freeing the handle (when a `modbus_free` came
+    // meanwhile) must not change it.
+    crate::ffi::status(rc)
+}
+
+/// Accepts one client on the listening socket `*s`; the new socket becomes the
+/// context's and is returned.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `s` NULL or a valid pointer.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_tcp_accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { accept(ctx, s) }
+}
+
+/// Opens a listening socket on the first address getaddrinfo gives for the context's
+/// node and service (IPv4 or IPv6). Returns the socket; the caller owns it.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_tcp_pi_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| listen::listen_pi(g.line.settings(), nb_connection, g.debug, &mut g.diag())) }
+}
+
+/// Accepts one client (IPv4 or IPv6) on the listening socket `*s`; the new socket
+/// becomes the context's and is returned.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `s` NULL or a valid pointer.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_tcp_pi_accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { accept(ctx, s) }
+}
