@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # check-abi.sh: compare the ABI facts of rsmodbus' headers with Debian's libmodbus.
 #
-# Builds c-tests/abi/abi-probe.c twice with -Wall -Wextra -Werror -Wpedantic, once
-# against Debian's headers (/usr/include/modbus, package libmodbus-dev) and once
-# against include/, runs both and compares their "KEY = VALUE" lines. Every
+# Builds c-tests/abi/abi-probe.c twice with -Wall -Wextra -Werror -Wpedantic
+# (c-tests/Makefile, group ABI), once against Debian's headers (/usr/include/modbus,
+# package libmodbus-dev) and once against include/, runs both and compares their
+# "KEY = VALUE" lines. Every
 # difference must be listed, with both values, in
 # abi/abi-probe-intended-differences.txt; every listed difference must still occur.
 #
@@ -21,8 +22,7 @@ NAME=check-abi
 DEB_INC=${DEBIAN_MODBUS_INCLUDE:-/usr/include/modbus}
 CC=${CC:-gcc}
 ALLOWED=abi/abi-probe-intended-differences.txt
-PROBE=c-tests/abi/abi-probe.c
-CFLAGS=(-std=gnu11 -Wall -Wextra -Werror -Wpedantic -O0)
+BUILD=${CTEST_BUILD:-$ROOT/target/c-tests-build}
 
 TMP=$(mktemp -d)
 trap 'rm -rf "$TMP"' EXIT
@@ -38,14 +38,17 @@ for h in modbus.h modbus-rtu.h modbus-tcp.h modbus-version.h; do
     [[ -f "include/$h" ]] || fail_now "include/$h missing (RSMODBUS_UPDATE_HEADERS=1 cargo build)"
 done
 
+mkdir -p "$BUILD"
 for side in debian ours; do
     inc=$DEB_INC
     [[ $side == ours ]] && inc=$ROOT/include
-    if ! "$CC" "${CFLAGS[@]}" -I"$inc" "$PROBE" -o "$TMP/probe-$side" 2>"$TMP/cc-$side.log"; then
+    if ! flock -w 900 "$BUILD/.lock" make -s -C c-tests --no-print-directory CC="$CC" DEB_INC="$DEB_INC" \
+        "abi-probe-$side" >"$TMP/cc-$side.log" 2>&1; then
         cat "$TMP/cc-$side.log"
+        rm -f "$BUILD/bin/abi-probe-$side"
         fail_now "abi-probe.c does not compile against the $side headers ($inc)"
     fi
-    "$TMP/probe-$side" >"$TMP/$side.txt" || fail_now "abi-probe ($side) exited with status $?"
+    "$BUILD/bin/abi-probe-$side" >"$TMP/$side.txt" || fail_now "abi-probe ($side) exited with status $?"
 done
 
 # Join the two outputs and the allowance list on KEY; awk reports every mismatch.

@@ -31,7 +31,6 @@ set -o pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 CT=$ROOT/c-tests
 OUT=$(realpath -m "${MBTEST_OUT:-$ROOT/target/c-tests}")
-BIN=$OUT/bin
 LOGS=$OUT/logs
 OURS_DIR=$(realpath -m "${MBTEST_OURS_DIR:-$ROOT/target/release}")
 ALLOWED_FILE=$CT/allowed-differences.txt
@@ -39,6 +38,8 @@ NORMALIZE=$CT/tools/normalize.awk
 
 # shellcheck source=scripts/testlib.sh
 . "$ROOT/scripts/testlib.sh"
+# The programs: c-tests/Makefile (group CLIENT_TESTS), shared by every MBTEST_OUT.
+BIN=$(c_build_dir)
 # mbtest-server and the pty relay get 5 s to end on SIGTERM.
 STOP_GRACE=5
 
@@ -116,7 +117,7 @@ pick_port() { # pick_port START -> prints a free port
 # ---------------------------------------------------------------- dependencies
 ensure_deps() {
     local missing=() p
-    for p in libmodbus-dev socat mbpoll valgrind pkg-config gcc; do
+    for p in libmodbus-dev socat mbpoll valgrind pkg-config gcc make; do
         dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
     done
     if [ ${#missing[@]} -gt 0 ]; then
@@ -243,42 +244,14 @@ check_libinfo() { # check_libinfo FILE debian|ours -> 0 if every line names that
 }
 
 # ---------------------------------------------------------------- build
-CFLAGS_COMMON="-std=gnu11 -Wall -Wextra -Werror -O1 -g"
+# Every program of the group CLIENT_TESTS of c-tests/Makefile (Debian's header,
+# -Wall -Wextra -Werror; "our-headers": the same sources compiled against include/),
+# one row of the matrix each.
+build_result() { matrix_result "$1" build "$2" "${3:-}"; }
 build_all() {
     section "build"
-    mkdir -p "$BIN" "$LOGS"
-    local mcf mlibs
-    mcf=$(pkg-config --cflags libmodbus) || return 1
-    mlibs=$(pkg-config --libs libmodbus) || return 1
-    local ok=1 f
-    # shellcheck disable=SC2086
-    gcc $CFLAGS_COMMON $mcf -c "$CT/common/mbtest.c" -o "$BIN/mbtest.o" || ok=0
-    # shellcheck disable=SC2086
-    gcc $CFLAGS_COMMON $mcf -c "$CT/common/libinfo.c" -o "$BIN/libinfo.o" || ok=0
-    # shellcheck disable=SC2086
-    gcc $CFLAGS_COMMON -fPIC -shared "$CT/common/libinfo.c" -o "$BIN/libmbtest-libinfo.so" -ldl || ok=0
-    for f in "$CT"/servers/*.c "$CT"/client/*.c; do
-        local name
-        name=$(basename "$f" .c)
-        case "$f" in */client/*) name="scn-$name" ;; esac
-        # shellcheck disable=SC2086
-        gcc $CFLAGS_COMMON $mcf "$f" "$BIN/mbtest.o" "$BIN/libinfo.o" -o "$BIN/$name" $mlibs -lutil -ldl || ok=0
-    done
-    if [ $ok = 1 ]; then matrix_result "build (Debian header, -Werror)" build PASS; else matrix_result "build (Debian header, -Werror)" build FAIL; fi
-
-    # Optional: the same sources against OUR headers (include/), compile only.
-    if [ -f "$ROOT/include/modbus.h" ]; then
-        local hok=1 hdir=$OUT/build-our-headers
-        mkdir -p "$hdir"
-        : >"$hdir/errors.txt"
-        for f in "$CT"/common/*.c "$CT"/servers/*.c "$CT"/client/*.c; do
-            # shellcheck disable=SC2086
-            gcc $CFLAGS_COMMON -I"$ROOT/include" -c "$f" -o "$hdir/$(basename "$f" .c).o" 2>>"$hdir/errors.txt" || hok=0
-        done
-        if [ $hok = 1 ]; then matrix_result "build (our include/ headers, -Werror)" build PASS
-        else matrix_result "build (our include/ headers, -Werror)" build FAIL "see $hdir/errors.txt"; fi
-    fi
-    [ $ok = 1 ]
+    mkdir -p "$LOGS"
+    C_BUILD_RESULT=build_result c_build_group CLIENT_TESTS
 }
 
 OURS_AVAILABLE=0

@@ -8,9 +8,9 @@
 #
 # Transports: TCP, RTU over TCP, RTU over a pty pair, ASCII over a pty pair (socat).
 # Server modes: fully configured; FIFO-only and unconfigured (the rest keeps
-# libmodbus' answers). Every program is built with -Wall -Wextra -Werror against our
-# headers, reports the libmodbus.so.5 it mapped (/proc/self/maps), and the runner
-# requires it to be ours. The fully configured TCP and RTU runs are repeated under
+# libmodbus' answers). Every program is built by c-tests/Makefile (-Wall -Wextra
+# -Werror) against our headers, reports the libmodbus.so.5 it mapped (/proc/self/maps),
+# and the runner requires it to be ours. The fully configured TCP and RTU runs are repeated under
 # valgrind memcheck when it is installed. Every process started here is stopped by
 # its PID.
 #
@@ -37,17 +37,13 @@ our_lib_result "$LIBDIR" 2
 echo "ours: $OURS_LIB"
 rm -rf "$OUT"
 mkdir -p "$OUT" "$LOGS"
-BIN=$OUT/ext-test
-# Our headers: the server configuration calls are rsmodbus extensions.
-if gcc -Wall -Wextra -Werror -O1 -g -I"$ROOT/include" -o "$BIN" "$SRC/ext-test.c" "$ROOT/c-tests/common/libinfo.c" \
-    -L"$LIBDIR" -lmodbus -ldl >"$LOGS/build.log" 2>&1; then
-    result "build c-tests/extended/ext-test.c (-Wall -Wextra -Werror)" PASS
-else
-    result "build c-tests/extended/ext-test.c" FAIL "see $LOGS/build.log"
-    sed 's/^/    | /' "$LOGS/build.log" | head -n 20
+# c-tests/Makefile: our headers (the server configuration calls are rsmodbus
+# extensions), linked with target/release's library.
+if ! c_build ext-test; then
     summary
     exit 1
 fi
+BIN=$(c_build_dir)/ext-test
 
 # ------------------------------------------------------------ pty pairs
 SOCAT_PID=

@@ -8,12 +8,9 @@
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=target/fault
 [ -e target/release/libmodbus.so ] || cargo build --release -q
 [ -e target/release/libmodbus.so.5 ] || ln -sf libmodbus.so target/release/libmodbus.so.5
-benches/build.sh "$out"
-CFLAGS=(-std=gnu11 -O2 -g -Wall -Wextra -Werror)
-gcc "${CFLAGS[@]}" c-tests/fault/fault-proxy.c -o "$out/fault-proxy" -lutil
-gcc "${CFLAGS[@]}" -I/usr/include/modbus c-tests/fault/fault-client.c c-tests/common/libinfo.c \
-    -o "$out/fault-client" -lmodbus -ldl
+# fault-proxy, fault-client and benches/mb-server.c: c-tests/Makefile (group FAULT).
+mkdir -p "${CTEST_BUILD:-target/c-tests-build}"
+flock -w 900 "${CTEST_BUILD:-target/c-tests-build}/.lock" make -s -C c-tests --no-print-directory fault
 exec python3 c-tests/fault/run.py

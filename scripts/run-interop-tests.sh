@@ -47,13 +47,13 @@ ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT" || exit 2
 SRC=$ROOT/c-tests/interop
 OUT=$ROOT/target/interop
-BIN=$OUT/bin
 LOGS=$OUT/logs
 VENV=$OUT/venv
 OURS=$ROOT/target/release
 
 # shellcheck source=scripts/testlib.sh
 . "$ROOT/scripts/testlib.sh"
+BIN=$(c_build_dir)
 
 INSTALL=1
 suite_flag() {
@@ -65,7 +65,7 @@ suite_flag() {
 parse_flags --only -- "$@"
 
 # ---------------------------------------------------------------- prerequisites
-prepare_run gcc socat python3
+prepare_run gcc make socat python3
 OURS_REAL=$(readlink -f "$OURS/libmodbus.so.5")
 
 PY=$VENV/bin/python
@@ -96,17 +96,11 @@ if ! want_versions; then
 fi
 echo "pymodbus $("$PY" -c 'import pymodbus; print(pymodbus.__version__)') in $VENV"
 
-CFLAGS=(-std=c11 -D_GNU_SOURCE -O1 -g -Wall -Wextra -Werror -I"$ROOT/include")
-for prog in our_client our_server; do
-    if ! gcc "${CFLAGS[@]}" -o "$BIN/$prog" "$SRC/$prog.c" "$SRC/interop.c" -L"$OURS" -lmodbus -ldl \
-        >"$LOGS/build-$prog.log" 2>&1; then
-        cat "$LOGS/build-$prog.log"
-        bad "build $prog"
-        summary
-        exit 1
-    fi
-done
-ok "build our_client, our_server (-Wall -Wextra -Werror)"
+# our_client, our_server: c-tests/Makefile (group INTEROP; our headers, target/release)
+if ! c_build_group INTEROP; then
+    summary
+    exit 1
+fi
 
 # ---------------------------------------------------------------- helpers
 # add_counts NAME LOG: adds the program's "N passed, M failed" to the totals and shows

@@ -3,7 +3,7 @@
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
-# Every C program is built once against Debian's <modbus.h> (gcc -Wall -Wextra -Werror)
+# Every C program is built once against Debian's <modbus.h> (c-tests/Makefile, -Werror)
 # and run loading Debian's libmodbus.so.5 and loading ours (LD_LIBRARY_PATH=target/release);
 # each program reports the library it mapped (/proc/self/maps) and the runner checks it.
 #
@@ -31,7 +31,6 @@ set -o pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 SRC=$ROOT/c-tests/server
 OUT=$(realpath -m "${SRVTEST_OUT:-$ROOT/target/server-tests}")
-BIN=$OUT/bin
 LOGS=$OUT/logs
 OURS_DIR=$(realpath -m "${MBTEST_OURS_DIR:-$ROOT/target/release}")
 ALLOWED=$SRC/allowed-differences.txt
@@ -75,34 +74,16 @@ echo "debian: $DEB_LIB"
 echo "ours:   $OURS_LIB"
 
 rm -rf "$OUT"
-mkdir -p "$BIN" "$LOGS"
-CFLAGS="-Wall -Wextra -Werror -O1 -g"
-MCFLAGS=$(pkg-config --cflags libmodbus)
-MLIBS=$(pkg-config --libs libmodbus)
-build_ok=1
-build() { # build NAME gcc-args...
-    local name=$1
-    shift
-    # shellcheck disable=SC2086
-    if ! gcc $CFLAGS "$@" >"$LOGS/build-$name.log" 2>&1; then
-        build_ok=0
-        result "build $name" FAIL "see $LOGS/build-$name.log"
-        sed 's/^/    | /' "$LOGS/build-$name.log" | head -n 20
-    fi
-}
-# shellcheck disable=SC2086
-build driver -o "$BIN/driver" "$SRC/driver.c"
-# shellcheck disable=SC2086
-build srv $MCFLAGS -o "$BIN/srv" "$SRC/srv.c" "$SRC/loaded.c" $MLIBS
-# shellcheck disable=SC2086
-build highfd $MCFLAGS -o "$BIN/highfd" "$SRC/highfd.c" "$SRC/loaded.c" $MLIBS
-# shellcheck disable=SC2086
-build multi $MCFLAGS -o "$BIN/multi" "$SRC/multi.c" "$SRC/loaded.c" $MLIBS
-build libloaded -shared -fPIC -o "$BIN/libloaded.so" "$SRC/loaded.c"
+mkdir -p "$LOGS"
+# The programs: groups SERVER_TESTS and UNIT_TESTS of c-tests/Makefile (Debian's header,
+# -Wall -Wextra -Werror), one check per program.
+BIN=$(c_build_dir)
+c_build_group SERVER_TESTS
 
 # Debian's unit tests, copied at test time. The port, the devices and three checks
 # are made run-time choices; everything else is Debian's code as shipped.
 UT=$OUT/unit
+ut_built=0
 mkdir -p "$UT"
 EX=/usr/share/doc/libmodbus-dev/examples
 for f in unit-test-client.c unit-test-server.c unit-test.h; do
@@ -142,17 +123,12 @@ if [ -f "$UT/unit-test-client.c" ]; then
     n_patched=$(grep -c 'ut_float_312(tab\|ut_tcp_pi_312(ctx)\|ut_nb_report_slave_id()\|byte_timeout(ctx, 0, 50000)' "$UT/ut-client.c")
     if [ "$n_patched" != 7 ]; then
         result "patch unit-test-client.c" FAIL "$n_patched of 7 patch points found"
-        build_ok=0
     fi
-    # shellcheck disable=SC2086
-    build unit-test-server $MCFLAGS -I"$UT" -o "$UT/unit-test-server" "$UT/ut-server.c" $MLIBS
-    # shellcheck disable=SC2086
-    build unit-test-client $MCFLAGS -I"$UT" -o "$UT/unit-test-client" "$UT/ut-client.c" $MLIBS
+    # (Section 3 runs only what this run built: the build directory outlives the run.)
+    c_build_group UNIT_TESTS UT_SRC="$UT" && ut_built=1
 else
     result "copy Debian's unit tests" FAIL "not found in $EX"
-    build_ok=0
 fi
-[ $build_ok = 1 ] && result "build the C programs (-Wall -Wextra -Werror)" PASS
 
 # ------------------------------------------------------------ 1. raw-frame differential
 declare -A DIFF_DONE=()
@@ -267,7 +243,7 @@ unit_start() {
     fi
     # shellcheck disable=SC2046
     start_bg "$d/server.log" "$d/server.log" $(lib_env "$slib") LD_PRELOAD="$BIN/libloaded.so" SRVTEST_LOADED_FILE="$d/loaded-server" \
-        UT_PORT="$port" UT_DEVICE="$d/ttyV0" "$UT/unit-test-server" "$t"
+        UT_PORT="$port" UT_DEVICE="$d/ttyV0" "$BIN/unit-test-server" "$t"
     UT_SRV[$key]=$LAST_PID
     for i in $(seq 1 100); do
         if [ "$t" = rtu ]; then
@@ -281,7 +257,7 @@ unit_start() {
     # shellcheck disable=SC2046
     (cd "$d" && exec timeout -k 5 60 $(lib_env "$clib") LD_PRELOAD="$BIN/libloaded.so" \
         SRVTEST_LOADED_FILE="$d/loaded-client" UT_PORT="$port" UT_DEVICE="$d/ttyV1" "${extra[@]}" \
-        "$UT/unit-test-client" "$t") >"$d/client.log" 2>"$d/client.err" &
+        "$BIN/unit-test-client" "$t") >"$d/client.log" 2>"$d/client.err" &
     UT_CLI[$key]=$!
     PIDS+=("$!")
 }
@@ -327,7 +303,7 @@ unit_finish() {
 }
 
 declare -A UT_CELL=()
-if [ -x "$UT/unit-test-server" ] && [ -x "$UT/unit-test-client" ]; then
+if [ "$ut_built" = 1 ]; then
     section "3. Debian's unit-test-client x unit-test-server, every library combination"
     for t in tcp tcppi rtu; do
         selected "unit-test $t" || continue

@@ -9,14 +9,12 @@
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=target/soak
-for tool in socat valgrind python3 gcc; do
+for tool in socat valgrind python3 gcc make; do
     command -v "$tool" >/dev/null || scripts/install-deps.sh >/dev/null
 done
 [ -e target/release/libmodbus.so ] || cargo build --release -q
 [ -e target/release/libmodbus.so.5 ] || ln -sf libmodbus.so target/release/libmodbus.so.5
-benches/build.sh "$out"
-CFLAGS=(-std=gnu11 -O2 -g -Wall -Wextra -Werror -I/usr/include/modbus)
-gcc "${CFLAGS[@]}" c-tests/soak/soak-client.c c-tests/common/libinfo.c -o "$out/soak-client" -lmodbus -ldl
-gcc "${CFLAGS[@]}" c-tests/soak/lifecycle.c c-tests/common/libinfo.c -o "$out/lifecycle" -lmodbus -ldl
+# soak-client, lifecycle and benches/mb-server.c: c-tests/Makefile (group SOAK).
+mkdir -p "${CTEST_BUILD:-target/c-tests-build}"
+flock -w 900 "${CTEST_BUILD:-target/c-tests-build}/.lock" make -s -C c-tests --no-print-directory soak
 exec python3 c-tests/soak/run.py

@@ -12,8 +12,8 @@
 #  2. The same program under ThreadSanitizer, with the LIBRARY instrumented too: the
 #     Rust crate is built into target/tsan with -Zsanitizer=thread (RUSTC_BOOTSTRAP=1 on
 #     the stable toolchain, the std library left uninstrumented) and the C program with
-#     gcc -fsanitize=thread (gcc's libtsan; c-tests/threads/tsan-shims.c supplies three
-#     entry points newer LLVM emits). First a self-test: a race the program makes on
+#     gcc -fsanitize=thread (make -C c-tests SAN=thread; gcc's libtsan;
+#     c-tests/threads/tsan-shims.c supplies three entry points newer LLVM emits). First a self-test: a race the program makes on
 #     purpose on a buffer it hands to modbus_write_registers must be reported with a
 #     frame inside libmodbus.so (so the library's memory accesses are seen); then TCP and
 #     RTU, 16 x 10,000 each, must end with no report at all.
@@ -36,7 +36,6 @@ set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT" || exit 2
 OUT=$ROOT/target/threads
-BIN=$OUT/bin
 LOGS=$OUT/logs
 OURS=$ROOT/target/release
 TSAN_TARGET=$ROOT/target/tsan
@@ -46,6 +45,9 @@ NTX=10000
 
 # shellcheck source=scripts/testlib.sh
 . "$ROOT/scripts/testlib.sh"
+# The programs: c-tests/Makefile, group THREADS (plain) and SAN=thread's threads.
+BIN=$(c_build_dir)
+TSAN_BIN=$(c_build_dir thread)/threads
 
 TSAN=1
 suite_flag() {
@@ -58,24 +60,9 @@ suite_flag() {
 }
 parse_flags -- "$@"
 
-prepare_run gcc socat python3
+prepare_run gcc make socat python3
 
-CFLAGS=(-std=c11 -D_GNU_SOURCE -Wall -Wextra -Werror -g -I"$ROOT/include")
-IO=$ROOT/c-tests/interop
-TH=$ROOT/c-tests/threads
-build() { # NAME gcc-args...
-    local name=$1
-    shift
-    if gcc "$@" >"$LOGS/build-$name.log" 2>&1; then
-        ok "build $name (-Wall -Wextra -Werror)"
-        return 0
-    fi
-    bad "build $name" "$(head -n 20 "$LOGS/build-$name.log")"
-    return 1
-}
-build our_server "${CFLAGS[@]}" -O2 -o "$BIN/our_server" "$IO/our_server.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
-build threads "${CFLAGS[@]}" -O2 -pthread -o "$BIN/threads" "$TH/threads.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
-build mutex_cost "${CFLAGS[@]}" -O2 -o "$BIN/mutex_cost" "$TH/mutex_cost.c" "$IO/interop.c" -L"$OURS" -lmodbus -ldl || { summary; exit 1; }
+c_build_group THREADS || { summary; exit 1; }
 
 # start_server NAME TRANSPORT: our_server (our library, no trace); sets WHERE (client side)
 start_server() {
@@ -123,7 +110,7 @@ run_threads() {
     fi
     if grep -q 'ThreadSanitizer' "$log"; then
         bad "$name: ThreadSanitizer reports" "$(grep -E '^(WARNING|SUMMARY)' "$log" | head -n 10)" "(see $log)"
-    elif [ "$binary" = "$BIN/threads-tsan" ]; then
+    elif [ "$binary" = "$TSAN_BIN" ]; then
         ok "$name: no ThreadSanitizer report"
     fi
 }
@@ -141,13 +128,11 @@ if [ "$TSAN" -eq 1 ]; then
         >"$LOGS/cargo-tsan.log" 2>&1; then
         ok "cargo build -Zsanitizer=thread"
         ln -sf libmodbus.so "$TSAN_LIB_DIR/libmodbus.so.5"
-        if build threads-tsan "${CFLAGS[@]}" -O1 -pthread -fsanitize=thread -rdynamic \
-            -o "$BIN/threads-tsan" "$TH/threads.c" "$TH/tsan-shims.c" "$IO/interop.c" \
-            -L"$TSAN_LIB_DIR" -lmodbus -ldl; then
+        if c_build SAN=thread threads; then
             export TSAN_OPTIONS="halt_on_error=0 exitcode=66"
             echo "=== tsan-selftest: a deliberate race must be reported inside libmodbus.so"
             if start_server tsan-selftest tcp; then
-                LD_LIBRARY_PATH=$TSAN_LIB_DIR timeout 120 "$BIN/threads-tsan" tcp "$WHERE" 1 1 --race-selftest \
+                LD_LIBRARY_PATH=$TSAN_LIB_DIR timeout 120 "$TSAN_BIN" tcp "$WHERE" 1 1 --race-selftest \
                     >"$LOGS/tsan-selftest.log" 2>&1
                 loaded_ours tsan-selftest "$LOGS/tsan-selftest.log" "$TSAN_LIB_DIR/libmodbus.so.5"
                 if grep -q 'WARNING: ThreadSanitizer: data race' "$LOGS/tsan-selftest.log" &&
@@ -162,7 +147,7 @@ if [ "$TSAN" -eq 1 ]; then
             fi
             stop_server tsan-selftest
             for transport in tcp rtu; do
-                run_threads "tsan-$transport" "$transport" "$BIN/threads-tsan" "$TSAN_LIB_DIR"
+                run_threads "tsan-$transport" "$transport" "$TSAN_BIN" "$TSAN_LIB_DIR"
             done
         fi
     else

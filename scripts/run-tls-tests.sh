@@ -40,17 +40,15 @@ if [ $CARGO -eq 1 ] && ! cargo build --release --quiet; then
     summary
     exit 1
 fi
-CFLAGS_W=(-Wall -Wextra -Werror -O2 -I"$ROOT/include")
-LDFLAGS=(-L"$LIB" -Wl,-rpath,"$LIB" -lmodbus)
-for prog in tls-server tls-client; do
-    check "compile examples/$prog.c (-Wall -Wextra -Werror)" \
-        gcc "${CFLAGS_W[@]}" "examples/$prog.c" -o "$WORK/$prog" "${LDFLAGS[@]}"
-done
-check "compile c-tests/tls/tls-test.c (-Wall -Wextra -Werror)" \
-    gcc "${CFLAGS_W[@]}" c-tests/tls/tls-test.c c-tests/common/libinfo.c -o "$WORK/tls-test" "${LDFLAGS[@]}" -ldl
+# examples/tls-server.c, examples/tls-client.c and c-tests/tls/tls-test.c: c-tests/Makefile
+# (group TLS: our headers, linked with an rpath to target/release), one check each.
+BIN=$(c_build_dir)
+ASAN_BIN=$(c_build_dir address)
+LOGS=$WORK
+c_build_group TLS
 # The example programs print no LIBINFO line: the loader's choice, from ldd.
 for prog in tls-server tls-client; do
-    loaded=$(ldd "$WORK/$prog" 2>/dev/null | awk '/libmodbus\.so\.5/ {print $3}')
+    loaded=$(ldd "$BIN/$prog" 2>/dev/null | awk '/libmodbus\.so\.5/ {print $3}')
     if [ "$(readlink -f "$loaded")" = "$(readlink -f "$LIB/libmodbus.so")" ]; then
         ok "$prog loads target/release/libmodbus.so ($loaded)"
     else
@@ -68,7 +66,7 @@ C=$WORK/certs
 start_server() {
     local name=$1 cert=$2
     PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
-    "$WORK/tls-server" "$C/ca.pem" "$C/$cert.pem" "$C/$cert.key" "$PORT" >"$WORK/$name.out" 2>"$WORK/$name.err" &
+    "$BIN/tls-server" "$C/ca.pem" "$C/$cert.pem" "$C/$cert.key" "$PORT" >"$WORK/$name.out" 2>"$WORK/$name.err" &
     SERVER_PID=$!
     for _ in $(seq 100); do
         grep -q serving "$WORK/$name.out" 2>/dev/null && return 0
@@ -99,7 +97,7 @@ scenario() {
     local name=$1
     shift
     local out=$WORK/scenario-$name.out
-    timeout 60 "$WORK/tls-test" "$C" "${HOST:-127.0.0.1}" "$PORT" "$name" "$@" >"$out" 2>&1
+    timeout 60 "$BIN/tls-test" "$C" "${HOST:-127.0.0.1}" "$PORT" "$name" "$@" >"$out" 2>&1
     local rc=$?
     if ! grep -q "LIBINFO: .*$(readlink -f "$LIB/libmodbus.so" | sed 's/[.]/[.]/g').*(rsmodbus" "$out" &&
         ! grep -q "LIBINFO: .*target/release/libmodbus.so.*(rsmodbus" "$out"; then
@@ -133,13 +131,13 @@ else
     bad "resume: the second handshake resumed the session" "$(grep 'TLS handshake' "$WORK/scenario-resume.out")"
 fi
 # The example client against the example server.
-out=$("$WORK/tls-client" "$C/ca.pem" "$C/operator.pem" "$C/operator.key" 127.0.0.1 "$PORT" 2>&1)
+out=$("$BIN/tls-client" "$C/ca.pem" "$C/operator.pem" "$C/operator.key" 127.0.0.1 "$PORT" 2>&1)
 if [[ $out == *"registers 0-4: 1000 1001 1002 1003 1004"* && $out == *"write allowed"* ]]; then
     ok "examples: tls-client as Operator reads and writes"
 else
     bad "examples: tls-client as Operator" "$out"
 fi
-out=$("$WORK/tls-client" "$C/ca.pem" "$C/reader.pem" "$C/reader.key" 127.0.0.1 "$PORT" 2>&1)
+out=$("$BIN/tls-client" "$C/ca.pem" "$C/reader.pem" "$C/reader.key" 127.0.0.1 "$PORT" 2>&1)
 if [[ $out == *"write refused: Illegal function"* ]]; then
     ok "examples: tls-client as Reader is refused the write"
 else
@@ -217,13 +215,13 @@ start_server wrongname wrongname && {
 # same port, and the client connects again.
 start_server cut server && {
     mkfifo "$WORK/cut.in"
-    "$WORK/tls-test" "$C" 127.0.0.1 "$PORT" reconnect <"$WORK/cut.in" >"$WORK/scenario-reconnect.out" 2>&1 &
+    "$BIN/tls-test" "$C" 127.0.0.1 "$PORT" reconnect <"$WORK/cut.in" >"$WORK/scenario-reconnect.out" 2>&1 &
     CLIENT_PID=$!
     exec 7>"$WORK/cut.in"
     for _ in $(seq 100); do grep -q WAITING "$WORK/scenario-reconnect.out" && break; sleep 0.05; done
     kill -9 "$SERVER_PID"
     wait "$SERVER_PID" 2>/dev/null
-    "$WORK/tls-server" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" >"$WORK/cut2.out" 2>&1 &
+    "$BIN/tls-server" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" >"$WORK/cut2.out" 2>&1 &
     SERVER_PID=$!
     for _ in $(seq 100); do grep -q serving "$WORK/cut2.out" && break; sleep 0.05; done
     echo go >&7
@@ -263,20 +261,17 @@ wait "$CUT_PID" 2>/dev/null
 # AddressSanitizer on both C programs: an instrumented server that exits by itself
 # after its requests (so that the leak checker runs), and the instrumented client's
 # scenarios against it.
-ASAN=(-O1 -g -fsanitize=address -fno-omit-frame-pointer)
-if gcc "${CFLAGS_W[@]}" "${ASAN[@]}" examples/tls-server.c -o "$WORK/tls-server-asan" "${LDFLAGS[@]}" &&
-    gcc "${CFLAGS_W[@]}" "${ASAN[@]}" c-tests/tls/tls-test.c c-tests/common/libinfo.c -o "$WORK/tls-test-asan" \
-        "${LDFLAGS[@]}" -ldl; then
-    ok "build tls-server and tls-test with -fsanitize=address"
+# (make -C c-tests SAN=address: the group ASAN, one check each.)
+if c_build_group ASAN SAN=address; then
     PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
     # operator: 4 requests; reader: 4 served; nocert, rogue: refused before any is
     # served; password: 3 keys accepted, 2 requests each; 1 left for the last client.
-    ASAN_OPTIONS=detect_leaks=1 "$WORK/tls-server-asan" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" 15 \
+    ASAN_OPTIONS=detect_leaks=1 "$ASAN_BIN/tls-server" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" 15 \
         >"$WORK/asan-server.out" 2>&1 &
     SERVER_PID=$!
     for _ in $(seq 100); do grep -q serving "$WORK/asan-server.out" && break; sleep 0.05; done
     for sc in operator reader nocert rogue password stop callback sessions; do
-        if ASAN_OPTIONS=detect_leaks=1 timeout 60 "$WORK/tls-test-asan" "$C" 127.0.0.1 "$PORT" "$sc" \
+        if ASAN_OPTIONS=detect_leaks=1 timeout 60 "$ASAN_BIN/tls-test" "$C" 127.0.0.1 "$PORT" "$sc" \
             >"$WORK/asan-$sc.out" 2>&1 && ! grep -q "Sanitizer" "$WORK/asan-$sc.out"; then
             ok "AddressSanitizer: client scenario $sc"
         else
@@ -284,7 +279,7 @@ if gcc "${CFLAGS_W[@]}" "${ASAN[@]}" examples/tls-server.c -o "$WORK/tls-server-
         fi
     done
     # Requests left before the server ends: serve them.
-    ASAN_OPTIONS=detect_leaks=1 timeout 60 "$WORK/tls-test-asan" "$C" 127.0.0.1 "$PORT" operator >/dev/null 2>&1
+    ASAN_OPTIONS=detect_leaks=1 timeout 60 "$ASAN_BIN/tls-test" "$C" 127.0.0.1 "$PORT" operator >/dev/null 2>&1
     if timeout 30 tail --pid="$SERVER_PID" -f /dev/null; then
         wait "$SERVER_PID"
         rc=$?
@@ -297,8 +292,6 @@ if gcc "${CFLAGS_W[@]}" "${ASAN[@]}" examples/tls-server.c -o "$WORK/tls-server-
         bad "AddressSanitizer: the example server ended after its requests" "still running"
         stop_server
     fi
-else
-    bad "build with -fsanitize=address" ""
 fi
 
 # Interoperability with pymodbus (mutual TLS), both directions, IPv4 and IPv6: a
@@ -324,7 +317,7 @@ if "$PY" -c 'import pymodbus' 2>/dev/null; then
         start_server "pm-$fam" server || continue
         kill "$SERVER_PID"
         wait "$SERVER_PID" 2>/dev/null
-        "$WORK/tls-server" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" 0 "$fam" >"$WORK/pm-$fam.out" 2>&1 &
+        "$BIN/tls-server" "$C/ca.pem" "$C/server.pem" "$C/server.key" "$PORT" 0 "$fam" >"$WORK/pm-$fam.out" 2>&1 &
         SERVER_PID=$!
         for _ in $(seq 100); do grep -q serving "$WORK/pm-$fam.out" && break; sleep 0.05; done
         pm_check "pymodbus client (reader) -> our server [$fam]" "$PY" c-tests/tls/pm_tls.py client "$fam" "$PORT" "$C" reader

@@ -33,6 +33,20 @@
 #   loaded_ours NAME LOG LIB  the "LOADED path (rsmodbus ...)" line in LOG
 #                           (c-tests/interop/interop.c) names LIB
 #
+# Building the C programs: c-tests/Makefile, the one build of them all (run-*.sh; ROOT set)
+#   c_build_dir [SAN]       where the Makefile puts a variant's programs: $CTEST_BUILD
+#                           (default target/c-tests-build) /bin, /asan (SAN=address)
+#                           or /tsan (SAN=thread)
+#   c_build [VAR=VALUE...] TARGET...  make -C c-tests TARGET, one check per TARGET
+#                           ("build TARGET (c-tests/Makefile[, SAN=...])"), counted with
+#                           $C_BUILD_RESULT NAME PASS|FAIL [DETAIL] (default: result);
+#                           make's output in $LOGS/build-TARGET[-SAN].log (LOGS unset:
+#                           in the build directory); one build at a time (flock); a
+#                           TARGET that failed is removed (no stale program runs);
+#                           returns 1 when a TARGET failed
+#   c_build_group GROUP [VAR=VALUE...]  c_build of every target of the Makefile's GROUP
+#                           (CLIENT_TESTS, SERVER_TESTS, TLS, ...: make -s print-GROUP)
+#
 # Processes: every one started here is remembered by its PID and stopped by it; what
 # still runs when the script exits or is interrupted is stopped then.
 #   start_bg OUT ERR CMD... CMD in the background, stdout to OUT, stderr to ERR (ERR
@@ -195,6 +209,56 @@ loaded_ours() {
     else
         bad "$name: wrong library" "${line:-no LOADED line}" "expected $lib"
     fi
+}
+
+# ------------------------------------------------------------ C programs
+C_BUILD_RESULT=result
+
+c_build_dir() {
+    local base=${CTEST_BUILD:-$ROOT/target/c-tests-build}
+    case "${1:-}" in
+    address) echo "$base/asan" ;;
+    thread) echo "$base/tsan" ;;
+    *) echo "$base/bin" ;;
+    esac
+}
+
+c_build() {
+    local vars=() san="" t log name rc=0
+    while [ $# -gt 0 ] && [[ $1 == *=* ]]; do
+        vars+=("$1")
+        [[ $1 != SAN=* ]] || san=${1#SAN=}
+        shift
+    done
+    local base=${CTEST_BUILD:-$ROOT/target/c-tests-build}
+    mkdir -p "$base"
+    for t in "$@"; do
+        log=${LOGS:-$base}/build-$t${san:+-$san}.log
+        name="build $t (c-tests/Makefile${san:+, SAN=$san})"
+        # fd 9 is run-c-tests.sh's lock: make must not hold it.
+        if flock -w 900 "$base/.lock" make -C "$ROOT/c-tests" --no-print-directory "${vars[@]}" "$t" \
+            >"$log" 2>&1 9>&-; then
+            "$C_BUILD_RESULT" "$name" PASS
+        else
+            "$C_BUILD_RESULT" "$name" FAIL "see $log"
+            head -n 20 "$log" | sed 's/^/    | /'
+            # No program left from an earlier build runs in its place.
+            rm -f "$(c_build_dir "$san")/$t"
+            rc=1
+        fi
+    done
+    return $rc
+}
+
+c_build_group() {
+    local group=$1 targets
+    shift
+    targets=$(make -s -C "$ROOT/c-tests" --no-print-directory "$@" "print-$group" 2>&1) || {
+        "$C_BUILD_RESULT" "build $group (c-tests/Makefile)" FAIL "$targets"
+        return 1
+    }
+    # shellcheck disable=SC2086 # a list of target names
+    c_build "$@" $targets
 }
 
 # ------------------------------------------------------------ processes

@@ -288,19 +288,19 @@ static void print_version(void)
     printf("LIBMODBUS_VERSION = %s\n", STR(LIBMODBUS_VERSION));
     printf("LIBMODBUS_VERSION_STRING = \"%s\"\n", LIBMODBUS_VERSION_STRING);
     printf("LIBMODBUS_VERSION_HEX = 0x%06llx\n", (unsigned long long) LIBMODBUS_VERSION_HEX);
-#define CHECK(a, b, c)                                                                       \
+#define PRINT_VERSION_CHECK(a, b, c)                                                         \
     printf("LIBMODBUS_VERSION_CHECK(%d,%d,%d) = %d\n", a, b, c, (int) LIBMODBUS_VERSION_CHECK(a, b, c))
-    CHECK(2, 9, 9);
-    CHECK(3, 0, 99);
-    CHECK(3, 1, 0);
-    CHECK(3, 1, 5);
-    CHECK(3, 1, 6);
-    CHECK(3, 1, 7);
-    CHECK(3, 1, 12);
-    CHECK(3, 1, 13);
-    CHECK(3, 2, 0);
-    CHECK(4, 0, 0);
-#undef CHECK
+    PRINT_VERSION_CHECK(2, 9, 9);
+    PRINT_VERSION_CHECK(3, 0, 99);
+    PRINT_VERSION_CHECK(3, 1, 0);
+    PRINT_VERSION_CHECK(3, 1, 5);
+    PRINT_VERSION_CHECK(3, 1, 6);
+    PRINT_VERSION_CHECK(3, 1, 7);
+    PRINT_VERSION_CHECK(3, 1, 12);
+    PRINT_VERSION_CHECK(3, 1, 13);
+    PRINT_VERSION_CHECK(3, 2, 0);
+    PRINT_VERSION_CHECK(4, 0, 0);
+#undef PRINT_VERSION_CHECK
 }
 
 static void print_hex_u8(const char *key, const uint8_t *t, int n)

@@ -26,7 +26,6 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -37,6 +36,8 @@
 #include <unistd.h>
 
 #include <modbus.h>
+
+#include "../common/check.h"
 
 #define SLAVE 17
 #define NB_REGISTERS 200
@@ -50,36 +51,17 @@ enum mode { M_FULL, M_FIFO_ONLY, M_PLAIN };
 
 static enum transport transport;
 static enum mode mode;
-static int passed, failed;
-
 /* ------------------------------------------------------------------ reporting */
-
-static void check(int cond, const char *fmt, ...)
-{
-    va_list ap;
-    if (cond) {
-        passed++;
-        printf("ok   - ");
-    } else {
-        failed++;
-        printf("FAIL - ");
-    }
-    va_start(ap, fmt);
-    vprintf(fmt, ap);
-    va_end(ap);
-    printf("\n");
-    fflush(stdout);
-}
 
 /* rc == want, or rc == -1 with errno == want_errno when want is -1. */
 static void check_rc(int rc, int err, int want, int want_errno, const char *what)
 {
     if (want == -1) {
-        check(rc == -1 && err == want_errno, "%s: rc=%d errno=%d (%s), want -1 errno %d (%s)", what, rc, err,
-              modbus_strerror(err), want_errno, modbus_strerror(want_errno));
+        EXPECT(rc == -1 && err == want_errno, "%s: rc=%d errno=%d (%s), want -1 errno %d (%s)", what, rc, err,
+               modbus_strerror(err), want_errno, modbus_strerror(want_errno));
     } else {
-        check(rc == want, "%s: rc=%d%s%s, want %d", what, rc, rc == -1 ? " " : "",
-              rc == -1 ? modbus_strerror(err) : "", want);
+        EXPECT(rc == want, "%s: rc=%d%s%s, want %d", what, rc, rc == -1 ? " " : "",
+               rc == -1 ? modbus_strerror(err) : "", want);
     }
 }
 
@@ -314,7 +296,7 @@ static int read_pipe(void *buf, size_t n)
 static int dump(struct dump *d)
 {
     if (write(cmd_fd, "D", 1) != 1 || read_pipe(d, sizeof(*d)) != 0) {
-        check(0, "the server reports its state");
+        EXPECT(0, "the server reports its state");
         memset(d, 0, sizeof(*d));
         return -1;
     }
@@ -324,7 +306,7 @@ static int dump(struct dump *d)
 static void server_command(char c)
 {
     if (write(cmd_fd, &c, 1) != 1) {
-        check(0, "command to the server");
+        EXPECT(0, "command to the server");
     }
 }
 
@@ -348,14 +330,14 @@ static void check_bytes(const uint8_t *got, int ngot, const uint8_t *want, int n
     char a[1024], b[1024];
     hex(a, sizeof(a), got, ngot);
     hex(b, sizeof(b), want, nwant);
-    check(ngot == nwant && memcmp(got, want, (size_t) nwant) == 0, "%s: [%s], want [%s]", what, a, b);
+    EXPECT(ngot == nwant && memcmp(got, want, (size_t) nwant) == 0, "%s: [%s], want [%s]", what, a, b);
 }
 
 /* Writes raw bytes on the client's line (frames libmodbus' API cannot send). */
 static void write_line(modbus_t *ctx, const void *bytes, size_t n)
 {
     if (write(modbus_get_socket(ctx), bytes, n) != (ssize_t) n) {
-        check(0, "raw write");
+        EXPECT(0, "raw write");
     }
     msleep(100);
 }
@@ -431,7 +413,7 @@ static void restart_clear(modbus_t *ctx)
 {
     uint16_t d = 0xFF00, got = 0;
     int rc = modbus_diagnostics(ctx, 1, &d, 1, &got, 1);
-    check(rc == 1 && got == 0xFF00, "08/01 restart communications (clear log): rc=%d echo 0x%04X", rc, got);
+    EXPECT(rc == 1 && got == 0xFF00, "08/01 restart communications (clear log): rc=%d echo 0x%04X", rc, got);
 }
 
 static uint16_t diag_value(modbus_t *ctx, int sub)
@@ -439,7 +421,7 @@ static uint16_t diag_value(modbus_t *ctx, int sub)
     uint16_t zero = 0, v = 0xDEAD;
     int rc = modbus_diagnostics(ctx, sub, &zero, 1, &v, 1);
     if (rc != 1) {
-        check(0, "08/%02X: rc=%d %s", sub, rc, modbus_strerror(errno));
+        EXPECT(0, "08/%02X: rc=%d %s", sub, rc, modbus_strerror(errno));
     }
     return v;
 }
@@ -454,29 +436,29 @@ static void test_function_codes(modbus_t *ctx)
 
     printf("# function codes 07, 11, 08/00, 0B, 0C, 14, 15, 18\n");
     rc = modbus_read_exception_status(ctx, &status);
-    check(rc == 1 && status == 0x6D, "07 read exception status: rc=%d status 0x%02X", rc, status);
+    EXPECT(rc == 1 && status == 0x6D, "07 read exception status: rc=%d status 0x%02X", rc, status);
     rc = modbus_report_slave_id(ctx, (int) sizeof(id), id);
-    check(rc == 29 && id[0] == 0x55 && id[1] == 0xFF && memcmp(id + 2, "IFTOOLS,IF-Sensor,101305023", 27) == 0,
-          "11 report slave id as configured (the seed's example): rc=%d", rc);
+    EXPECT(rc == 29 && id[0] == 0x55 && id[1] == 0xFF && memcmp(id + 2, "IFTOOLS,IF-Sensor,101305023", 27) == 0,
+           "11 report slave id as configured (the seed's example): rc=%d", rc);
     {
         uint16_t q[3] = {0xA537, 0x0001, 0xFFFF}, echo[3] = {0, 0, 0};
         int nb = (transport == T_TCP || transport == T_ASCII) ? 3 : 1;
         errno = 0;
         rc = modbus_diagnostics(ctx, 0, q, nb, echo, 3);
-        check(rc == nb && memcmp(q, echo, sizeof(uint16_t) * (size_t) nb) == 0,
-              "08/00 return query data, %d word(s): rc=%d %s", nb, rc, rc == -1 ? modbus_strerror(errno) : "");
+        EXPECT(rc == nb && memcmp(q, echo, sizeof(uint16_t) * (size_t) nb) == 0,
+               "08/00 return query data, %d word(s): rc=%d %s", nb, rc, rc == -1 ? modbus_strerror(errno) : "");
     }
     rc = modbus_get_comm_event_counter(ctx, &st, &ev);
-    check(rc == 1 && st == 0, "0B get comm event counter: rc=%d status 0x%04X", rc, st);
+    EXPECT(rc == 1 && st == 0, "0B get comm event counter: rc=%d status 0x%04X", rc, st);
     rc = modbus_get_comm_event_log(ctx, &st, &ev, v, (uint8_t *) id, 64);
-    check(rc >= 2 && st == 0 && id[0] == 0x80, "0C get comm event log: rc=%d, newest event 0x%02X", rc, id[0]);
+    EXPECT(rc >= 2 && st == 0 && id[0] == 0x80, "0C get comm event log: rc=%d, newest event 0x%02X", rc, id[0]);
 
     /* 14 / 15 */
     rc = modbus_read_file_record(ctx, 4, 1, 2, v);
-    check(rc == 2 && v[0] == 0x0DFE && v[1] == 0x0020, "14 read file 4 records 1-2: rc=%d 0x%04X 0x%04X", rc, v[0],
-          v[1]);
+    EXPECT(rc == 2 && v[0] == 0x0DFE && v[1] == 0x0020, "14 read file 4 records 1-2: rc=%d 0x%04X 0x%04X", rc, v[0],
+           v[1]);
     rc = modbus_read_file_record(ctx, 10, 9999, 1, v);
-    check(rc == 1 && v[0] == 0x9999, "14 read file 10 record 9999: rc=%d 0x%04X", rc, v[0]);
+    EXPECT(rc == 1 && v[0] == 0x9999, "14 read file 10 record 9999: rc=%d 0x%04X", rc, v[0]);
     {
         /* The seed's two sub-requests and its answer. */
         static const uint8_t req[] = {0x14, 0x0E, 0x06, 0x00, 0x04, 0x00, 0x01, 0x00, 0x02,
@@ -490,13 +472,13 @@ static void test_function_codes(modbus_t *ctx)
         static const uint16_t w[3] = {0x06AF, 0x04BE, 0x100D};
         struct dump d;
         rc = modbus_write_file_record(ctx, 4, 7, 3, w);
-        check(rc == 3, "15 write file 4 records 7-9: rc=%d", rc);
+        EXPECT(rc == 3, "15 write file 4 records 7-9: rc=%d", rc);
         rc = modbus_read_file_record(ctx, 4, 6, 5, v);
-        check(rc == 5 && v[0] == 0 && v[1] == 0x06AF && v[2] == 0x04BE && v[3] == 0x100D && v[4] == 0,
-              "14 reads back what 15 wrote: rc=%d", rc);
+        EXPECT(rc == 5 && v[0] == 0 && v[1] == 0x06AF && v[2] == 0x04BE && v[3] == 0x100D && v[4] == 0,
+               "14 reads back what 15 wrote: rc=%d", rc);
         dump(&d);
-        check(d.rc_file == 16 && d.file4[1] == 0x0DFE && d.file4[7] == 0x06AF && d.file4[9] == 0x100D,
-              "modbus_get_file_record on the server sees the write: rc=%d", d.rc_file);
+        EXPECT(d.rc_file == 16 && d.file4[1] == 0x0DFE && d.file4[7] == 0x06AF && d.file4[9] == 0x100D,
+               "modbus_get_file_record on the server sees the write: rc=%d", d.rc_file);
     }
     {
         /* The seed's write: echoed whole. */
@@ -509,11 +491,11 @@ static void test_function_codes(modbus_t *ctx)
     /* 18 */
     memset(v, 0, sizeof(v));
     rc = modbus_read_fifo_queue(ctx, 0x04DE, v);
-    check(rc == 2 && v[0] == 0x01B8 && v[1] == 0x1204, "18 FIFO 0x04DE (seed example): rc=%d", rc);
+    EXPECT(rc == 2 && v[0] == 0x01B8 && v[1] == 0x1204, "18 FIFO 0x04DE (seed example): rc=%d", rc);
     rc = modbus_read_fifo_queue(ctx, 0x0100, v);
     for (i = 0; i < 31 && v[i] == i + 1; i++) {
     }
-    check(rc == 31 && i == 31, "18 FIFO of 31 values: rc=%d", rc);
+    EXPECT(rc == 31 && i == 31, "18 FIFO of 31 values: rc=%d", rc);
     rc = modbus_read_fifo_queue(ctx, 0x0300, v);
     check_rc(rc, errno, 0, 0, "18 empty FIFO");
     errno = 0;
@@ -537,13 +519,13 @@ static void test_device_identification(modbus_t *ctx)
     for (i = 0; ok && i < 3; i++) {
         ok = obj[i].id == i && obj[i].length == strlen(OBJ[i]) && strcmp(obj[i].value, OBJ[i]) == 0;
     }
-    check(ok, "basic stream: %d objects, conformity 0x%02X", rc, conf);
+    EXPECT(ok, "basic stream: %d objects, conformity 0x%02X", rc, conf);
     rc = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_REGULAR, 0, obj, 16, &conf);
     ok = rc == 7;
     for (i = 0; ok && i < 7; i++) {
         ok = obj[i].id == i && strcmp(obj[i].value, OBJ[i]) == 0;
     }
-    check(ok, "regular stream: %d objects", rc);
+    EXPECT(ok, "regular stream: %d objects", rc);
     rc = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_EXTENDED, 0, obj, 16, &conf);
     ok = rc == 10;
     for (i = 0; ok && i < 10; i++) {
@@ -554,13 +536,13 @@ static void test_device_identification(modbus_t *ctx)
             ok = obj[i].length == EXT_LEN && memcmp(obj[i].value, ext, EXT_LEN) == 0;
         }
     }
-    check(ok, "extended stream over several responses (more follows): %d objects", rc);
+    EXPECT(ok, "extended stream over several responses (more follows): %d objects", rc);
     rc = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_EXTENDED, 0x81, obj, 16, &conf);
-    check(rc == 2 && obj[0].id == 0x81 && obj[1].id == 0x82, "extended stream from object 0x81: %d objects", rc);
+    EXPECT(rc == 2 && obj[0].id == 0x81 && obj[1].id == 0x82, "extended stream from object 0x81: %d objects", rc);
     rc = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_SPECIFIC, 0x04, obj, 16, &conf);
-    check(rc == 1 && obj[0].id == 4 && strcmp(obj[0].value, OBJ[4]) == 0, "individual object 4: rc=%d", rc);
+    EXPECT(rc == 1 && obj[0].id == 4 && strcmp(obj[0].value, OBJ[4]) == 0, "individual object 4: rc=%d", rc);
     rc = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_SPECIFIC, 0x82, obj, 16, &conf);
-    check(rc == 1 && obj[0].id == 0x82 && obj[0].length == EXT_LEN, "individual object 0x82: rc=%d", rc);
+    EXPECT(rc == 1 && obj[0].id == 0x82 && obj[0].length == EXT_LEN, "individual object 0x82: rc=%d", rc);
     errno = 0;
     rc = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_SPECIFIC, 0x90, obj, 16, &conf);
     check_rc(rc, errno, -1, EMBXILADD, "individual unknown object 0x90: ILLEGAL DATA ADDRESS");
@@ -568,15 +550,15 @@ static void test_device_identification(modbus_t *ctx)
         /* On the wire: the first extended answer stops before 0x80 with more follows. */
         static const uint8_t req[] = {0x2B, 0x0E, 0x03, 0x00};
         rc = raw(ctx, req, sizeof(req), rsp);
-        check(rc > 7 && rsp[3] == 0x83 && rsp[4] == 0xFF && rsp[5] == 0x80 && rsp[6] == 7,
-              "first extended answer: 7 objects, more follows, next object 0x80 (%d bytes)", rc);
+        EXPECT(rc > 7 && rsp[3] == 0x83 && rsp[4] == 0xFF && rsp[5] == 0x80 && rsp[6] == 7,
+               "first extended answer: 7 objects, more follows, next object 0x80 (%d bytes)", rc);
         static const uint8_t last[] = {0x2B, 0x0E, 0x03, 0x82};
         rc = raw(ctx, last, sizeof(last), rsp);
-        check(rc == 7 + 2 + EXT_LEN && rsp[4] == 0 && rsp[5] == 0 && rsp[6] == 1,
-              "last extended answer: no more follows, next object 0 (%d bytes)", rc);
+        EXPECT(rc == 7 + 2 + EXT_LEN && rsp[4] == 0 && rsp[5] == 0 && rsp[6] == 1,
+               "last extended answer: no more follows, next object 0 (%d bytes)", rc);
         static const uint8_t unknown_start[] = {0x2B, 0x0E, 0x01, 0x42};
         rc = raw(ctx, unknown_start, sizeof(unknown_start), rsp);
-        check(rc > 7 && rsp[6] == 3 && rsp[7] == 0, "an unknown starting object restarts at object 0");
+        EXPECT(rc > 7 && rsp[6] == 3 && rsp[7] == 0, "an unknown starting object restarts at object 0");
     }
 }
 
@@ -589,34 +571,34 @@ static void test_diagnostics(modbus_t *ctx)
     printf("# 08 diagnostics sub-functions\n");
     restart_clear(ctx);
     got = diag_value(ctx, 0x02);
-    check(got == 0x8000, "08/02 diagnostic register as the application set it: 0x%04X", got);
+    EXPECT(got == 0x8000, "08/02 diagnostic register as the application set it: 0x%04X", got);
     /* 03: on an ASCII line a new delimiter would change the framing of what follows,
      * so it is set to LF there; elsewhere to '!' and back. */
     d = transport == T_ASCII ? 0x0A00 : 0x2100;
     got = 0;
     rc = modbus_diagnostics(ctx, 3, &d, 1, &got, 1);
     dump(&st);
-    check(rc == 1 && got == d && st.delim == (d >> 8), "08/03 change ASCII input delimiter to 0x%02X: rc=%d, server has 0x%02X",
-          d >> 8, rc, st.delim);
+    EXPECT(rc == 1 && got == d && st.delim == (d >> 8), "08/03 change ASCII input delimiter to 0x%02X: rc=%d, server has 0x%02X",
+           d >> 8, rc, st.delim);
     d = 0x0A00;
     rc = modbus_diagnostics(ctx, 3, &d, 1, &got, 1);
-    check(rc == 1 && got == 0x0A00, "08/03 back to LF: rc=%d", rc);
+    EXPECT(rc == 1 && got == 0x0A00, "08/03 back to LF: rc=%d", rc);
     d = 0x3A00;
     errno = 0;
     rc = modbus_diagnostics(ctx, 3, &d, 1, &got, 1);
     check_rc(rc, errno, -1, EMBXILVAL, "08/03 ':' as delimiter: ILLEGAL DATA VALUE");
     d = 0;
     rc = modbus_diagnostics(ctx, 0x0A, &d, 1, &got, 1);
-    check(rc == 1 && got == 0, "08/0A clear counters and diagnostic register: rc=%d", rc);
+    EXPECT(rc == 1 && got == 0, "08/0A clear counters and diagnostic register: rc=%d", rc);
     got = diag_value(ctx, 0x02);
-    check(got == 0, "08/02 after 08/0A: 0x%04X", got);
+    EXPECT(got == 0, "08/02 after 08/0A: 0x%04X", got);
     rc = modbus_diagnostics(ctx, 0x14, &d, 1, &got, 1);
-    check(rc == 1 && got == 0, "08/14 clear overrun counter and flag: rc=%d", rc);
+    EXPECT(rc == 1 && got == 0, "08/14 clear overrun counter and flag: rc=%d", rc);
     for (rc = 0x0B; rc <= 0x12; rc++) {
         int r;
         got = 0xDEAD;
         r = modbus_diagnostics(ctx, rc, &d, 1, &got, 1);
-        check(r == 1 && got != 0xDEAD, "08/%02X answers one counter (%u)", rc, got);
+        EXPECT(r == 1 && got != 0xDEAD, "08/%02X answers one counter (%u)", rc, got);
     }
     {
         static const int reserved[] = {0x05, 0x09, 0x13, 0x15, 0xFFFF};
@@ -624,8 +606,8 @@ static void test_diagnostics(modbus_t *ctx)
         for (i = 0; i < sizeof(reserved) / sizeof(reserved[0]); i++) {
             errno = 0;
             rc = modbus_diagnostics(ctx, reserved[i], &d, 1, &got, 1);
-            check(rc == -1 && errno == EMBXILFUN, "08/%02X reserved: ILLEGAL FUNCTION (%s)", reserved[i],
-                  modbus_strerror(errno));
+            EXPECT(rc == -1 && errno == EMBXILFUN, "08/%02X reserved: ILLEGAL FUNCTION (%s)", reserved[i],
+                   modbus_strerror(errno));
         }
     }
     d = 1;
@@ -638,7 +620,7 @@ static void test_diagnostics(modbus_t *ctx)
     check_rc(rc, errno, -1, EMBXILVAL, "08/01 with data 1234: ILLEGAL DATA VALUE");
     d = 0;
     rc = modbus_diagnostics(ctx, 0x01, &d, 1, &got, 1);
-    check(rc == 1 && got == 0, "08/01 restart communications (keep log): rc=%d", rc);
+    EXPECT(rc == 1 && got == 0, "08/01 restart communications (keep log): rc=%d", rc);
 }
 
 /* The expected event log, built newest first as the traffic goes. */
@@ -671,7 +653,7 @@ static void test_counters(modbus_t *ctx)
     server_command('G'); /* diagnostic register 0x8000 */
     for (i = 0; i < 3; i++) {
         rc = modbus_read_registers(ctx, 0, 2, v);
-        check(rc == 2, "read holding registers %d: rc=%d", i, rc);
+        EXPECT(rc == 2, "read holding registers %d: rc=%d", i, rc);
         bus++, srv++, ev++;
         push(&m, 0x80), push(&m, 0x40);
     }
@@ -681,14 +663,14 @@ static void test_counters(modbus_t *ctx)
     bus++, srv++, exc++;
     push(&m, 0x80), push(&m, 0x41);
     rc = modbus_read_exception_status(ctx, log);
-    check(rc == 1, "07: rc=%d", rc);
+    EXPECT(rc == 1, "07: rc=%d", rc);
     bus++, srv++, ev++;
     push(&m, 0x80), push(&m, 0x40);
     if (serial()) {
         /* A broadcast write: done, not answered. */
         static const uint8_t bc[] = {0x00, 0x06, 0x00, 0x0A, 0x11, 0x11};
         rc = modbus_send_raw_request(ctx, bc, sizeof(bc));
-        check(rc > 0, "broadcast write sent: rc=%d", rc);
+        EXPECT(rc > 0, "broadcast write sent: rc=%d", rc);
         msleep(150);
         bus++, srv++, noresp++, ev++;
         push(&m, 0xC0), push(&m, 0x40);
@@ -752,34 +734,34 @@ static void test_counters(modbus_t *ctx)
         want[0] = bus, want[1] = comm, want[2] = exc, want[3] = srv, want[4] = noresp, want[5] = 1, want[6] = 1,
         want[7] = ovr;
         got = diag_value(ctx, sub);
-        check(got == want[sub - 0x0B], "08/%02X = %u (want %u)", sub, got, want[sub - 0x0B]);
+        EXPECT(got == want[sub - 0x0B], "08/%02X = %u (want %u)", sub, got, want[sub - 0x0B]);
         ev++;
         push(&m, 0x80), push(&m, 0x40);
     }
     bus++, srv++, ev++;
     v[0] = diag_value(ctx, 0x02);
-    check(v[0] == (ovr ? 0x8001 : 0x8000), "08/02 diagnostic register: 0x%04X (bit 0: overrun flag)", v[0]);
+    EXPECT(v[0] == (ovr ? 0x8001 : 0x8000), "08/02 diagnostic register: 0x%04X (bit 0: overrun flag)", v[0]);
     push(&m, 0x80), push(&m, 0x40);
     rc = modbus_get_comm_event_counter(ctx, &status, &events);
     bus++, srv++;
     push(&m, 0x80), push(&m, 0x40);
-    check(rc == 1 && status == 0 && events == ev, "0B: status 0x%04X, event count %u (want %u)", status, events, ev);
+    EXPECT(rc == 1 && status == 0 && events == ev, "0B: status 0x%04X, event count %u (want %u)", status, events, ev);
     rc = modbus_get_comm_event_log(ctx, &status, &events, &messages, log, 64);
     bus++, srv++;
     push(&m, 0x80);
-    check(rc == m.n && events == ev && messages == bus, "0C: %d events (want %d), event count %u, message count %u (want %u)",
-          rc, m.n, events, messages, bus);
+    EXPECT(rc == m.n && events == ev && messages == bus, "0C: %d events (want %d), event count %u, message count %u (want %u)",
+           rc, m.n, events, messages, bus);
     check_bytes(log, rc < 0 ? 0 : rc, m.log, m.n, "0C: the event log, newest first");
     /* The server's own view, after the 0C answer went out. */
     push(&m, 0x40);
     dump(&st);
-    check(st.rc_diag == 0 && st.counters[0] == bus && st.counters[1] == comm && st.counters[2] == exc &&
-              st.counters[3] == srv && st.counters[4] == noresp && st.counters[5] == 1 && st.counters[6] == 1 &&
-              st.counters[7] == ovr,
-          "modbus_get_diagnostics: %u %u %u %u %u %u %u %u", st.counters[0], st.counters[1], st.counters[2],
-          st.counters[3], st.counters[4], st.counters[5], st.counters[6], st.counters[7]);
-    check(st.event_count == ev && st.message_count == bus, "modbus_get_event_log counters: %u %u", st.event_count,
-          st.message_count);
+    EXPECT(st.rc_diag == 0 && st.counters[0] == bus && st.counters[1] == comm && st.counters[2] == exc &&
+               st.counters[3] == srv && st.counters[4] == noresp && st.counters[5] == 1 && st.counters[6] == 1 &&
+               st.counters[7] == ovr,
+           "modbus_get_diagnostics: %u %u %u %u %u %u %u %u", st.counters[0], st.counters[1], st.counters[2],
+           st.counters[3], st.counters[4], st.counters[5], st.counters[6], st.counters[7]);
+    EXPECT(st.event_count == ev && st.message_count == bus, "modbus_get_event_log counters: %u %u", st.event_count,
+           st.message_count);
     check_bytes(st.log, st.nlog < 0 ? 0 : st.nlog, m.log, m.n, "modbus_get_event_log events");
     (void) zero;
 }
@@ -796,12 +778,12 @@ static void test_listen_only(modbus_t *ctx)
     restart_clear(ctx);
     push(&m, 0x00);
     rc = modbus_diagnostics(ctx, 4, &d, 1, &got, 1);
-    check(rc == 0, "08/04 force listen only mode: sent, no answer expected (rc=%d)", rc);
+    EXPECT(rc == 0, "08/04 force listen only mode: sent, no answer expected (rc=%d)", rc);
     msleep(150);
     push(&m, 0x80), push(&m, 0x04);
     dump(&st);
-    check(st.lom == 1 && st.counters[4] == 1, "the server is in listen-only mode (no response count %u)",
-          st.counters[4]);
+    EXPECT(st.lom == 1 && st.counters[4] == 1, "the server is in listen-only mode (no response count %u)",
+           st.counters[4]);
     set_timeout_ms(ctx, 300);
     errno = 0;
     rc = modbus_read_registers(ctx, 0, 1, v);
@@ -823,9 +805,9 @@ static void test_listen_only(modbus_t *ctx)
     rc = modbus_diagnostics(ctx, 1, &d, 1, &got, 1);
     check_rc(rc, errno, -1, ETIMEDOUT, "08/01 with bad data 1234: ignored");
     dump(&st);
-    check(st.lom == 1 && st.counters[0] == 7 && st.counters[3] == 7 && st.counters[4] == 7 && st.event_count == 0,
-          "still listening only; bus %u, server %u, no response %u, events %u", st.counters[0], st.counters[3],
-          st.counters[4], st.event_count);
+    EXPECT(st.lom == 1 && st.counters[0] == 7 && st.counters[3] == 7 && st.counters[4] == 7 && st.event_count == 0,
+           "still listening only; bus %u, server %u, no response %u, events %u", st.counters[0], st.counters[3],
+           st.counters[4], st.event_count);
     for (rc = 0; rc < 6; rc++) {
         push(&m, 0xA0), push(&m, 0x60);
     }
@@ -835,15 +817,15 @@ static void test_listen_only(modbus_t *ctx)
     check_rc(rc, errno, -1, ETIMEDOUT, "08/01 restart communications: no answer in listen-only mode");
     push(&m, 0xA0), push(&m, 0x00);
     dump(&st);
-    check(st.lom == 0 && st.counters[0] == 0 && st.counters[4] == 0, "the restart left listen-only mode and cleared the counters");
+    EXPECT(st.lom == 0 && st.counters[0] == 0 && st.counters[4] == 0, "the restart left listen-only mode and cleared the counters");
     set_timeout_ms(ctx, 2000);
     rc = modbus_read_registers(ctx, 20, 1, v);
-    check(rc == 1 && v[0] == 0, "answered again; the write sent in listen-only mode was not done (0x%04X)", v[0]);
+    EXPECT(rc == 1 && v[0] == 0, "answered again; the write sent in listen-only mode was not done (0x%04X)", v[0]);
     push(&m, 0x80), push(&m, 0x40);
     rc = modbus_get_comm_event_log(ctx, &status, &events, &messages, log, 64);
     push(&m, 0x80);
-    check(rc == m.n && events == 1 && messages == 2, "0C: %d events, event count %u, message count %u", rc, events,
-          messages);
+    EXPECT(rc == m.n && events == 1 && messages == 2, "0C: %d events, event count %u, message count %u", rc, events,
+           messages);
     check_bytes(log, rc < 0 ? 0 : rc, m.log, m.n, "0C: the listen-only story, newest first");
 }
 
@@ -891,7 +873,7 @@ static void test_malformed(modbus_t *ctx)
     rc = modbus_write_file_record(ctx, 4, 19, 2, v);
     check_rc(rc, errno, -1, EMBXILADD, "15 through the client, past the end of file 4");
     rc = modbus_read_registers(ctx, 0, 2, v);
-    check(rc == 2, "the server still answers normally: rc=%d", rc);
+    EXPECT(rc == 2, "the server still answers normally: rc=%d", rc);
 }
 
 /* Servers with less (or nothing) configured keep libmodbus' answers for the rest. */
@@ -914,7 +896,7 @@ static void test_unconfigured(modbus_t *ctx)
     rc = modbus_read_device_identification(ctx, 1, 0, obj, 4, NULL);
     check_rc(rc, errno, -1, EMBXILFUN, "2B: ILLEGAL FUNCTION");
     rc = modbus_report_slave_id(ctx, (int) sizeof(id), id);
-    check(rc == 11 && memcmp(id + 2, "LMB3.1.12", 9) == 0, "11: libmodbus' LMB3.1.12 answer (rc=%d)", rc);
+    EXPECT(rc == 11 && memcmp(id + 2, "LMB3.1.12", 9) == 0, "11: libmodbus' LMB3.1.12 answer (rc=%d)", rc);
     set_timeout_ms(ctx, 300);
     errno = 0;
     rc = modbus_read_exception_status(ctx, &status);
@@ -925,14 +907,14 @@ static void test_unconfigured(modbus_t *ctx)
         rc = modbus_read_file_record(ctx, 4, 0, 1, v);
         check_rc(rc, errno, -1, EMBXILFUN, "14: ILLEGAL FUNCTION");
         rc = modbus_read_fifo_queue(ctx, 0x04DE, v);
-        check(rc == 2 && v[0] == 0x01B8, "18: the configured FIFO (rc=%d)", rc);
+        EXPECT(rc == 2 && v[0] == 0x01B8, "18: the configured FIFO (rc=%d)", rc);
     } else {
         errno = 0;
         rc = modbus_read_fifo_queue(ctx, 0x04DE, v);
         check_rc(rc, errno, -1, EMBXILFUN, "18: ILLEGAL FUNCTION");
     }
     rc = modbus_read_registers(ctx, 0, 2, v);
-    check(rc == 2, "03 still answered: rc=%d", rc);
+    EXPECT(rc == 2, "03 still answered: rc=%d", rc);
 }
 
 /* ------------------------------------------------------------------ main */
@@ -984,25 +966,25 @@ int main(int argc, char **argv)
     signal(SIGPIPE, SIG_IGN);
     printf("server pid %d, mode %s, transport %s\n", (int) pid, argv[1], argv[2]);
     if (read_pipe(&port, sizeof(port)) != 0) {
-        check(0, "the server starts");
+        EXPECT(0, "the server starts");
         kill(pid, SIGKILL);
         waitpid(pid, NULL, 0);
-        printf("%d passed, %d failed\n", passed, failed);
+        chk_summary();
         return 1;
     }
     snprintf(port_s, sizeof(port_s), "%d", port);
     client_dev = (transport == T_RTU || transport == T_ASCII) ? argv[4] : port_s;
     ctx = new_ctx(client_dev, 0);
     if (ctx == NULL || modbus_connect(ctx) != 0) {
-        check(0, "client connects: %s", modbus_strerror(errno));
+        EXPECT(0, "client connects: %s", modbus_strerror(errno));
     } else {
         set_timeout_ms(ctx, 2000);
         if (mode == M_FULL) {
             struct dump st;
             dump(&st);
-            check(st.rc_diag == 0 && st.counters[0] == 0 && st.nlog == 0 && st.reg == 0x8000 && st.delim == 0x0A &&
-                      st.lom == 0,
-                  "power-up state: counters 0, empty log, register 0x%04X, delimiter 0x%02X", st.reg, st.delim);
+            EXPECT(st.rc_diag == 0 && st.counters[0] == 0 && st.nlog == 0 && st.reg == 0x8000 && st.delim == 0x0A &&
+                       st.lom == 0,
+                   "power-up state: counters 0, empty log, register 0x%04X, delimiter 0x%02X", st.reg, st.delim);
             test_function_codes(ctx);
             test_device_identification(ctx);
             test_diagnostics(ctx);
@@ -1029,11 +1011,10 @@ int main(int argc, char **argv)
             msleep(200);
             kill(pid, SIGKILL);
             waitpid(pid, &st, 0);
-            check(0, "the server stops when asked");
+            EXPECT(0, "the server stops when asked");
         } else {
-            check(WIFEXITED(st) && WEXITSTATUS(st) == 0, "the server exits cleanly (status %d)", st);
+            EXPECT(WIFEXITED(st) && WEXITSTATUS(st) == 0, "the server exits cleanly (status %d)", st);
         }
     }
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed == 0 ? 0 : 1;
+    return chk_summary();
 }

@@ -30,7 +30,8 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "common"))
 from harness import ROOT, env_for, loaded_lib, start, stop, stop_all, wait_output, wait_ready  # noqa: E402
 
-BUILD = os.path.join(ROOT, "target", "fault")
+# The programs: c-tests/Makefile (target/c-tests-build/bin, or $CTEST_BUILD/bin).
+BUILD = os.path.join(os.environ.get("CTEST_BUILD", os.path.join(ROOT, "target", "c-tests-build")), "bin")
 HANG_MS = 1000  # response timeout 300 ms + byte timeout 100 ms + generous margin
 
 # (transport, fault) -> {lib: (A, B, C)}; each item "errno" or "ok"; "ok!" = success

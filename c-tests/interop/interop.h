@@ -42,15 +42,15 @@ static const char *const io_device_id_regular[7] = {
 /* extended object 0x80 + k: "extended-object-%02d-xxxxxxxx" */
 
 /* ---- results ---------------------------------------------------------------------- */
-extern int io_passed, io_failed;
-extern const char *io_prefix;
-
+/* c-tests/common/check.h's lines and counters ("ok   - name", "FAIL - name: why",
+ * "N passed, M failed"), kept in interop.c for every file of the program. */
 void io_ok(const char *name);
 void io_fail(const char *name, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* rc must equal want; on -1 the errno is shown. */
 int io_rc(const char *name, int rc, int want);
 /* the call must fail with errno want_errno. */
 int io_err(const char *name, int rc, int want_errno);
+/* "N passed, M failed"; the exit status (1 when a check failed or none ran). */
 int io_summary(void);
 /* "11 03 02 .." of n bytes (static buffer, up to 300 bytes shown). */
 const char *io_hex(const uint8_t *b, int n);

@@ -618,9 +618,8 @@ int main(int argc, char **argv)
         modbus_set_debug(ctx, 1);
     }
     if (modbus_connect(ctx) == -1) {
-        printf("FAIL - connect: %s\n", modbus_strerror(errno));
-        printf("0 passed, 1 failed\n");
-        return 1;
+        io_fail("connect", "%s", modbus_strerror(errno));
+        return io_summary();
     }
     if (serial) {
         usleep(200000); /* let the pty settle */

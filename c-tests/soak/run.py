@@ -24,7 +24,8 @@ import harness  # noqa: E402
 from harness import ROOT, PtyPair, env_for, procs, start, stop, stop_all, wait_output, wait_ready  # noqa: E402
 
 harness.STOP_GRACE = 10  # seconds from SIGTERM to SIGKILL (the shared default is 5)
-BUILD = os.path.join(ROOT, "target", "soak")
+# The programs: c-tests/Makefile (target/c-tests-build/bin, or $CTEST_BUILD/bin).
+BUILD = os.path.join(os.environ.get("CTEST_BUILD", os.path.join(ROOT, "target", "c-tests-build")), "bin")
 FULL = os.environ.get("SOAK_FULL", "0") == "1"
 SOAK_TX = int(os.environ.get("SOAK_TX", "1000000" if FULL else "20000"))
 MEMCHECK_TX = int(os.environ.get("MEMCHECK_TX", "2000"))

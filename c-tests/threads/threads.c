@@ -164,10 +164,8 @@ static void *watchdog(void *arg)
         idle = now == last ? idle + 1 : 0;
         last = now;
         if (idle >= 300) { /* 30 s */
-            printf("FAIL - watchdog: no transaction completed for 30 s after %ld "
-                   "(deadlock or lost response)\n0 passed, 1 failed\n",
-                   now);
-            fflush(stdout);
+            io_fail("watchdog", "no transaction completed for 30 s after %ld (deadlock or lost response)", now);
+            io_summary();
             _exit(3);
         }
         usleep(100000);
@@ -242,8 +240,8 @@ int main(int argc, char **argv)
     modbus_set_slave(ctx, IO_SLAVE);
     modbus_set_response_timeout(ctx, 5, 0);
     if (modbus_connect(ctx) == -1) {
-        printf("FAIL - connect: %s\n0 passed, 1 failed\n", modbus_strerror(errno));
-        return 1;
+        io_fail("connect", "%s", modbus_strerror(errno));
+        return io_summary();
     }
     if (io_is_serial(argv[1])) {
         usleep(200000);

@@ -5,8 +5,8 @@
  *
  *   tls-test CERTDIR HOST PORT SCENARIO [N]
  *
- * Scenarios (each prints LIBINFO, then "PASS ..." or "FAIL ..." lines; exit 0 when
- * every check passed):
+ * Scenarios (each prints LIBINFO, then "ok   - ..." or "FAIL - ..." lines and
+ * "N passed, M failed" (c-tests/common/check.h); exit 0 when every check passed):
  *   operator   reads registers 0-4 (1000..1004 or what a write left), writes one and
  *              reads it back; the server's certificate has no role (ENOENT)
  *   reader     reads; a write gets EMBXILFUN and changes nothing
@@ -66,15 +66,7 @@
 
 #include <modbus.h>
 
-
-static int failures;
-
-static void check(int ok, const char *what, const char *detail)
-{
-    printf("%s %s%s%s\n", ok ? "PASS" : "FAIL", what, detail ? ": " : "", detail ? detail : "");
-    if (!ok)
-        failures++;
-}
+#include "../common/check.h"
 
 static const char *dir;
 
@@ -92,13 +84,13 @@ static modbus_t *client(const char *host, const char *port, const char *who, int
 {
     modbus_t *ctx = modbus_new_tcp_tls_pi(host, port);
     if (ctx == NULL) {
-        check(0, "modbus_new_tcp_tls_pi", modbus_strerror(errno));
+        EXPECT_DETAIL(0, "modbus_new_tcp_tls_pi", modbus_strerror(errno));
         exit(1);
     }
     if (with_ca && modbus_set_tls_ca(ctx, path("ca", "pem")) == -1)
-        check(0, "modbus_set_tls_ca", modbus_strerror(errno));
+        EXPECT_DETAIL(0, "modbus_set_tls_ca", modbus_strerror(errno));
     if (who != NULL && modbus_set_tls_certificate(ctx, path(who, "pem"), path(who, "key")) == -1)
-        check(0, "modbus_set_tls_certificate", modbus_strerror(errno));
+        EXPECT_DETAIL(0, "modbus_set_tls_certificate", modbus_strerror(errno));
     return ctx;
 }
 
@@ -120,7 +112,7 @@ static void expect_refusal(const char *host, const char *port, const char *who, 
     char detail[200];
     snprintf(detail, sizeof detail, "errno %d (%s), want %d (%s)", e, e ? modbus_strerror(e) : "none", want,
              modbus_strerror(want));
-    check(e == want, what, detail);
+    EXPECT_DETAIL(e == want, what, detail);
     modbus_close(ctx);
     modbus_free(ctx);
 }
@@ -283,7 +275,7 @@ static void stop_scenario(void)
         modbus_t *ctx = client("127.0.0.1", port, "operator", 1);
         modbus_set_response_timeout(ctx, 10, 0);
         int rc = modbus_connect(ctx);
-        check(rc == 0, "stop: connect to the silent server", rc ? modbus_strerror(errno) : NULL);
+        EXPECT_DETAIL(rc == 0, "stop: connect to the silent server", rc ? modbus_strerror(errno) : NULL);
         stopper = start_stopper(ctx, by_signal);
         double t0 = now();
         rc = modbus_read_registers(ctx, 0, 1, regs);
@@ -292,8 +284,8 @@ static void stop_scenario(void)
         call_done = 1;
         pthread_join(stopper, NULL);
         snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
-        check(rc == -1 && e == EBADF && took < 1.5, "stop: a client's TLS read ends with EBADF", detail);
-        check(modbus_get_socket(ctx) == -1, "stop: the client's socket is closed", detail);
+        EXPECT_DETAIL(rc == -1 && e == EBADF && took < 1.5, "stop: a client's TLS read ends with EBADF", detail);
+        EXPECT_DETAIL(modbus_get_socket(ctx) == -1, "stop: the client's socket is closed", detail);
         peer_done = 1;
         pthread_join(peer, NULL);
         modbus_free(ctx);
@@ -317,8 +309,8 @@ static void stop_scenario(void)
         call_done = 1;
         pthread_join(stopper, NULL);
         snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
-        check(rc == -1 && e == EBADF && took < 1.5 && modbus_get_socket(ctx) == -1,
-              "stop: a client's stalled handshake ends with EBADF", detail);
+        EXPECT_DETAIL(rc == -1 && e == EBADF && took < 1.5 && modbus_get_socket(ctx) == -1,
+                      "stop: a client's stalled handshake ends with EBADF", detail);
         peer_done = 1;
         pthread_join(peer, NULL);
         close(mute.raw);
@@ -339,8 +331,8 @@ static void stop_scenario(void)
         call_done = 1;
         pthread_join(stopper, NULL);
         snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
-        check(rc == -1 && e == EBADF && took < 1.5, "stop: a server's accept with a stalled handshake ends with EBADF",
-              detail);
+        EXPECT_DETAIL(rc == -1 && e == EBADF && took < 1.5,
+                      "stop: a server's accept with a stalled handshake ends with EBADF", detail);
         peer_done = 1;
         pthread_join(peer, NULL);
         close(stall.raw);
@@ -354,7 +346,7 @@ static void stop_scenario(void)
         peer_done = 0;
         pthread_create(&peer, NULL, silent_client, &quiet);
         rc = modbus_tcp_accept(server, &quiet.listener);
-        check(rc >= 0, "stop: the server accepts the silent client", rc < 0 ? modbus_strerror(errno) : NULL);
+        EXPECT_DETAIL(rc >= 0, "stop: the server accepts the silent client", rc < 0 ? modbus_strerror(errno) : NULL);
         uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH];
         stopper = start_stopper(server, by_signal);
         t0 = now();
@@ -364,7 +356,7 @@ static void stop_scenario(void)
         call_done = 1;
         pthread_join(stopper, NULL);
         snprintf(detail, sizeof detail, "%s: rc %d errno %d (%s) after %.2f s", how, rc, e, modbus_strerror(e), took);
-        check(rc == -1 && e == EBADF && took < 1.5, "stop: a server's TLS receive ends with EBADF", detail);
+        EXPECT_DETAIL(rc == -1 && e == EBADF && took < 1.5, "stop: a server's TLS receive ends with EBADF", detail);
         peer_done = 1;
         pthread_join(peer, NULL);
         modbus_close(quiet.ctx);
@@ -413,9 +405,9 @@ static void callback_scenario(void)
         pthread_t t;
         pthread_create(&t, NULL, asking_client, &c);
         int rc = modbus_tcp_accept(server, &c.listener);
-        check(rc >= 0, "callback: accept", rc < 0 ? modbus_strerror(errno) : NULL);
+        EXPECT_DETAIL(rc >= 0, "callback: accept", rc < 0 ? modbus_strerror(errno) : NULL);
         rc = modbus_receive(server, query);
-        check(rc > 0, "callback: the request is received", rc < 0 ? modbus_strerror(errno) : NULL);
+        EXPECT_DETAIL(rc > 0, "callback: the request is received", rc < 0 ? modbus_strerror(errno) : NULL);
         int accepted = modbus_get_socket(server);
         switch_to = closes ? -1 : c.listener;
         errno = 0;
@@ -425,11 +417,11 @@ static void callback_scenario(void)
         snprintf(detail, sizeof detail, "modbus_reply %d errno %d (%s); the client: %s", sent, e, modbus_strerror(e),
                  c.raw ? modbus_strerror(c.raw) : "answered");
         if (closes)
-            check(sent == -1 && e == EBADF && c.raw != 0,
-                  "callback: a callback that closes the context: modbus_reply -1 EBADF, no answer", detail);
+            EXPECT_DETAIL(sent == -1 && e == EBADF && c.raw != 0,
+                          "callback: a callback that closes the context: modbus_reply -1 EBADF, no answer", detail);
         else
-            check(sent == -1 && e == EINVAL && c.raw == ETIMEDOUT,
-                  "callback: a callback that switches sockets: modbus_reply -1 EINVAL, nothing sent", detail);
+            EXPECT_DETAIL(sent == -1 && e == EINVAL && c.raw == ETIMEDOUT,
+                          "callback: a callback that switches sockets: modbus_reply -1 EINVAL, nothing sent", detail);
         if (!closes)
             close(accepted);
         modbus_close(c.ctx);
@@ -457,7 +449,7 @@ static void *holding_client(void *arg)
     snprintf(port, sizeof port, "%d", h->port);
     h->ctx = client("127.0.0.1", port, h->who, 1);
     if (modbus_connect(h->ctx) == -1)
-        check(0, "sessions: a client connects", modbus_strerror(errno));
+        EXPECT_DETAIL(0, "sessions: a client connects", modbus_strerror(errno));
     while (!h->go)
         pause_s(0.01);
     modbus_close(h->ctx);
@@ -485,33 +477,34 @@ static void sessions_scenario(void)
     int fa = modbus_tcp_accept(server, &listener);
     pthread_create(&tb, NULL, holding_client, &b);
     int fb = modbus_tcp_accept(server, &listener);
-    check(fa >= 0 && fb >= 0, "sessions: two clients accepted", fa < 0 || fb < 0 ? modbus_strerror(errno) : NULL);
+    EXPECT_DETAIL(fa >= 0 && fb >= 0, "sessions: two clients accepted",
+                  fa < 0 || fb < 0 ? modbus_strerror(errno) : NULL);
 
     modbus_set_socket(server, fa);
-    check(strcmp(role_of(server, role, sizeof role), "Operator") == 0,
-          "sessions: modbus_set_socket brings the first client's session back", role);
+    EXPECT_DETAIL(strcmp(role_of(server, role, sizeof role), "Operator") == 0,
+                  "sessions: modbus_set_socket brings the first client's session back", role);
     modbus_set_socket(server, fb);
-    check(strcmp(role_of(server, role, sizeof role), "Reader") == 0,
-          "sessions: and the second client's", role);
+    EXPECT_DETAIL(strcmp(role_of(server, role, sizeof role), "Reader") == 0,
+                  "sessions: and the second client's", role);
     modbus_set_socket(server, fa);
-    check(strcmp(role_of(server, role, sizeof role), "Operator") == 0, "sessions: and the first again", role);
+    EXPECT_DETAIL(strcmp(role_of(server, role, sizeof role), "Operator") == 0, "sessions: and the first again", role);
 
     /* The application closes the first client's socket itself (as a poll loop does),
        and the number comes back as another socket. */
     modbus_set_socket(server, fb);
     close(fa);
     if (socketpair(AF_UNIX, SOCK_STREAM, 0, fds) == -1 || dup2(fds[0], fa) != fa) {
-        check(0, "sessions: the number is reused", strerror(errno));
+        EXPECT_DETAIL(0, "sessions: the number is reused", strerror(errno));
         exit(1);
     }
     close(fds[0]);
     modbus_set_socket(server, fa);
-    check(strcmp(role_of(server, role, sizeof role), "ENOENT") == 0,
-          "sessions: a reused number does not meet the old session (role)", role);
+    EXPECT_DETAIL(strcmp(role_of(server, role, sizeof role), "ENOENT") == 0,
+                  "sessions: a reused number does not meet the old session (role)", role);
     errno = 0;
     int rc = modbus_receive(server, query);
     snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
-    check(rc == -1 && errno == EMBTLS, "sessions: a reused number: receive -1 EMBTLS", detail);
+    EXPECT_DETAIL(rc == -1 && errno == EMBTLS, "sessions: a reused number: receive -1 EMBTLS", detail);
 
     /* The second client goes: its session ends with its socket's turn. */
     b.go = 1;
@@ -520,15 +513,15 @@ static void sessions_scenario(void)
     errno = 0;
     rc = modbus_receive(server, query);
     snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
-    check(rc == -1 && errno == ECONNRESET, "sessions: a client that went: receive -1 ECONNRESET", detail);
+    EXPECT_DETAIL(rc == -1 && errno == ECONNRESET, "sessions: a client that went: receive -1 ECONNRESET", detail);
     modbus_set_socket(server, fa);
     modbus_set_socket(server, fb);
-    check(strcmp(role_of(server, role, sizeof role), "ENOENT") == 0,
-          "sessions: its session is dropped once its socket is no longer current", role);
+    EXPECT_DETAIL(strcmp(role_of(server, role, sizeof role), "ENOENT") == 0,
+                  "sessions: its session is dropped once its socket is no longer current", role);
     errno = 0;
     rc = modbus_receive(server, query);
     snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
-    check(rc == -1 && errno == ECONNRESET, "sessions: then its receive still says ECONNRESET", detail);
+    EXPECT_DETAIL(rc == -1 && errno == ECONNRESET, "sessions: then its receive still says ECONNRESET", detail);
 
     a.go = 1;
     pthread_join(ta, NULL);
@@ -572,36 +565,37 @@ int main(int argc, char *argv[])
     if (strcmp(scenario, "operator") == 0) {
         modbus_t *ctx = client(host, port, "operator", 1);
         int e = connect_and_read(ctx, regs);
-        check(e == 0, "operator: connect and read 5 registers", e ? modbus_strerror(e) : NULL);
+        EXPECT_DETAIL(e == 0, "operator: connect and read 5 registers", e ? modbus_strerror(e) : NULL);
         snprintf(detail, sizeof detail, "%u %u %u %u %u", regs[0], regs[1], regs[2], regs[3], regs[4]);
-        check(e == 0 && regs[1] == 1001 && regs[4] == 1004, "operator: values", detail);
-        check(modbus_write_register(ctx, 3, 4242) == 1, "operator: write allowed", modbus_strerror(errno));
-        check(modbus_read_registers(ctx, 3, 1, regs) == 1 && regs[0] == 4242, "operator: written value read back",
-              NULL);
+        EXPECT_DETAIL(e == 0 && regs[1] == 1001 && regs[4] == 1004, "operator: values", detail);
+        EXPECT_DETAIL(modbus_write_register(ctx, 3, 4242) == 1, "operator: write allowed", modbus_strerror(errno));
+        EXPECT_DETAIL(modbus_read_registers(ctx, 3, 1, regs) == 1 && regs[0] == 4242,
+                      "operator: written value read back", NULL);
         char role[64];
         int rc = modbus_get_tls_peer_role(ctx, role, sizeof role);
-        check(rc == -1 && errno == ENOENT, "operator: the server's certificate has no role (ENOENT)", NULL);
-        check(modbus_write_register(ctx, 3, 1003) == 1, "operator: value restored", NULL);
+        EXPECT_DETAIL(rc == -1 && errno == ENOENT, "operator: the server's certificate has no role (ENOENT)", NULL);
+        EXPECT_DETAIL(modbus_write_register(ctx, 3, 1003) == 1, "operator: value restored", NULL);
         modbus_close(ctx);
         modbus_free(ctx);
     } else if (strcmp(scenario, "reader") == 0) {
         modbus_t *ctx = client(host, port, "reader", 1);
         int e = connect_and_read(ctx, regs);
-        check(e == 0, "reader: connect and read", e ? modbus_strerror(e) : NULL);
+        EXPECT_DETAIL(e == 0, "reader: connect and read", e ? modbus_strerror(e) : NULL);
         int rc = modbus_write_register(ctx, 2, 7);
         snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
-        check(rc == -1 && errno == EMBXILFUN, "reader: write refused with exception 01", detail);
+        EXPECT_DETAIL(rc == -1 && errno == EMBXILFUN, "reader: write refused with exception 01", detail);
         uint16_t before = regs[2];
-        check(modbus_read_registers(ctx, 2, 1, regs) == 1 && regs[0] == before, "reader: register unchanged", NULL);
+        EXPECT_DETAIL(modbus_read_registers(ctx, 2, 1, regs) == 1 && regs[0] == before, "reader: register unchanged",
+                      NULL);
         rc = modbus_write_registers(ctx, 0, 2, regs);
-        check(rc == -1 && errno == EMBXILFUN, "reader: FC 16 refused too", NULL);
+        EXPECT_DETAIL(rc == -1 && errno == EMBXILFUN, "reader: FC 16 refused too", NULL);
         modbus_close(ctx);
         modbus_free(ctx);
     } else if (strcmp(scenario, "norole") == 0) {
         modbus_t *ctx = client(host, port, "norole", 1);
         int e = connect_and_read(ctx, regs);
         snprintf(detail, sizeof detail, "errno %d (%s)", e, modbus_strerror(e));
-        check(e == EMBXILFUN, "norole: a read is refused with exception 01", detail);
+        EXPECT_DETAIL(e == EMBXILFUN, "norole: a read is refused with exception 01", detail);
         modbus_close(ctx);
         modbus_free(ctx);
     } else if (strcmp(scenario, "nocert") == 0) {
@@ -615,13 +609,14 @@ int main(int argc, char *argv[])
         int rc = modbus_connect(ctx);
         snprintf(detail, sizeof detail, "rc %d errno %d (%s), socket %d", rc, errno, modbus_strerror(errno),
                  modbus_get_socket(ctx));
-        check(rc == -1 && errno == EMBTLSNAME && modbus_get_socket(ctx) == -1,
-              "wrongname: connect fails with EMBTLSNAME, no socket left", detail);
+        EXPECT_DETAIL(rc == -1 && errno == EMBTLSNAME && modbus_get_socket(ctx) == -1,
+                      "wrongname: connect fails with EMBTLSNAME, no socket left", detail);
         modbus_free(ctx);
     } else if (strcmp(scenario, "noca") == 0) {
         modbus_t *ctx = client(host, port, "operator", 0);
         int rc = modbus_connect(ctx);
-        check(rc == -1 && errno == EMBTLSCONFIG, "noca: connect fails with EMBTLSCONFIG", modbus_strerror(errno));
+        EXPECT_DETAIL(rc == -1 && errno == EMBTLSCONFIG, "noca: connect fails with EMBTLSCONFIG",
+                      modbus_strerror(errno));
         modbus_free(ctx);
     } else if (strcmp(scenario, "resume") == 0) {
         modbus_t *ctx = client(host, port, "operator", 1);
@@ -632,7 +627,7 @@ int main(int argc, char *argv[])
         modbus_close(ctx);
         modbus_free(ctx);
         fflush(stdout);
-        check(e1 == 0 && e2 == 0, "resume: two connections on one context", NULL);
+        EXPECT_DETAIL(e1 == 0 && e2 == 0, "resume: two connections on one context", NULL);
     } else if (strcmp(scenario, "many") == 0) {
         int n = argc > 5 ? atoi(argv[5]) : 64;
         pid_t pids[256];
@@ -656,11 +651,11 @@ int main(int argc, char *argv[])
                 good++;
         }
         snprintf(detail, sizeof detail, "%d of %d clients right", good, n);
-        check(good == n, "many: every client reads back its own register", detail);
+        EXPECT_DETAIL(good == n, "many: every client reads back its own register", detail);
     } else if (strcmp(scenario, "reconnect") == 0) {
         modbus_t *ctx = client(host, port, "operator", 1);
         int e = connect_and_read(ctx, regs);
-        check(e == 0, "reconnect: first connection", e ? modbus_strerror(e) : NULL);
+        EXPECT_DETAIL(e == 0, "reconnect: first connection", e ? modbus_strerror(e) : NULL);
         /* The peer resets the connection under us (the test's server is killed and
          * restarted by the caller between the two halves: see run-tls-tests.sh). */
         printf("WAITING\n");
@@ -670,10 +665,10 @@ int main(int argc, char *argv[])
             return 2;
         int rc = modbus_read_registers(ctx, 0, 5, regs);
         snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
-        check(rc == -1, "reconnect: a read on the cut connection fails", detail);
+        EXPECT_DETAIL(rc == -1, "reconnect: a read on the cut connection fails", detail);
         modbus_close(ctx);
         e = connect_and_read(ctx, regs);
-        check(e == 0, "reconnect: the next connect works", e ? modbus_strerror(e) : NULL);
+        EXPECT_DETAIL(e == 0, "reconnect: the next connect works", e ? modbus_strerror(e) : NULL);
         modbus_close(ctx);
         modbus_free(ctx);
     } else if (strcmp(scenario, "stop") == 0) {
@@ -687,7 +682,7 @@ int main(int argc, char *argv[])
         pthread_t t[16];
         shared = client(host, port, "operator", 1);
         int e = connect_and_read(shared, regs);
-        check(e == 0, "threads: connect", e ? modbus_strerror(e) : NULL);
+        EXPECT_DETAIL(e == 0, "threads: connect", e ? modbus_strerror(e) : NULL);
         for (int i = 0; i < n && i < 16; i++)
             pthread_create(&t[i], NULL, worker, (void *)(intptr_t)i);
         for (int i = 0; i < n && i < 16; i++) {
@@ -696,14 +691,14 @@ int main(int argc, char *argv[])
             bad += (int)(intptr_t)r;
         }
         snprintf(detail, sizeof detail, "%d threads x 300 write/read-back pairs, %d wrong", n, bad);
-        check(bad == 0, "threads: one TLS context shared by threads, every answer right", detail);
+        EXPECT_DETAIL(bad == 0, "threads: one TLS context shared by threads, every answer right", detail);
         modbus_close(shared);
         modbus_free(shared);
     } else if (strcmp(scenario, "halfrecord") == 0) {
         modbus_t *ctx = client(host, port, "operator", 1);
         modbus_set_response_timeout(ctx, 5, 0);
         int rc = modbus_connect(ctx);
-        check(rc == 0, "halfrecord: connect", rc ? modbus_strerror(errno) : NULL);
+        EXPECT_DETAIL(rc == 0, "halfrecord: connect", rc ? modbus_strerror(errno) : NULL);
         struct timespec t0, t1;
         clock_gettime(CLOCK_MONOTONIC, &t0);
         rc = modbus_read_registers(ctx, 5, 1, regs);
@@ -711,13 +706,14 @@ int main(int argc, char *argv[])
         clock_gettime(CLOCK_MONOTONIC, &t1);
         double took = (double)(t1.tv_sec - t0.tv_sec) + (double)(t1.tv_nsec - t0.tv_nsec) / 1e9;
         snprintf(detail, sizeof detail, "rc %d errno %d (%s) after %.2f s", rc, e, modbus_strerror(e), took);
-        check(rc == -1 && e == ECONNRESET && took < 4.0,
-              "halfrecord: a read cut in the middle of the answer's record fails with ECONNRESET, before the timeout",
-              detail);
+        EXPECT_DETAIL(rc == -1 && e == ECONNRESET && took < 4.0,
+                      "halfrecord: a read cut in the middle of the answer's record fails with ECONNRESET, "
+                      "before the timeout",
+                      detail);
         modbus_close(ctx);
         rc = modbus_connect(ctx) == 0 && modbus_read_registers(ctx, 5, 1, regs) == 1 ? 0 : errno;
         snprintf(detail, sizeof detail, "%s, value %u", rc ? modbus_strerror(rc) : "ok", regs[0]);
-        check(rc == 0 && regs[0] == 1005, "halfrecord: the next connect and read work", detail);
+        EXPECT_DETAIL(rc == 0 && regs[0] == 1005, "halfrecord: the next connect and read work", detail);
         modbus_close(ctx);
         modbus_free(ctx);
     } else if (strcmp(scenario, "password") == 0) {
@@ -743,13 +739,13 @@ int main(int argc, char *argv[])
                                                               keys[i].password);
             int e = errno;
             snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, e, modbus_strerror(e));
-            check(keys[i].want ? rc == -1 && e == keys[i].want : rc == 0, keys[i].what, detail);
+            EXPECT_DETAIL(keys[i].want ? rc == -1 && e == keys[i].want : rc == 0, keys[i].what, detail);
             if (keys[i].want == 0 && rc == 0) {
                 /* The decrypted key signs the handshake: the server accepts the Operator. */
                 int ce = connect_and_read(ctx, regs);
                 snprintf(detail, sizeof detail, "%s with %s", ce ? modbus_strerror(ce) : "ok", keys[i].key);
-                check(ce == 0 && modbus_write_register(ctx, 3, 1003) == 1, "password: connect, read and write",
-                      detail);
+                EXPECT_DETAIL(ce == 0 && modbus_write_register(ctx, 3, 1003) == 1, "password: connect, read and write",
+                              detail);
                 modbus_close(ctx);
             }
             modbus_free(ctx);
@@ -758,13 +754,14 @@ int main(int argc, char *argv[])
         modbus_t *ctx = client(host, port, NULL, 1);
         int rc = modbus_set_tls_certificate(ctx, path("operator", "pem"), path("operator-aes", "key"));
         snprintf(detail, sizeof detail, "rc %d errno %d (%s)", rc, errno, modbus_strerror(errno));
-        check(rc == -1 && errno == EMBTLSPASSWORD &&
-                  strstr(modbus_strerror(EMBTLSPASSWORD), "password") != NULL,
-              "modbus_set_tls_certificate on an encrypted key: EMBTLSPASSWORD, named by modbus_strerror", detail);
+        EXPECT_DETAIL(rc == -1 && errno == EMBTLSPASSWORD &&
+                          strstr(modbus_strerror(EMBTLSPASSWORD), "password") != NULL,
+                      "modbus_set_tls_certificate on an encrypted key: EMBTLSPASSWORD, named by modbus_strerror",
+                      detail);
         modbus_free(ctx);
     } else {
         fprintf(stderr, "unknown scenario %s\n", scenario);
         return 2;
     }
-    return failures ? 1 : 0;
+    return chk_summary();
 }
