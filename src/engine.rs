@@ -10,10 +10,9 @@ use crate::lock::OwnerGuard;
 use crate::proto::confirm::{self, Rejection};
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::request::{Request, next_tid};
-use crate::proto::session::receive::{self, Dest, Finished, Outcome, ReadHow, Receiver, Step};
+use crate::proto::session::receive::{self, Dest, Finished, Outcome, Receiver, Step};
 use crate::proto::session::{self, Recovery};
 use crate::proto::{Diag, ascii};
-use crate::transport::line::RtsSequence;
 use crate::transport::{self, Ready};
 
 /// A locked context. Functions that may call back into the application (the custom
@@ -156,22 +155,31 @@ fn sleep_us(ctx: &Context, us: i64) {
 /// response timeout), with the RTS sequence around it when the line has one.
 #[inline]
 fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    match g.line.rts_sequence() {
-        None => {
-            let timeout = g.session.timeouts.response.duration();
-            g.line.write(adu, timeout)
-        }
-        Some(rts) => write_with_rts(g, adu, rts),
+    match g.line.write_at_once(adu) {
+        Some(written) => written,
+        None => write_waiting(g, adu),
     }
+}
+
+/// [`write_adu`] on a line whose write waits: for room in a TLS session (up to the
+/// response timeout), or through the RTS sequence.
+#[inline(never)]
+fn write_waiting(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
+    if g.line.rts_around_writes() {
+        return write_with_rts(g, adu);
+    }
+    let timeout = g.session.timeouts.response;
+    g.line.write(adu, timeout)
 }
 
 /// [`write_adu`] with the RTS sequence.
 #[inline(never)]
-fn write_with_rts(g: &mut Guard<'_>, adu: &[u8], rts: RtsSequence) -> Result<usize> {
+fn write_with_rts(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
+    let timeout = g.session.timeouts.response;
+    let Some(rts) = g.line.rts_sequence() else { return g.line.write(adu, timeout) };
     g.diag().err(format_args!("Sending request using RTS signal\n"));
     drive_rts(g, rts.hook.as_ref(), rts.up);
     sleep_us(g, rts.delay_us);
-    let timeout = g.session.timeouts.response.duration();
     let rc = g.line.write(adu, timeout);
     sleep_us(g, rts.onebyte_us * adu.len() as i64 + rts.delay_us);
     drive_rts(g, rts.hook.as_ref(), !rts.up);
@@ -364,7 +372,7 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
                     _ => None,
                 };
                 if let Some(len) = whole {
-                    let read = ctx.line.read(&mut buf[..len], ReadHow::Ready, ctx.debug);
+                    let read = ctx.line.take(&mut buf[..len]);
                     if !ctx.stopping() {
                         step = match &mut machine {
                             None if matches!(read, Ok(n) if n == len) => receive::end(&ctx.session, buf, len),

@@ -101,7 +101,7 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 /// [`crate::proto::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
 /// for a suppressed RTU broadcast (and, with diagnostics, in listen-only mode).
 pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
-    if g.line.authorizer().is_some() && !authorized(g, req)? {
+    if g.line.authorizes() && !authorized(g, req)? {
         // Exception 01, nothing changed; as modbus_reply_exception sends it
         // (not in listen-only mode, counted by the diagnostics).
         return reply_exception(g, req, exception::ILLEGAL_FUNCTION as u32);

@@ -32,9 +32,9 @@ use crate::proto::session::Timeout;
 use crate::proto::session::receive::{LineCaps, ReadHow};
 use crate::stop::Stop;
 
-/// Below this response timeout a confirmation never reads under `SO_RCVTIMEO`, which
-/// could fire too late (see [`Line::read`]).
-const RCVTIMEO_MIN_RESPONSE_TIMEOUT: Duration = Duration::from_millis(200);
+/// Below this response timeout (in microseconds, below a second) a confirmation
+/// never reads under `SO_RCVTIMEO`, which could fire too late (see [`Line::read`]).
+const RCVTIMEO_MIN_RESPONSE_USEC: u32 = 200_000;
 
 /// A TCP client socket the context connected itself. Unlike libmodbus's, it is
 /// blocking after the connect, so that the first wait of a confirmation can be the
@@ -47,17 +47,29 @@ struct ClientSocket {
     rcvtimeo_for: Option<Timeout>,
 }
 
-/// What the descriptor is.
+/// What the line's descriptors are (fixed by the settings; one byte, so that every
+/// operation's dispatch is one comparison).
+#[derive(Clone, Copy, PartialEq, Eq)]
 enum Kind {
-    /// A serial line (or no descriptor on a serial context); `nonblocking` when the
-    /// context opened it (with `O_NONBLOCK`): a read never blocks.
-    Serial { nonblocking: bool },
-    /// A stream socket; `client` when the context connected it itself.
-    Socket { client: Option<ClientSocket> },
-    /// A socket of a Modbus/TCP Security context, with its session (none: a socket
-    /// handed over that this context did not connect or accept, which cannot carry
-    /// Modbus/TCP Security: EMBTLS).
-    Tls { session: Option<Box<Session>>, client: Option<ClientSocket> },
+    /// A serial line.
+    Serial,
+    /// A stream socket.
+    Socket,
+    /// A socket of a Modbus/TCP Security context, with its session in
+    /// [`Held::session`] (none: a socket handed over that this context did not
+    /// connect or accept, which cannot carry Modbus/TCP Security: EMBTLS).
+    Tls,
+}
+
+/// What the line knows of its current descriptor beyond its kind.
+#[derive(Default)]
+struct Held {
+    /// A serial line the context opened (with `O_NONBLOCK`): a read never blocks.
+    nonblocking: bool,
+    /// A socket the context connected itself.
+    client: Option<ClientSocket>,
+    /// The TLS session on the socket.
+    session: Option<Box<Session>>,
 }
 
 /// The end of a TLS handshake a line takes.
@@ -85,23 +97,23 @@ pub struct RtsSequence {
 pub struct Line {
     settings: Link,
     security: Option<Box<Tls>>,
-    fd: i32,
     kind: Kind,
+    fd: i32,
+    held: Held,
     stop: Arc<Stop>,
 }
 
 impl Line {
     /// A line of these settings, not open.
     pub fn new(settings: Link, stop: Arc<Stop>) -> Line {
-        let mut line = Line { settings, security: None, fd: -1, kind: Kind::Serial { nonblocking: false }, stop };
-        line.kind = line.foreign_kind();
-        line
+        let kind = if matches!(settings, Link::Rtu(_)) { Kind::Serial } else { Kind::Socket };
+        Line { settings, security: None, kind, fd: -1, held: Held::default(), stop }
     }
 
     /// Makes the line one of Modbus/TCP Security (a new context's).
     pub fn secure(&mut self) {
         self.security = Some(Box::default());
-        self.kind = self.foreign_kind();
+        self.kind = Kind::Tls;
     }
 
     /// The descriptor, -1 when none.
@@ -150,6 +162,12 @@ impl Line {
         self.security.as_deref_mut()
     }
 
+    /// A Modbus/TCP Security context with an authorization callback.
+    #[inline]
+    pub fn authorizes(&self) -> bool {
+        self.security.as_deref().is_some_and(|t| t.authorize.is_some())
+    }
+
     /// The application's authorization callback, on a Modbus/TCP Security context
     /// that has one.
     pub fn authorizer(&self) -> Option<tls::Authorize> {
@@ -158,52 +176,35 @@ impl Line {
 
     /// The role in the certificate of the current socket's peer.
     pub fn peer_role(&self) -> Option<&CStr> {
-        match &self.kind {
-            Kind::Tls { session: Some(s), .. } => s.role(),
-            _ => None,
-        }
+        self.held.session.as_deref().and_then(Session::role)
     }
 
     /// Plaintext received on the current socket and not taken yet (0 without a
     /// session).
     pub fn pending(&self) -> usize {
-        match &self.kind {
-            Kind::Tls { session: Some(s), .. } => s.pending(),
-            _ => 0,
-        }
+        self.held.session.as_deref().map_or(0, Session::pending)
     }
 
     /// What the line can do for a receive of `kind` (a confirmation reads under a
     /// kernel timeout derived from `response` when the socket allows it).
     #[inline]
     pub fn caps(&self, kind: MsgKind, response: Timeout) -> LineCaps {
-        let (socket, nonblocking, client) = match &self.kind {
-            Kind::Serial { nonblocking } => (false, *nonblocking, false),
-            Kind::Socket { client } | Kind::Tls { client, .. } => (true, true, client.is_some()),
-        };
+        let socket = self.kind != Kind::Serial;
         LineCaps {
             socket,
-            reads_without_waiting: nonblocking,
-            timed_reads: client
-                && kind == MsgKind::Confirmation
-                && response.duration() >= RCVTIMEO_MIN_RESPONSE_TIMEOUT,
+            reads_without_waiting: socket || self.held.nonblocking,
+            timed_reads: kind == MsgKind::Confirmation
+                && self.held.client.is_some()
+                && (response.sec > 0 || response.usec >= RCVTIMEO_MIN_RESPONSE_USEC),
         }
     }
 
-    /// What a descriptor the context knows nothing about is, from the settings.
-    fn foreign_kind(&self) -> Kind {
-        match (&self.settings, &self.security) {
-            (Link::Rtu(_), _) => Kind::Serial { nonblocking: false },
-            (_, None) => Kind::Socket { client: None },
-            (_, Some(_)) => Kind::Tls { session: None, client: None },
-        }
-    }
-
-    /// Makes `fd` the line's descriptor, of `kind`; what the old one had is parked
-    /// (a live TLS session) or dropped. The stop state follows.
-    fn install(&mut self, fd: i32, kind: Kind) {
-        let old = std::mem::replace(&mut self.kind, kind);
-        if let (Kind::Tls { session: Some(session), .. }, Some(security)) = (old, self.security.as_deref_mut()) {
+    /// Makes `fd` the line's descriptor, with what the line knows of it; what the old
+    /// one had is parked (a live TLS session of another socket) or dropped. The stop
+    /// state follows.
+    fn install(&mut self, fd: i32, held: Held) {
+        let old = std::mem::replace(&mut self.held, held);
+        if let (Some(session), Some(security)) = (old.session, self.security.as_deref_mut()) {
             if self.fd >= 0 && self.fd != fd && !session.readable_end() {
                 security.park(self.fd, session);
             }
@@ -216,40 +217,35 @@ impl Line {
     /// On a Modbus/TCP Security context, the session of a socket this context
     /// accepted or connected earlier comes back with its socket.
     pub fn adopt(&mut self, fd: i32) {
-        let mut kind = self.foreign_kind();
-        if let (Kind::Tls { session, .. }, Some(security)) = (&mut kind, self.security.as_deref_mut()) {
+        let mut held = Held::default();
+        if let Some(security) = self.security.as_deref_mut() {
             if fd >= 0 {
                 // The current session when it is this very socket's, else one parked.
-                let current = match &mut self.kind {
-                    Kind::Tls { session: current, .. } if self.fd == fd => {
-                        current.take().filter(|s| s.cookie() == socket_cookie(fd))
-                    }
-                    _ => None,
+                let current = if self.fd == fd {
+                    self.held.session.take().filter(|s| s.cookie() == socket_cookie(fd))
+                } else {
+                    None
                 };
-                *session = current.or_else(|| security.unpark(fd));
+                held.session = current.or_else(|| security.unpark(fd));
             }
         }
-        self.install(fd, kind);
+        self.install(fd, held);
     }
 
     /// `fd` as a descriptor the context opened itself: a serial line opened
     /// non-blocking, or a client socket made blocking (see [`ClientSocket`]). For the
     /// driver's tests; [`Line::open`] does this for real lines.
     pub fn adopt_own(&mut self, fd: i32) {
-        let kind = match self.foreign_kind() {
-            Kind::Serial { .. } => Kind::Serial { nonblocking: true },
-            Kind::Socket { .. } => Kind::Socket { client: Some(ClientSocket::default()) },
-            Kind::Tls { .. } => Kind::Tls { session: None, client: Some(ClientSocket::default()) },
-        };
-        self.install(fd, kind);
+        let serial = self.kind == Kind::Serial;
+        let client = (!serial).then(ClientSocket::default);
+        self.install(fd, Held { nonblocking: serial, client, session: None });
     }
 
     /// Gives up the descriptor without closing it (for the caller to close): -1 from
     /// now on, with nothing of the old descriptor kept.
     pub fn abandon(&mut self) -> i32 {
         let fd = self.fd;
-        let kind = self.foreign_kind();
-        self.kind = kind;
+        self.held = Held::default();
         self.fd = -1;
         self.stop.set_fd(-1);
         fd
@@ -268,10 +264,10 @@ impl Line {
                 }
                 if let Err(e) = configured {
                     super::close(fd);
-                    self.install(-1, Kind::Serial { nonblocking: false });
+                    self.install(-1, Held::default());
                     return Err(e);
                 }
-                self.install(fd, Kind::Serial { nonblocking: true });
+                self.install(fd, Held { nonblocking: true, ..Held::default() });
                 return Ok(());
             }
             Link::Tcp(link) => tcp::connect_ipv4(link, timeout, diag),
@@ -280,17 +276,12 @@ impl Line {
         match connected {
             Ok(c) => {
                 let client = c.blocking.then(ClientSocket::default);
-                if self.security.is_none() {
-                    self.install(c.fd, Kind::Socket { client });
-                    return Ok(());
-                }
-                self.install(c.fd, Kind::Tls { session: None, client });
-                self.handshake(Side::Client, timeout, debug, diag)
+                self.install(c.fd, Held { client, ..Held::default() });
+                if self.kind == Kind::Tls { self.handshake(Side::Client, timeout, debug, diag) } else { Ok(()) }
             }
             Err(ConnectError::Before(e)) => Err(e),
             Err(ConnectError::During(e)) => {
-                let kind = self.foreign_kind();
-                self.install(-1, kind);
+                self.install(-1, Held::default());
                 Err(e)
             }
         }
@@ -301,14 +292,15 @@ impl Line {
     /// authenticated (the handshake, bounded by `timeout`; a failure closes its
     /// socket).
     pub fn accepted(&mut self, fd: i32, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
-        let kind = self.foreign_kind();
-        let secure = matches!(kind, Kind::Tls { .. });
-        self.install(fd, kind);
-        if let Some(security) = self.security.as_deref_mut() {
-            // A session parked under this number was another socket's.
-            security.forget(fd);
+        self.install(fd, Held::default());
+        match self.security.as_deref_mut() {
+            Some(security) => {
+                // A session parked under this number was another socket's.
+                security.forget(fd);
+                self.handshake(Side::Server, timeout, debug, diag)
+            }
+            None => Ok(()),
         }
-        if secure { self.handshake(Side::Server, timeout, debug, diag) } else { Ok(()) }
     }
 
     /// The TLS handshake on the line's socket (just connected or accepted), bounded
@@ -345,9 +337,7 @@ impl Line {
                     let role = session.role().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
                     diag.out(format_args!("TLS handshake done: {described}, peer role {role}\n"));
                 }
-                if let Kind::Tls { session: slot, .. } = &mut self.kind {
-                    *slot = Some(session);
-                }
+                self.held.session = Some(session);
                 Ok(())
             }
             Err(e) => {
@@ -369,7 +359,7 @@ impl Line {
         if self.fd < 0 {
             return;
         }
-        if let Kind::Tls { session: Some(session), .. } = &mut self.kind {
+        if let Some(session) = self.held.session.as_deref_mut() {
             session.close(self.fd);
         }
         if let Link::Rtu(link) = &self.settings {
@@ -387,13 +377,11 @@ impl Line {
     /// into `room`, waiting for it when `block`.
     #[inline]
     pub fn peek(&mut self, room: &mut [u8], block: bool) -> Result<usize> {
-        match &mut self.kind {
-            Kind::Tls { session, .. } => tls_peek(self.fd, session, room, block),
-            _ => {
-                let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
-                super::recv(self.fd, room, flags)
-            }
+        if self.kind == Kind::Tls {
+            return tls_peek(self.fd, &mut self.held.session, room, block);
         }
+        let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
+        super::recv(self.fd, room, flags)
     }
 
     /// One read into `room`, as the machine says: when the line is ready (it may
@@ -406,14 +394,24 @@ impl Line {
     #[inline]
     pub fn read(&mut self, room: &mut [u8], how: ReadHow, debug: bool) -> Result<usize> {
         let fd = self.fd;
-        match &mut self.kind {
-            Kind::Socket { client } => match how {
+        match self.kind {
+            Kind::Socket => match how {
                 ReadHow::Ready => super::recv(fd, room, 0),
                 ReadHow::Queued => super::recv(fd, room, libc::MSG_DONTWAIT),
-                ReadHow::Within(timeout) => read_within(fd, client, room, timeout, debug),
+                ReadHow::Within(timeout) => read_within(fd, &mut self.held.client, room, timeout, debug),
             },
-            Kind::Serial { .. } => super::read(fd, room),
-            Kind::Tls { session, client } => tls_read(fd, session, client, room, how),
+            Kind::Serial => super::read(fd, room),
+            Kind::Tls => tls_read(fd, &mut self.held, room, how),
+        }
+    }
+
+    /// Takes the whole message a [`Line::peek`] showed, `room` long: one read of what
+    /// is there.
+    #[inline]
+    pub fn take(&mut self, room: &mut [u8]) -> Result<usize> {
+        match self.kind {
+            Kind::Socket => super::recv(self.fd, room, 0),
+            _ => self.read(room, ReadHow::Ready, false),
         }
     }
 
@@ -426,11 +424,11 @@ impl Line {
     /// application's data).
     pub fn wait(&mut self, until: Option<Duration>, debug: bool) -> Result<()> {
         let fd = self.fd;
-        match &mut self.kind {
-            Kind::Serial { .. } => wait_line(&self.stop, fd, self.stop.wake_fd(), until, debug),
-            Kind::Socket { .. } => wait_line(&self.stop, fd, -1, until, debug),
-            Kind::Tls { session, .. } => {
-                let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
+        match self.kind {
+            Kind::Serial => wait_line(&self.stop, fd, self.stop.wake_fd(), until, debug),
+            Kind::Socket => wait_line(&self.stop, fd, -1, until, debug),
+            Kind::Tls => {
+                let Some(session) = self.held.session.as_deref_mut() else { return Err(no_session(fd)) };
                 while !session.readable() {
                     wait_line(&self.stop, fd, -1, until, debug)?;
                     match session.fill(fd, libc::MSG_DONTWAIT) {
@@ -447,17 +445,36 @@ impl Line {
     /// made blocking passes `MSG_DONTWAIT`); a TLS session sends one record, waiting
     /// for room up to `timeout`.
     #[inline]
-    pub fn write(&mut self, frame: &[u8], timeout: Duration) -> Result<usize> {
+    pub fn write(&mut self, frame: &[u8], timeout: Timeout) -> Result<usize> {
         let fd = self.fd;
-        match &mut self.kind {
-            Kind::Socket { client } => super::send(fd, frame, if client.is_some() { libc::MSG_DONTWAIT } else { 0 }),
-            Kind::Serial { .. } => super::write(fd, frame),
-            Kind::Tls { session, .. } => tls_write(fd, session, &self.stop, frame, timeout),
+        match self.kind {
+            Kind::Socket => super::send(fd, frame, if self.held.client.is_some() { libc::MSG_DONTWAIT } else { 0 }),
+            Kind::Serial => super::write(fd, frame),
+            Kind::Tls => tls_write(fd, &mut self.held.session, &self.stop, frame, timeout),
         }
     }
 
-    /// The RTS sequence a write on this line needs, if any.
+    /// [`Line::write`] when it needs nothing but the system call (a socket, a serial
+    /// line without an RTS sequence); `None` otherwise (the driver then runs the RTS
+    /// sequence, or [`Line::write`] with its timeout).
     #[inline]
+    pub fn write_at_once(&mut self, frame: &[u8]) -> Option<Result<usize>> {
+        match self.kind {
+            Kind::Socket => {
+                Some(super::send(self.fd, frame, if self.held.client.is_some() { libc::MSG_DONTWAIT } else { 0 }))
+            }
+            Kind::Serial if !self.rts_around_writes() => Some(super::write(self.fd, frame)),
+            _ => None,
+        }
+    }
+
+    /// A write on this line needs an RTS sequence ([`Line::rts_sequence`]).
+    #[inline]
+    pub fn rts_around_writes(&self) -> bool {
+        self.kind == Kind::Serial && matches!(&self.settings, Link::Rtu(l) if l.rts != RTU_RTS_NONE)
+    }
+
+    /// The RTS sequence a write on this line needs, if any.
     pub fn rts_sequence(&self) -> Option<RtsSequence> {
         match &self.settings {
             Link::Rtu(l) if l.rts != RTU_RTS_NONE => Some(RtsSequence {
@@ -487,22 +504,18 @@ impl Line {
     /// EOVERFLOW.
     pub fn flush(&mut self, held: usize) -> (Result<usize>, Option<Error>) {
         let fd = self.fd;
-        let buffered = held
-            + match &mut self.kind {
-                Kind::Serial { .. } => {
-                    let rc = rtu::flush(fd);
-                    return (rc, rc.err());
-                }
-                Kind::Socket { .. } | Kind::Tls { session: None, .. } => 0,
-                Kind::Tls { session: Some(session), .. } => {
-                    // Records queued on the socket are decrypted and dropped with the rest.
-                    let mut buffered = 0;
-                    while session.fill(fd, libc::MSG_DONTWAIT).is_ok() && !session.readable_end() {
-                        buffered += session.discard();
-                    }
-                    buffered + session.discard()
-                }
-            };
+        if self.kind == Kind::Serial {
+            let rc = rtu::flush(fd);
+            return (rc, rc.err());
+        }
+        let mut buffered = held;
+        if let Some(session) = self.held.session.as_deref_mut() {
+            // Records queued on the socket are decrypted and dropped with the rest.
+            while session.fill(fd, libc::MSG_DONTWAIT).is_ok() && !session.readable_end() {
+                buffered += session.discard();
+            }
+            buffered += session.discard();
+        }
         let (rc, left) = drain_socket(fd);
         (rc.map(|n| n + buffered), left)
     }
@@ -510,7 +523,7 @@ impl Line {
     /// After a bad checksum: discards what the serial line holds (no trace, no
     /// count); nothing on a socket.
     pub fn purge(&mut self) {
-        if let Kind::Serial { .. } = self.kind {
+        if self.kind == Kind::Serial {
             let _ = rtu::flush(self.fd);
         }
     }
@@ -633,13 +646,8 @@ fn tls_peek(fd: i32, session: &mut Option<Box<Session>>, room: &mut [u8], block:
 /// only when none is left, one `recv` at most (a part of a record, or a record with
 /// no application data, leaves nothing to take: EAGAIN, and the machine waits again).
 #[inline(never)]
-fn tls_read(
-    fd: i32,
-    session: &mut Option<Box<Session>>,
-    client: &mut Option<ClientSocket>,
-    room: &mut [u8],
-    how: ReadHow,
-) -> Result<usize> {
+fn tls_read(fd: i32, held: &mut Held, room: &mut [u8], how: ReadHow) -> Result<usize> {
+    let Held { session, client, .. } = held;
     let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
     let flags = match how {
         ReadHow::Queued => libc::MSG_DONTWAIT,
@@ -660,9 +668,9 @@ fn tls_write(
     session: &mut Option<Box<Session>>,
     stop: &Stop,
     frame: &[u8],
-    timeout: Duration,
+    timeout: Timeout,
 ) -> Result<usize> {
     let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
-    let deadline = Some(super::now() + timeout);
+    let deadline = Some(super::now() + timeout.duration());
     session.send(fd, frame, deadline, &|| stop.stopping())
 }
