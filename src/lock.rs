@@ -16,6 +16,7 @@
 //! swap that frees the lock, so the lock may be freed by whoever takes it next.
 
 use std::cell::UnsafeCell;
+use std::marker::PhantomData;
 use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
 
@@ -71,7 +72,7 @@ impl<T> OwnerMutex<T> {
     #[inline]
     pub fn try_lock(&self) -> Option<OwnerGuard<'_, T>> {
         let me = current_thread();
-        self.word.compare_exchange(0, me, SeqCst, SeqCst).ok().map(|_| OwnerGuard { lock: self })
+        self.word.compare_exchange(0, me, SeqCst, SeqCst).ok().map(|_| OwnerGuard::new(self))
     }
 
     /// The thread holding the lock, or 0.
@@ -91,11 +92,11 @@ impl<T> OwnerMutex<T> {
     pub fn enter(&self) -> Entry<'_, T> {
         let me = current_thread();
         match self.word.compare_exchange(0, me, SeqCst, SeqCst) {
-            Ok(_) => Entry::Locked(OwnerGuard { lock: self }),
+            Ok(_) => Entry::Locked(OwnerGuard::new(self)),
             Err(word) if word & !LOW_BITS == me => Entry::HeldByThisThread,
             Err(_) => {
                 self.lock_slow(me);
-                Entry::Locked(OwnerGuard { lock: self })
+                Entry::Locked(OwnerGuard::new(self))
             }
         }
     }
@@ -174,11 +175,30 @@ fn futex_wake(word: &AtomicUsize) {
 }
 
 /// The locked value; dropping it releases the lock.
+///
+/// Never `Send`: the lock word names the thread that took it, and only that thread
+/// may release it (another thread's unlock would free a lock its owner still uses,
+/// and leave the owner's signal handlers answering for a thread that no longer holds
+/// it). `Sync` only when `T` is: a shared guard hands out `&T`, and its other `&self`
+/// operations refuse any thread but the holder. (std's `MutexGuard` once got this
+/// wrong: rust-lang/rust#41622.)
 pub struct OwnerGuard<'a, T> {
     lock: &'a OwnerMutex<T>,
+    /// Not `Send`, not `Sync` by default (see the `Sync` impl below).
+    _owner_thread: PhantomData<*const ()>,
 }
 
+// SAFETY: through `&OwnerGuard` another thread reaches `&T` (Deref), which `T: Sync`
+// allows, and the lock word, whose `&self` operations are atomic and refuse any
+// thread but the holder. The guard never moves to another thread (not `Send`).
+unsafe impl<T: Sync> Sync for OwnerGuard<'_, T> {}
+
 impl<'a, T> OwnerGuard<'a, T> {
+    /// The guard of a lock this thread has just taken.
+    fn new(lock: &'a OwnerMutex<T>) -> Self {
+        OwnerGuard { lock, _owner_thread: PhantomData }
+    }
+
     /// Releases the lock; true when the holder's signal handler raised the flag
     /// ([`OwnerMutex::raise_flag`]) meanwhile. The lock is not touched afterwards.
     pub fn release(self) -> bool {
@@ -228,6 +248,40 @@ impl<T> Drop for OwnerGuard<'_, T> {
     fn drop(&mut self) {
         self.lock.unlock();
     }
+}
+
+/// Compile-time checks of the guard's auto traits: each expression below is ambiguous,
+/// so the build fails, if the type it names has the trait it must not have.
+#[cfg(test)]
+mod auto_traits {
+    use super::OwnerGuard;
+    use std::cell::Cell;
+
+    /// Two candidate impls for a `Send` type (markers `()` and `u8`), one otherwise:
+    /// `<X as LacksSend<_>>::check` only infers its marker when `X` is not `Send`.
+    trait LacksSend<Marker> {
+        fn check() {}
+    }
+    impl<X: ?Sized> LacksSend<()> for X {}
+    impl<X: ?Sized + Send> LacksSend<u8> for X {}
+
+    /// The same for `Sync`.
+    trait LacksSync<Marker> {
+        fn check() {}
+    }
+    impl<X: ?Sized> LacksSync<()> for X {}
+    impl<X: ?Sized + Sync> LacksSync<u8> for X {}
+
+    fn has_sync<X: ?Sized + Sync>() {}
+
+    // Never `Send`, even over a `Send + Sync` value; `Sync` exactly when the value is
+    // (`Cell` is `Send` but not `Sync`).
+    const _: fn() = || {
+        <OwnerGuard<'static, u32> as LacksSend<_>>::check();
+        <OwnerGuard<'static, Cell<u32>> as LacksSend<_>>::check();
+        <OwnerGuard<'static, Cell<u32>> as LacksSync<_>>::check();
+        has_sync::<OwnerGuard<'static, u32>>();
+    };
 }
 
 #[cfg(test)]
