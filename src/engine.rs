@@ -268,7 +268,8 @@ pub fn call_unlocked<R>(g: &mut Guard<'_>, f: impl FnOnce() -> R) -> R {
         // `modbus_free` came meanwhile: the handle is ours to free, when this call
         // releases the lock (see `OwnerGuard::release`).
         stop.refs.store(1, std::sync::atomic::Ordering::SeqCst);
-        OwnerGuard::raise_flag(g);
+        let raised = OwnerGuard::raise_flag(g);
+        debug_assert!(raised);
     }
     r
 }

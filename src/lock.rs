@@ -80,10 +80,22 @@ impl<T> OwnerMutex<T> {
         self.word.load(SeqCst) & !LOW_BITS
     }
 
-    /// Raises the flag that the holder's [`OwnerGuard::release`] returns. Only for a
-    /// signal handler of the holding thread (the holder cannot change under it).
-    pub fn raise_flag(&self) {
+    /// Raises the flag that the holder's [`OwnerGuard::release`] returns; true when
+    /// raised. Only the holding thread may (a signal handler of that thread included):
+    /// for any other caller, and on a free lock, it refuses and changes nothing. (A
+    /// flag on a free lock would make its word non-zero with no owner: no locker
+    /// could take it again, each would sleep on it for ever.)
+    ///
+    /// The holder cannot change between the check and the raise: only the holder's
+    /// thread releases the lock, and that is the thread running here (a handler
+    /// interrupts its thread's release either before the swap, which then waits
+    /// for the handler, or after it, when the check refuses).
+    pub fn raise_flag(&self) -> bool {
+        if self.word.load(SeqCst) & !LOW_BITS != current_thread() {
+            return false;
+        }
         self.word.fetch_or(FLAG, SeqCst);
+        true
     }
 
     /// Takes the lock, waiting for another thread to release it; never waits for this
@@ -207,9 +219,10 @@ impl<'a, T> OwnerGuard<'a, T> {
         lock.unlock() & FLAG != 0
     }
 
-    /// Raises the flag that [`OwnerGuard::release`] returns.
-    pub fn raise_flag(g: &Self) {
-        g.lock.raise_flag();
+    /// Raises the flag that [`OwnerGuard::release`] returns (see
+    /// [`OwnerMutex::raise_flag`]: false from any thread but the holder).
+    pub fn raise_flag(g: &Self) -> bool {
+        g.lock.raise_flag()
     }
 
     /// Runs `f` with the lock released (so that `f` may call back into the library
@@ -223,7 +236,7 @@ impl<'a, T> OwnerGuard<'a, T> {
             g.lock.lock_slow(me);
         }
         if flag != 0 {
-            g.lock.raise_flag();
+            g.lock.word.fetch_or(FLAG, SeqCst);
         }
         r
     }
@@ -305,9 +318,31 @@ mod tests {
     fn the_flag_reaches_the_release_only() {
         let m = OwnerMutex::new(());
         let g = m.lock();
-        m.raise_flag();
+        assert!(m.raise_flag());
         assert_eq!(m.holder(), current_thread());
         assert!(g.release());
         assert!(!m.lock().release());
+    }
+
+    #[test]
+    fn a_non_holder_cannot_break_the_lock() {
+        let m = OwnerMutex::new(());
+        // On a free lock: refused, and the lock stays free (it used to become a word
+        // with no owner that nobody could take again).
+        assert!(!m.raise_flag());
+        assert_eq!(m.word.load(SeqCst), 0);
+        let g = m.try_lock().expect("a refused flag leaves the lock free");
+        // From another thread while this one holds it, on the lock or through the
+        // shared guard: refused, the holder's release finds no flag.
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                assert!(!m.raise_flag());
+                assert!(!OwnerGuard::raise_flag(&g));
+            })
+            .join()
+            .unwrap()
+        });
+        assert!(!g.release());
+        assert!(m.try_lock().is_some_and(|g| !g.release()));
     }
 }

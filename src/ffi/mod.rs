@@ -189,7 +189,9 @@ pub unsafe fn free_handle(ctx: *mut Modbus) {
         }
         None if handle.ctx.holder() == current_thread() => {
             handle.stop.close_in_handler();
-            handle.ctx.raise_flag();
+            // This thread holds the lock: the raise cannot be refused.
+            let raised = handle.ctx.raise_flag();
+            debug_assert!(raised);
             return;
         }
         // SAFETY: `ctx` is live.
