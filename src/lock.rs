@@ -226,19 +226,28 @@ impl<'a, T> OwnerGuard<'a, T> {
     }
 
     /// Runs `f` with the lock released (so that `f` may call back into the library
-    /// with the same context), and takes it again afterwards. A flag raised before
-    /// is kept for the final release.
+    /// with the same context), and takes it again afterwards, also when `f` unwinds
+    /// (the guard must hold the lock whenever it exists). A flag raised before is kept
+    /// for the final release.
     pub fn unlocked<R>(g: &mut Self, f: impl FnOnce() -> R) -> R {
-        let flag = g.lock.unlock() & FLAG;
-        let r = f();
-        let me = current_thread();
-        if g.lock.word.compare_exchange(0, me, SeqCst, SeqCst).is_err() {
-            g.lock.lock_slow(me);
+        /// Takes the lock back when dropped: after `f` returns or while it unwinds.
+        struct Relock<'b, T> {
+            lock: &'b OwnerMutex<T>,
+            flag: usize,
         }
-        if flag != 0 {
-            g.lock.word.fetch_or(FLAG, SeqCst);
+        impl<T> Drop for Relock<'_, T> {
+            fn drop(&mut self) {
+                let me = current_thread();
+                if self.lock.word.compare_exchange(0, me, SeqCst, SeqCst).is_err() {
+                    self.lock.lock_slow(me);
+                }
+                if self.flag != 0 {
+                    self.lock.word.fetch_or(self.flag, SeqCst);
+                }
+            }
         }
-        r
+        let _relock = Relock { lock: g.lock, flag: g.lock.unlock() & FLAG };
+        f()
     }
 }
 
