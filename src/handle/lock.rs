@@ -18,7 +18,7 @@
 use std::cell::UnsafeCell;
 use std::marker::PhantomData;
 use std::ops::{Deref, DerefMut};
-use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
+use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering::SeqCst};
 
 /// The calling thread's id: `pthread_self`, a read of the thread pointer in glibc
 /// (no system call, usable in a signal handler), never 0 for a live thread and
@@ -40,6 +40,9 @@ const LOW_BITS: usize = CONTENDED | FLAG;
 /// A mutual-exclusion lock over `T` that knows which thread holds it.
 pub struct OwnerMutex<T> {
     word: AtomicUsize,
+    /// The references to the handle this lock is part of (see `crate::handle`), kept
+    /// here so that a guard alone can hold one; 1 (the owner's) when made.
+    refs: AtomicU32,
     value: UnsafeCell<T>,
 }
 
@@ -61,11 +64,16 @@ pub enum Entry<'a, T> {
 
 impl<T> OwnerMutex<T> {
     pub const fn new(value: T) -> Self {
-        OwnerMutex { word: AtomicUsize::new(0), value: UnsafeCell::new(value) }
+        OwnerMutex { word: AtomicUsize::new(0), refs: AtomicU32::new(1), value: UnsafeCell::new(value) }
     }
 
     pub fn get_mut(&mut self) -> &mut T {
         self.value.get_mut()
+    }
+
+    /// The references to the handle (see `crate::handle`).
+    pub(super) fn refs(&self) -> &AtomicU32 {
+        &self.refs
     }
 
     /// Takes the lock if it is free.
@@ -90,7 +98,7 @@ impl<T> OwnerMutex<T> {
     /// thread releases the lock, and that is the thread running here (a handler
     /// interrupts its thread's release either before the swap, which then waits
     /// for the handler, or after it, when the check refuses).
-    pub fn raise_flag(&self) -> bool {
+    pub(super) fn raise_flag(&self) -> bool {
         if self.word.load(SeqCst) & !LOW_BITS != current_thread() {
             return false;
         }
@@ -213,16 +221,15 @@ impl<'a, T> OwnerGuard<'a, T> {
 
     /// Releases the lock; true when the holder's signal handler raised the flag
     /// ([`OwnerMutex::raise_flag`]) meanwhile. The lock is not touched afterwards.
-    pub fn release(self) -> bool {
+    pub(super) fn release(self) -> bool {
         let lock = self.lock;
         std::mem::forget(self);
         lock.unlock() & FLAG != 0
     }
 
-    /// Raises the flag that [`OwnerGuard::release`] returns (see
-    /// [`OwnerMutex::raise_flag`]: false from any thread but the holder).
-    pub fn raise_flag(g: &Self) -> bool {
-        g.lock.raise_flag()
+    /// The lock this guard holds.
+    pub(super) fn mutex(g: &Self) -> &'a OwnerMutex<T> {
+        g.lock
     }
 
     /// Runs `f` with the lock released (so that `f` may call back into the library
@@ -346,7 +353,7 @@ mod tests {
         std::thread::scope(|s| {
             s.spawn(|| {
                 assert!(!m.raise_flag());
-                assert!(!OwnerGuard::raise_flag(&g));
+                assert!(!OwnerGuard::mutex(&g).raise_flag());
             })
             .join()
             .unwrap()
