@@ -22,6 +22,9 @@
  *   thread-free     another thread calls modbus_free while this one waits
  *   handler-call    the handler calls modbus_get_socket, modbus_set_slave,
  *                   modbus_read_registers on the context its signal interrupted
+ *   fork-thread     another thread forks while this one waits in the call; the child
+ *                   uses the context (calls return at once, as with libmodbus, which
+ *                   has no lock), the waiting call is not disturbed
  * ROLE: client (modbus_read_registers to a silent peer) | server (modbus_receive with a
  * connected peer that sends nothing). TRANSPORT: tcp | rtu | rtutcp | ascii (the last
  * two are rsmodbus extensions, looked up with dlsym). A B: the two ends of a pty pair
@@ -304,7 +307,58 @@ static void h_calls(int sig)
     errno = e;
 }
 
-enum helper_kind { HELP_SIGNAL, HELP_CLOSE, HELP_FREE };
+/* fork-thread: the fork child's exit code (bits of its failed steps; 100 + signal if
+ * it died; -1 when it hung and was killed) and how long it took */
+static volatile int g_fork_status = -3;
+static volatile double g_fork_s = -1;
+
+/* fork-thread: called by the helper thread while the main thread waits in a call on
+ * g_ctx. The child (a copy of this thread, its only thread) uses the context: each
+ * call must return at once and succeed. Waits up to `limit` seconds for the child. */
+static void fork_and_use(double limit)
+{
+    int sock = modbus_get_socket(g_ctx), st = 0;
+    double t0 = now();
+    pid_t pid = fork();
+    if (pid == 0) {
+        int bad = 0;
+        if (modbus_set_slave(g_ctx, 1) != 0) {
+            bad |= 1;
+        }
+        if (modbus_get_socket(g_ctx) != sock) {
+            bad |= 2;
+        }
+        if (modbus_flush(g_ctx) < 0) {
+            bad |= 4;
+        }
+        if (modbus_set_response_timeout(g_ctx, 0, 200000) != 0) {
+            bad |= 8;
+        }
+        modbus_free(g_ctx);
+        _exit(bad);
+    }
+    if (pid < 0) {
+        g_fork_status = -2;
+        return;
+    }
+    for (;;) {
+        if (waitpid(pid, &st, WNOHANG) == pid) {
+            g_fork_s = now() - t0;
+            g_fork_status = WIFEXITED(st) ? WEXITSTATUS(st) : 100 + WTERMSIG(st);
+            return;
+        }
+        if (now() - t0 > limit) {
+            kill(pid, SIGKILL);
+            waitpid(pid, &st, 0);
+            g_fork_s = now() - t0;
+            g_fork_status = -1;
+            return;
+        }
+        sleep_s(0.005);
+    }
+}
+
+enum helper_kind { HELP_SIGNAL, HELP_CLOSE, HELP_FREE, HELP_FORK };
 struct helper {
     enum helper_kind kind;
     double delay;
@@ -336,6 +390,10 @@ static void *helper_main(void *arg)
         modbus_free(g_ctx);
         g_helper_call_s = now() - t0;
         say("NOTE modbus_free from another thread returned in %.3f ms", g_helper_call_s * 1e3);
+        break;
+    case HELP_FORK:
+        fork_and_use(3.0);
+        say("NOTE fork child: status %d after %.3f ms", g_fork_status, g_fork_s * 1e3);
         break;
     }
     return NULL;
@@ -424,10 +482,10 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
     /* default: client waits 10 s for a response, server forever for a request */
     modbus_set_response_timeout(ctx, 10, 0);
     modbus_set_indication_timeout(ctx, 0, 0);
-    if (starts(cs, "client-timeout") || streq(cs, "handler-call")) {
+    if (starts(cs, "client-timeout") || streq(cs, "handler-call") || streq(cs, "fork-thread")) {
         modbus_set_response_timeout(ctx, 1, 0);
     }
-    if (starts(cs, "server-timeout") || streq(cs, "handler-call")) {
+    if (starts(cs, "server-timeout") || streq(cs, "handler-call") || streq(cs, "fork-thread")) {
         modbus_set_indication_timeout(ctx, 1, 0);
     }
 
@@ -537,6 +595,9 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         } else if (streq(cs, "thread-free")) {
             help = (struct helper){HELP_FREE, vg ? 1.0 : 0.3, 0};
             have_helper = 1;
+        } else if (streq(cs, "fork-thread")) {
+            help = (struct helper){HELP_FORK, 0.3, 0};
+            have_helper = 1;
         }
         if (have_helper) {
             pthread_create(&helper_tid, NULL, helper_main, &help);
@@ -554,7 +615,8 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         say("RETURNED rc=%d errno=%s after %.3f s (%.3f s after the %s)", rc,
             ename(rc == -1 ? e : 0), t1 - t0, t1 - g_t_signal,
             streq(cs, "thread-close") ? "modbus_close"
-            : streq(cs, "thread-free") ? "modbus_free" : "signal");
+            : streq(cs, "thread-free") ? "modbus_free"
+            : streq(cs, "fork-thread") ? "fork" : "signal");
 
         if (starts(cs, "term-") || streq(cs, "free-exit")) {
             check(0, "the handler should have ended the process; the call returned instead");
@@ -687,6 +749,17 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
                     "ours: -1 EDEADLK at once",
                     h_rc_slave, h_read_s);
             }
+            modbus_close(ctx);
+        } else if (streq(cs, "fork-thread")) {
+            check(g_fork_status == 0 && g_fork_s < 1.0,
+                    "the fork child's calls on the context (set_slave, get_socket, flush, "
+                    "set_response_timeout, free) returned at once and succeeded: status %d "
+                    "(-1: hung, killed; else bits of the failed steps) after %.3f ms",
+                    g_fork_status, g_fork_s * 1e3);
+            check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
+                    "the waiting call is not disturbed: -1 ETIMEDOUT after %.3f s (rc %d, %s; "
+                    "0.9-1.5 s)",
+                    t1 - t0, rc, ename(rc == -1 ? e : 0));
             modbus_close(ctx);
         } else {
             check(0, "unknown case %s", cs);

@@ -14,6 +14,10 @@
 //! unlocks ([`OwnerGuard::release`]). Locking and unlocking are one atomic
 //! instruction each when nobody waits, and unlocking touches no memory after the
 //! swap that frees the lock, so the lock may be freed by whoever takes it next.
+//!
+//! A word with flags and no owner is free too: the child of a `fork` gets one when
+//! the thread that held the lock does not exist in it ([`OwnerMutex::forget_dead_holder`]);
+//! the next holder takes the flags with the lock.
 
 use std::cell::UnsafeCell;
 use std::marker::PhantomData;
@@ -80,7 +84,15 @@ impl<T> OwnerMutex<T> {
     #[inline]
     pub fn try_lock(&self) -> Option<OwnerGuard<'_, T>> {
         let me = current_thread();
-        self.word.compare_exchange(0, me, SeqCst, SeqCst).ok().map(|_| OwnerGuard::new(self))
+        let mut word = 0;
+        loop {
+            match self.word.compare_exchange(word, word | me, SeqCst, SeqCst) {
+                Ok(_) => return Some(OwnerGuard::new(self)),
+                // Free, with flags left for the next holder (after a fork).
+                Err(now) if now & !LOW_BITS == 0 => word = now,
+                Err(_) => return None,
+            }
+        }
     }
 
     /// The thread holding the lock, or 0.
@@ -136,8 +148,9 @@ impl<T> OwnerMutex<T> {
     fn lock_slow(&self, me: usize) {
         let mut word = self.word.load(SeqCst);
         loop {
-            if word == 0 {
-                match self.word.compare_exchange(0, me | CONTENDED, SeqCst, SeqCst) {
+            if word & !LOW_BITS == 0 {
+                // Free (with the flags a fork left, if any: see the module doc).
+                match self.word.compare_exchange(word, word | me | CONTENDED, SeqCst, SeqCst) {
                     Ok(_) => return,
                     Err(now) => word = now,
                 }
@@ -153,6 +166,28 @@ impl<T> OwnerMutex<T> {
             futex_wait(&self.word, word);
             word = self.word.load(SeqCst);
         }
+    }
+
+    /// In the child of a `fork`, where only the forking thread exists: a lock held by
+    /// another thread (its call does not go on here) becomes free, with the flags
+    /// that call had, for the next holder. Only for a handler of `pthread_atfork`
+    /// (the child has one thread, and nobody waits on the word).
+    pub(super) fn forget_dead_holder(&self) {
+        let word = self.word.load(SeqCst);
+        let holder = word & !LOW_BITS;
+        if holder != 0 && holder != current_thread() {
+            self.word.store(word & FLAG, SeqCst);
+        }
+    }
+
+    /// A guard for the lock this thread holds with no guard (taken by a
+    /// `pthread_atfork` handler before the fork, whose guard it forgot).
+    ///
+    /// # Safety
+    /// This thread holds the lock, and no guard of it exists.
+    pub(super) unsafe fn adopt(&self) -> OwnerGuard<'_, T> {
+        debug_assert_eq!(self.holder(), current_thread());
+        OwnerGuard::new(self)
     }
 
     /// Releases the lock; returns the word it had.
@@ -338,6 +373,28 @@ mod tests {
         assert_eq!(m.holder(), current_thread());
         assert!(g.release());
         assert!(!m.lock().release());
+    }
+
+    #[test]
+    fn a_word_with_flags_and_no_owner_is_free() {
+        // A fork child's view of a lock whose holder (with a raised flag) is another
+        // thread, which does not exist there.
+        let elsewhere = current_thread() ^ 0x1000;
+        let m = OwnerMutex::new(());
+        m.word.store(elsewhere | CONTENDED | FLAG, SeqCst);
+        m.forget_dead_holder();
+        assert_eq!(m.word.load(SeqCst), FLAG, "free, the flag kept, nobody waiting");
+        let g = m.try_lock().expect("try_lock takes a free word with flags");
+        assert!(g.release(), "the flag goes to the next holder");
+        m.word.store(elsewhere | FLAG, SeqCst);
+        m.forget_dead_holder();
+        assert!(m.lock().release(), "enter takes a free word with flags too");
+        assert!(!m.lock().release());
+        // The forking thread's own lock is kept.
+        let g = m.lock();
+        m.forget_dead_holder();
+        assert_eq!(m.holder(), current_thread());
+        assert!(!g.release());
     }
 
     #[test]

@@ -12,11 +12,15 @@
 //! flag: the call gives it up as it releases the lock. The reference count and the
 //! flag are private to this module ([`lock`] is its child).
 //!
+//! A `fork` child gets working handles even when another thread was inside a call
+//! at the fork ([`fork`]).
+//!
 //! The module is generic over the value behind the lock ([`Closable`]), so that it
 //! sits below the context with the lock and the stop state, and the engine may run
 //! callbacks unlocked without an import cycle; the C layer instantiates it over the
 //! context (`ffi::Modbus`).
 
+mod fork;
 pub mod lock;
 pub(crate) mod stop;
 
@@ -51,7 +55,23 @@ impl<T: Closable> Handle<T> {
     /// Boxes a handle over `value`, holding the application's reference.
     pub fn new(value: T) -> *mut Handle<T> {
         let stop = Arc::clone(value.stop());
-        Box::into_raw(Box::new(Handle { value: OwnerMutex::new(value), stop }))
+        let ptr = Box::into_raw(Box::new(Handle { value: OwnerMutex::new(value), stop }));
+        fork::register(ptr as usize, Self::after_fork_in_child);
+        ptr
+    }
+
+    /// In a fork child (see [`fork`]): what the threads that do not exist there left
+    /// in the handle at `addr` is forgotten: the lock one of them held, the stops and
+    /// waits they were making.
+    ///
+    /// # Safety
+    /// `addr` is a live `Handle<T>`; the child has one thread (a `pthread_atfork`
+    /// child handler).
+    unsafe fn after_fork_in_child(addr: usize) {
+        // SAFETY: guaranteed by the caller.
+        let handle = unsafe { &*(addr as *const Handle<T>) };
+        handle.value.forget_dead_holder();
+        handle.stop.after_fork_in_child();
     }
 }
 
@@ -83,6 +103,7 @@ unsafe fn give_back<T>(ptr: *mut Handle<T>) {
     // SAFETY: the caller's reference keeps the handle alive up to this decrement.
     let handle = unsafe { &*ptr };
     if handle.value.refs().fetch_sub(1, SeqCst) == 1 {
+        fork::unregister(ptr as usize);
         // SAFETY: no reference is left: the application freed it and no call is in.
         drop(unsafe { Box::from_raw(ptr) });
     }

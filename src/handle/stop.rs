@@ -192,6 +192,26 @@ impl Stop {
         }
     }
 
+    /// In a fork child (one thread, the forking one): the stops, shutdowns and
+    /// accepts other threads were making do not go on there, so they are forgotten
+    /// (else every call would fail with EBADF, or a change of descriptor wait for
+    /// ever); and the child gets a wake-up descriptor of its own (the inherited one
+    /// is the parent's too: a wake of one would be read by the other).
+    pub(super) fn after_fork_in_child(&self) {
+        self.stoppers.store(0, SeqCst);
+        self.shutting.store(0, SeqCst);
+        self.accepting.store(0, SeqCst);
+        // SAFETY: plain system calls with integer arguments.
+        let fresh = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
+        if fresh >= 0 {
+            let inherited = self.wake.swap(fresh, SeqCst);
+            if inherited >= 0 {
+                // SAFETY: the child's copy of the descriptor this value owned.
+                unsafe { libc::close(inherited) };
+            }
+        }
+    }
+
     /// `modbus_close` from a signal handler that interrupted a call of its thread on
     /// this context: what libmodbus's close does to the line (the saved serial
     /// settings restored, a socket shut down, the descriptor closed), without the
