@@ -85,7 +85,9 @@ pub fn status(r: Result<c_int>) -> c_int {
 ///
 /// # Safety
 /// `ctx` must be NULL or a pointer returned by a `modbus_new_*` function and not yet
-/// freed.
+/// freed. The export calling it may own nothing with a destructor outside `f` (a
+/// pending `pthread_cancel` may end the thread at the call's start: see
+/// [`handle::call`]).
 pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Result<c_int>) -> c_int {
     // SAFETY: forwarded caller contract.
     status(unsafe { handle::call(ctx, f) })

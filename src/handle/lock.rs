@@ -8,12 +8,15 @@
 //! compare-and-swap of the owner's thread id, so the answer is exact at every
 //! instruction.
 //!
-//! The word: the owner's thread id (a pointer, so its two low bits are free), bit 0
-//! set when threads may be sleeping on the word (a futex on its low 32 bits), bit 1 a
-//! flag the owner's own signal handler may raise for the owner to find when it
-//! unlocks ([`OwnerGuard::release`]). Locking and unlocking are one atomic
-//! instruction each when nobody waits, and unlocking touches no memory after the
-//! swap that frees the lock, so the lock may be freed by whoever takes it next.
+//! The word: the owner's thread id (a pointer, aligned far beyond 16, so its four low
+//! bits are free), bit 0 set when threads may be sleeping on the word (a futex on its
+//! low 32 bits), bits 1 to 3 flags that the owner, or its own signal handler, raises
+//! for the owner's release to find ([`OwnerGuard::release_unless`]; what they mean
+//! is the handle's). Locking and unlocking are one atomic instruction each when nobody waits
+//! and no flag is up (the unlock is a compare-and-swap of the owner's id with 0, which
+//! fails, sending the holder to the slow release, as soon as anything was added), and
+//! unlocking touches no memory after the instruction that frees the lock, so the lock
+//! may be freed by whoever takes it next.
 //!
 //! A word with flags and no owner is free too: the child of a `fork` gets one when
 //! the thread that held the lock does not exist in it ([`OwnerMutex::forget_dead_holder`]);
@@ -24,11 +27,28 @@ use std::marker::PhantomData;
 use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicU32, AtomicUsize, Ordering::SeqCst};
 
-/// The calling thread's id: `pthread_self`, a read of the thread pointer in glibc
-/// (no system call, usable in a signal handler), never 0 for a live thread and
-/// aligned far beyond 4.
+/// The calling thread's id: its thread pointer, the address of its thread control
+/// block (no system call, usable in a signal handler), never 0 for a live thread and
+/// aligned far beyond 16. Any value unique among live threads would do; this one is
+/// also the same in a fork child for the forking thread, whose copy it is.
+///
+/// On x86-64 one load: the TLS ABI (the one compilers use for local-exec thread
+/// locals) makes the first word of the control block point to the block itself, so
+/// `fs:[0]` is the thread pointer (glibc's and musl's `pthread_self` return it too).
+/// Elsewhere, `pthread_self`.
 #[inline]
 pub fn current_thread() -> usize {
+    #[cfg(target_arch = "x86_64")]
+    let me = {
+        let tp: usize;
+        // SAFETY: reads the first word of this thread's control block, which every
+        // thread has for its whole life; no memory of ours is touched.
+        unsafe {
+            std::arch::asm!("mov {}, qword ptr fs:[0]", out(reg) tp, options(nostack, readonly, preserves_flags, pure))
+        };
+        tp
+    };
+    #[cfg(not(target_arch = "x86_64"))]
     // SAFETY: pthread_self has no preconditions.
     let me = unsafe { libc::pthread_self() } as usize;
     debug_assert!(me != 0 && me & LOW_BITS == 0);
@@ -37,9 +57,11 @@ pub fn current_thread() -> usize {
 
 /// Threads may sleep on the word: the unlock wakes one.
 const CONTENDED: usize = 1;
-/// Raised by the owner's signal handler (see [`OwnerMutex::raise_flag`]).
-const FLAG: usize = 2;
-const LOW_BITS: usize = CONTENDED | FLAG;
+/// The flags: raised by the holder or its signal handler ([`OwnerMutex::raise_flag`])
+/// or set as the lock is taken ([`OwnerMutex::enter_flagged`]), returned by the
+/// release.
+pub(super) const FLAGS: usize = 0b1110;
+const LOW_BITS: usize = CONTENDED | FLAGS;
 
 /// A mutual-exclusion lock over `T` that knows which thread holds it.
 pub struct OwnerMutex<T> {
@@ -87,7 +109,7 @@ impl<T> OwnerMutex<T> {
         let mut word = 0;
         loop {
             match self.word.compare_exchange(word, word | me, SeqCst, SeqCst) {
-                Ok(_) => return Some(OwnerGuard::new(self)),
+                Ok(_) => return Some(OwnerGuard::new(self, me)),
                 // Free, with flags left for the next holder (after a fork).
                 Err(now) if now & !LOW_BITS == 0 => word = now,
                 Err(_) => return None,
@@ -100,8 +122,9 @@ impl<T> OwnerMutex<T> {
         self.word.load(SeqCst) & !LOW_BITS
     }
 
-    /// Raises the flag that the holder's [`OwnerGuard::release`] returns; true when
-    /// raised. Only the holding thread may (a signal handler of that thread included):
+    /// Raises `flags` (within [`FLAGS`]) for the holder's release
+    /// ([`OwnerGuard::release_unless`]) to return; true when raised. Only the holding thread may (a signal handler of that
+    /// thread included):
     /// for any other caller, and on a free lock, it refuses and changes nothing. (A
     /// flag on a free lock would make its word non-zero with no owner: no locker
     /// could take it again, each would sleep on it for ever.)
@@ -110,11 +133,12 @@ impl<T> OwnerMutex<T> {
     /// thread releases the lock, and that is the thread running here (a handler
     /// interrupts its thread's release either before the swap, which then waits
     /// for the handler, or after it, when the check refuses).
-    pub(super) fn raise_flag(&self) -> bool {
+    pub(super) fn raise_flag(&self, flags: usize) -> bool {
+        debug_assert!(flags & !FLAGS == 0);
         if self.word.load(SeqCst) & !LOW_BITS != current_thread() {
             return false;
         }
-        self.word.fetch_or(FLAG, SeqCst);
+        self.word.fetch_or(flags & FLAGS, SeqCst);
         true
     }
 
@@ -122,13 +146,19 @@ impl<T> OwnerMutex<T> {
     /// thread (see [`Entry::HeldByThisThread`]).
     #[inline]
     pub fn enter(&self) -> Entry<'_, T> {
+        self.enter_flagged(0)
+    }
+
+    /// [`OwnerMutex::enter`], with `flags` (within [`FLAGS`]) up from the start.
+    #[inline]
+    pub(super) fn enter_flagged(&self, flags: usize) -> Entry<'_, T> {
         let me = current_thread();
-        match self.word.compare_exchange(0, me, SeqCst, SeqCst) {
-            Ok(_) => Entry::Locked(OwnerGuard::new(self)),
+        match self.word.compare_exchange(0, me | flags, SeqCst, SeqCst) {
+            Ok(_) => Entry::Locked(OwnerGuard::new(self, me)),
             Err(word) if word & !LOW_BITS == me => Entry::HeldByThisThread,
             Err(_) => {
-                self.lock_slow(me);
-                Entry::Locked(OwnerGuard::new(self))
+                self.lock_slow(me | flags);
+                Entry::Locked(OwnerGuard::new(self, me))
             }
         }
     }
@@ -142,8 +172,9 @@ impl<T> OwnerMutex<T> {
         }
     }
 
-    /// Waits for another thread to release the lock and takes it (marked contended:
-    /// others may still wait, and its unlock must wake them).
+    /// Waits for another thread to release the lock and takes it as `me` (the thread
+    /// and the flags it starts with), marked contended: others may still wait, and
+    /// its unlock must wake them.
     #[cold]
     fn lock_slow(&self, me: usize) {
         let mut word = self.word.load(SeqCst);
@@ -169,14 +200,14 @@ impl<T> OwnerMutex<T> {
     }
 
     /// In the child of a `fork`, where only the forking thread exists: a lock held by
-    /// another thread (its call does not go on here) becomes free, with the flags
-    /// that call had, for the next holder. Only for a handler of `pthread_atfork`
-    /// (the child has one thread, and nobody waits on the word).
-    pub(super) fn forget_dead_holder(&self) {
+    /// another thread (its call does not go on here) becomes free, with the flags of
+    /// that call in `keep` left for the next holder. Only for a handler of
+    /// `pthread_atfork` (the child has one thread, and nobody waits on the word).
+    pub(super) fn forget_dead_holder(&self, keep: usize) {
         let word = self.word.load(SeqCst);
         let holder = word & !LOW_BITS;
         if holder != 0 && holder != current_thread() {
-            self.word.store(word & FLAG, SeqCst);
+            self.word.store(word & keep & FLAGS, SeqCst);
         }
     }
 
@@ -187,7 +218,7 @@ impl<T> OwnerMutex<T> {
     /// This thread holds the lock, and no guard of it exists.
     pub(super) unsafe fn adopt(&self) -> OwnerGuard<'_, T> {
         debug_assert_eq!(self.holder(), current_thread());
-        OwnerGuard::new(self)
+        OwnerGuard::new(self, current_thread())
     }
 
     /// Releases the lock; returns the word it had.
@@ -239,6 +270,8 @@ fn futex_wake(word: &AtomicUsize) {
 /// wrong: rust-lang/rust#41622.)
 pub struct OwnerGuard<'a, T> {
     lock: &'a OwnerMutex<T>,
+    /// The holder: the word it put in, flags aside.
+    me: usize,
     /// Not `Send`, not `Sync` by default (see the `Sync` impl below).
     _owner_thread: PhantomData<*const ()>,
 }
@@ -249,17 +282,52 @@ pub struct OwnerGuard<'a, T> {
 unsafe impl<T: Sync> Sync for OwnerGuard<'_, T> {}
 
 impl<'a, T> OwnerGuard<'a, T> {
-    /// The guard of a lock this thread has just taken.
-    fn new(lock: &'a OwnerMutex<T>) -> Self {
-        OwnerGuard { lock, _owner_thread: PhantomData }
+    /// The guard of a lock this thread (`me`) has just taken.
+    fn new(lock: &'a OwnerMutex<T>, me: usize) -> Self {
+        OwnerGuard { lock, me, _owner_thread: PhantomData }
     }
 
-    /// Releases the lock; true when the holder's signal handler raised the flag
-    /// ([`OwnerMutex::raise_flag`]) meanwhile. The lock is not touched afterwards.
-    pub(super) fn release(self) -> bool {
-        let lock = self.lock;
-        std::mem::forget(self);
-        lock.unlock() & FLAG != 0
+    /// Releases the lock if nothing was added to the word since it was taken (no
+    /// flag, nobody waiting): one compare-and-swap. Otherwise the guard comes back,
+    /// for [`OwnerGuard::release_unless`].
+    #[inline]
+    pub(super) fn try_release(self) -> Result<(), Self> {
+        match self.lock.word.compare_exchange(self.me, 0, SeqCst, SeqCst) {
+            Ok(_) => {
+                std::mem::forget(self);
+                Ok(())
+            }
+            Err(_) => Err(self),
+        }
+    }
+
+    /// Releases the lock unless one of `flags` is up (then the guard comes back, the
+    /// holder acts on it, and tries again); returns the flags it had. A flag raised by
+    /// a signal handler is never lost: it is either seen here, or raised after the
+    /// lock was freed, when the handler's raise is refused.
+    pub(super) fn release_unless(self, flags: usize) -> Result<usize, Self> {
+        let mut word = self.lock.word.load(SeqCst);
+        loop {
+            if word & flags != 0 {
+                return Err(self);
+            }
+            match self.lock.word.compare_exchange(word, 0, SeqCst, SeqCst) {
+                Ok(_) => {
+                    let lock = self.lock;
+                    std::mem::forget(self);
+                    if word & CONTENDED != 0 {
+                        futex_wake(&lock.word);
+                    }
+                    return Ok(word & FLAGS);
+                }
+                Err(now) => word = now,
+            }
+        }
+    }
+
+    /// Takes `flags` down; returns those of them that were up.
+    pub(super) fn take_flags(g: &mut Self, flags: usize) -> usize {
+        g.lock.word.fetch_and(!(flags & FLAGS), SeqCst) & flags & FLAGS
     }
 
     /// The lock this guard holds.
@@ -269,26 +337,23 @@ impl<'a, T> OwnerGuard<'a, T> {
 
     /// Runs `f` with the lock released (so that `f` may call back into the library
     /// with the same context), and takes it again afterwards, also when `f` unwinds
-    /// (the guard must hold the lock whenever it exists). A flag raised before is kept
-    /// for the final release.
+    /// (the guard must hold the lock whenever it exists). The flags up before are up
+    /// again after, for the final release.
     pub fn unlocked<R>(g: &mut Self, f: impl FnOnce() -> R) -> R {
         /// Takes the lock back when dropped: after `f` returns or while it unwinds.
         struct Relock<'b, T> {
             lock: &'b OwnerMutex<T>,
-            flag: usize,
+            /// The holder and its flags.
+            word: usize,
         }
         impl<T> Drop for Relock<'_, T> {
             fn drop(&mut self) {
-                let me = current_thread();
-                if self.lock.word.compare_exchange(0, me, SeqCst, SeqCst).is_err() {
-                    self.lock.lock_slow(me);
-                }
-                if self.flag != 0 {
-                    self.lock.word.fetch_or(self.flag, SeqCst);
+                if self.lock.word.compare_exchange(0, self.word, SeqCst, SeqCst).is_err() {
+                    self.lock.lock_slow(self.word);
                 }
             }
         }
-        let _relock = Relock { lock: g.lock, flag: g.lock.unlock() & FLAG };
+        let _relock = Relock { lock: g.lock, word: g.me | (g.lock.unlock() & FLAGS) };
         f()
     }
 }
@@ -352,6 +417,24 @@ mod auto_traits {
 mod tests {
     use super::*;
 
+    impl<T> OwnerGuard<'_, T> {
+        /// Releases the lock; the flags it had.
+        fn release(self) -> usize {
+            self.release_unless(0).ok().expect("no flag refused")
+        }
+    }
+
+    #[test]
+    fn the_thread_id_is_unique_and_stable() {
+        let me = current_thread();
+        assert_eq!(current_thread(), me);
+        // SAFETY: no preconditions.
+        assert_eq!(me, unsafe { libc::pthread_self() } as usize, "glibc returns the thread pointer");
+        let other = std::thread::spawn(current_thread).join().unwrap();
+        assert_ne!(other, me);
+        assert_eq!(other & LOW_BITS, 0);
+    }
+
     #[test]
     fn owner_is_known_and_reentry_is_refused() {
         let m = OwnerMutex::new(5);
@@ -365,14 +448,39 @@ mod tests {
         assert!(matches!(m.enter(), Entry::Locked(_)));
     }
 
+    const F: usize = 0b0010;
+    const G: usize = 0b1000;
+
     #[test]
-    fn the_flag_reaches_the_release_only() {
+    fn the_flags_reach_the_release_only() {
         let m = OwnerMutex::new(());
         let g = m.lock();
-        assert!(m.raise_flag());
+        assert!(m.raise_flag(F));
         assert_eq!(m.holder(), current_thread());
-        assert!(g.release());
-        assert!(!m.lock().release());
+        assert_eq!(g.release(), F);
+        assert_eq!(m.lock().release(), 0);
+        // Set as the lock is taken; carried across `unlocked`; the fast release
+        // refuses while any is up.
+        let Entry::Locked(mut g) = m.enter_flagged(G) else { panic!("free") };
+        assert!(m.raise_flag(F));
+        OwnerGuard::unlocked(&mut g, || assert_eq!(m.holder(), 0));
+        let g = g.try_release().expect_err("flags up");
+        assert_eq!(g.release(), F | G);
+        assert!(m.lock().try_release().is_ok());
+        assert_eq!(m.word.load(SeqCst), 0);
+    }
+
+    #[test]
+    fn release_unless_leaves_no_flag_behind() {
+        let m = OwnerMutex::new(());
+        let mut g = m.lock();
+        assert!(m.raise_flag(F | G));
+        let mut g2 = g.release_unless(F).expect_err("F is up");
+        assert_eq!(OwnerGuard::take_flags(&mut g2, F), F);
+        assert_eq!(OwnerGuard::take_flags(&mut g2, F), 0);
+        g = g2;
+        assert_eq!(g.release_unless(F).ok(), Some(G));
+        assert_eq!(m.word.load(SeqCst), 0);
     }
 
     #[test]
@@ -381,20 +489,20 @@ mod tests {
         // thread, which does not exist there.
         let elsewhere = current_thread() ^ 0x1000;
         let m = OwnerMutex::new(());
-        m.word.store(elsewhere | CONTENDED | FLAG, SeqCst);
-        m.forget_dead_holder();
-        assert_eq!(m.word.load(SeqCst), FLAG, "free, the flag kept, nobody waiting");
+        m.word.store(elsewhere | CONTENDED | F | G, SeqCst);
+        m.forget_dead_holder(F);
+        assert_eq!(m.word.load(SeqCst), F, "free, F kept, G dropped, nobody waiting");
         let g = m.try_lock().expect("try_lock takes a free word with flags");
-        assert!(g.release(), "the flag goes to the next holder");
-        m.word.store(elsewhere | FLAG, SeqCst);
-        m.forget_dead_holder();
-        assert!(m.lock().release(), "enter takes a free word with flags too");
-        assert!(!m.lock().release());
+        assert_eq!(g.release(), F, "the flag goes to the next holder");
+        m.word.store(elsewhere | F, SeqCst);
+        m.forget_dead_holder(F);
+        assert_eq!(m.lock().release(), F, "enter takes a free word with flags too");
+        assert_eq!(m.lock().release(), 0);
         // The forking thread's own lock is kept.
         let g = m.lock();
-        m.forget_dead_holder();
+        m.forget_dead_holder(F);
         assert_eq!(m.holder(), current_thread());
-        assert!(!g.release());
+        assert_eq!(g.release(), 0);
     }
 
     #[test]
@@ -402,20 +510,20 @@ mod tests {
         let m = OwnerMutex::new(());
         // On a free lock: refused, and the lock stays free (it used to become a word
         // with no owner that nobody could take again).
-        assert!(!m.raise_flag());
+        assert!(!m.raise_flag(F));
         assert_eq!(m.word.load(SeqCst), 0);
         let g = m.try_lock().expect("a refused flag leaves the lock free");
         // From another thread while this one holds it, on the lock or through the
         // shared guard: refused, the holder's release finds no flag.
         std::thread::scope(|s| {
             s.spawn(|| {
-                assert!(!m.raise_flag());
-                assert!(!OwnerGuard::mutex(&g).raise_flag());
+                assert!(!m.raise_flag(F));
+                assert!(!OwnerGuard::mutex(&g).raise_flag(F));
             })
             .join()
             .unwrap()
         });
-        assert!(!g.release());
-        assert!(m.try_lock().is_some_and(|g| !g.release()));
+        assert_eq!(g.release(), 0);
+        assert!(m.try_lock().is_some_and(|g| g.release() == 0));
     }
 }

@@ -8,28 +8,44 @@
 //! A handle is freed when its last reference goes: the application's, given up by
 //! `modbus_free`, and one per call that runs without the lock for a while (a wait, a
 //! callback). A `modbus_free` from a signal handler that interrupted a call on the
-//! handle hands the application's reference to that call, through the lock word's
-//! flag: the call gives it up as it releases the lock. The reference count and the
-//! flag are private to this module ([`lock`] is its child).
+//! handle hands the application's reference to that call, through a flag of the lock
+//! word ([`FREED`]): the call gives it up as it releases the lock. A `modbus_close`
+//! from such a handler raises [`CLOSED`], for the call to finish that close as it
+//! ends; a call that deferred cancellation ([`cancel`]) carries [`DEFERRED`]. So a call
+//! ends with one compare-and-swap when none of this happened, and acts on the flags
+//! otherwise ([`release_slow`]). The reference count and the flags are private to this
+//! module ([`lock`] is its child).
 //!
 //! A `fork` child gets working handles even when another thread was inside a call
-//! at the fork ([`fork`]).
+//! at the fork ([`fork`]); `pthread_cancel` never acts inside a call ([`cancel`]).
 //!
 //! The module is generic over the value behind the lock ([`Closable`]), so that it
 //! sits below the context with the lock and the stop state, and the engine may run
 //! callbacks unlocked without an import cycle; the C layer instantiates it over the
 //! context (`ffi::Modbus`).
 
+mod cancel;
 mod fork;
 pub mod lock;
 pub(crate) mod stop;
 
+use std::mem::needs_drop;
 use std::sync::Arc;
 use std::sync::atomic::Ordering::SeqCst;
 
 use crate::error::{Error, Result};
-use lock::{Entry, OwnerGuard, OwnerMutex, current_thread};
+use lock::{Entry, FLAGS, OwnerGuard, OwnerMutex, current_thread};
 use stop::Stop;
+
+/// The lock word's flags, as the handle uses them (see the module documentation).
+/// A `modbus_free` from a signal handler handed the application's reference to the
+/// interrupted call (or a callback's reference turned out to be the last one).
+const FREED: usize = 0b0010;
+/// A signal handler closed the handle under the interrupted call.
+const CLOSED: usize = 0b0100;
+/// The call disabled cancellation; it enables it again as it ends.
+const DEFERRED: usize = 0b1000;
+const _: () = assert!((FREED | CLOSED | DEFERRED) & !FLAGS == 0);
 
 /// What a handle needs of the value behind its lock.
 pub trait Closable {
@@ -70,7 +86,9 @@ impl<T: Closable> Handle<T> {
     unsafe fn after_fork_in_child(addr: usize) {
         // SAFETY: guaranteed by the caller.
         let handle = unsafe { &*(addr as *const Handle<T>) };
-        handle.value.forget_dead_holder();
+        // What the dead holder's call had to do for the handle stays for the next
+        // holder; its cancellation state was its own thread's.
+        handle.value.forget_dead_holder(FREED | CLOSED);
         handle.stop.after_fork_in_child();
     }
 }
@@ -109,49 +127,97 @@ unsafe fn give_back<T>(ptr: *mut Handle<T>) {
     }
 }
 
-/// Releases the lock a call took on `ptr`; when a `modbus_free` handed the
-/// application's reference to this call meanwhile (the lock word's flag), gives it
-/// up, which may free the handle. Nothing of the handle is touched afterwards.
+/// Releases the lock a call took on `ptr`: one compare-and-swap when no flag is up,
+/// else [`release_slow`]. True when a signal handler's close was finished here (the
+/// call fails with EBADF). Nothing of the handle is touched afterwards.
 ///
 /// # Safety
 /// `g` must be the lock of the live handle `ptr`.
-unsafe fn unlock_call<T>(ptr: *mut Handle<T>, g: OwnerGuard<'_, T>) {
-    if g.release() {
+#[inline]
+unsafe fn unlock_call<T: Closable>(ptr: *mut Handle<T>, g: OwnerGuard<'_, T>) -> bool {
+    match g.try_release() {
+        Ok(()) => false,
+        // SAFETY: forwarded.
+        Err(g) => unsafe { release_slow(ptr, g) },
+    }
+}
+
+/// Releases the lock a call took on `ptr`, acting on the flags raised meanwhile: a
+/// signal handler's close is finished with the lock (see [`Closable`]), until none is
+/// left up; then the lock is freed; cancellation is enabled again if the call
+/// disabled it; a reference handed over is given up, which may free the handle. True
+/// when a handler's close was finished.
+///
+/// # Safety
+/// `g` must be the lock of the live handle `ptr`; nothing of the handle is used by the
+/// caller afterwards.
+#[cold]
+#[inline(never)]
+unsafe fn release_slow<T: Closable>(ptr: *mut Handle<T>, mut g: OwnerGuard<'_, T>) -> bool {
+    // SAFETY: guaranteed by the caller, until the release below.
+    let handle = unsafe { &*ptr };
+    let mut closed = false;
+    let flags = loop {
+        if OwnerGuard::take_flags(&mut g, CLOSED) != 0 {
+            if let Some(handled) = handle.stop.take_handled() {
+                g.finish_handler_close(handled);
+            }
+            closed = true;
+        }
+        match g.release_unless(CLOSED) {
+            Ok(flags) => break flags,
+            // A handler closed it again meanwhile.
+            Err(again) => g = again,
+        }
+    };
+    if flags & DEFERRED != 0 {
+        cancel::resume();
+    }
+    if flags & FREED != 0 {
         // SAFETY: the reference handed over with the flag.
         unsafe { give_back(ptr) };
     }
+    closed
 }
 
 /// Runs `f` on the locked value behind `ptr`: NULL gives EINVAL; from a signal
 /// handler that interrupted a call of its thread on the same handle, EDEADLK at once
 /// (waiting for the lock would never end). A call under which a signal handler closed
-/// the value finishes that close and fails with EBADF.
+/// the value finishes that close and fails with EBADF. Cancellation is deferred over
+/// the call (see [`cancel`]); one requested before it acts at its start when `f` owns
+/// nothing.
 ///
 /// # Safety
-/// `ptr` must be NULL or a live handle.
-pub unsafe fn call<T: Closable, R>(
-    ptr: *mut Handle<T>,
-    f: impl FnOnce(&mut OwnerGuard<'_, T>) -> Result<R>,
-) -> Result<R> {
+/// `ptr` must be NULL or a live handle. No frame between the application and this
+/// call may own a value with a destructor, apart from `f`: a cancellation may end the
+/// thread at the call's start.
+pub unsafe fn call<T: Closable, R, F>(ptr: *mut Handle<T>, f: F) -> Result<R>
+where
+    F: FnOnce(&mut OwnerGuard<'_, T>) -> Result<R>,
+{
     // SAFETY: guaranteed by the caller.
     let Some(handle) = (unsafe { ptr.as_ref() }) else {
         return Err(Error::INVALID);
     };
-    match handle.value.enter() {
+    let (entry, deferred) = if cancel::single_threaded() {
+        (handle.value.enter(), false)
+    } else {
+        let deferred = cancel::defer(!needs_drop::<F>());
+        (handle.value.enter_flagged(if deferred { DEFERRED } else { 0 }), deferred)
+    };
+    match entry {
         Entry::Locked(mut g) => {
             let r = f(&mut g);
-            let r = match handle.stop.take_handled() {
-                None => r,
-                Some(handled) => {
-                    g.finish_handler_close(handled);
-                    Err(Error::STOPPED)
-                }
-            };
             // SAFETY: `g` is the lock of `ptr`; `handle` is not used after this.
-            unsafe { unlock_call(ptr, g) };
-            r
+            if unsafe { unlock_call(ptr, g) } { Err(Error::STOPPED) } else { r }
         }
-        Entry::HeldByThisThread => Err(Error::REENTERED),
+        Entry::HeldByThisThread => {
+            // (The interrupted call deferred cancellation already, if it could be.)
+            if deferred {
+                cancel::resume();
+            }
+            Err(Error::REENTERED)
+        }
     }
 }
 
@@ -192,6 +258,9 @@ pub unsafe fn wait_unlocked<T: Closable, W, R>(
     let Some(handle) = (unsafe { ptr.as_ref() }) else {
         return Err(Error::INVALID);
     };
+    // Cancellation deferred over the whole call (the calls inside then find it
+    // disabled, and leave it so); one requested before acts first.
+    let deferred = cancel::defer_rare(true);
     hold(handle);
     let waited = (|| {
         // SAFETY: `ptr` is live (our reference).
@@ -205,6 +274,9 @@ pub unsafe fn wait_unlocked<T: Closable, W, R>(
     })();
     // SAFETY: the reference taken above; `handle` is not used after this.
     unsafe { give_back(ptr) };
+    if deferred {
+        cancel::resume();
+    }
     waited
 }
 
@@ -222,7 +294,7 @@ pub fn call_unlocked<T, R>(g: &mut OwnerGuard<'_, T>, f: impl FnOnce() -> R) -> 
             if self.0.refs().fetch_sub(1, SeqCst) == 1 {
                 // `modbus_free` came meanwhile: the handle is this call's to free.
                 self.0.refs().store(1, SeqCst);
-                let raised = self.0.raise_flag();
+                let raised = self.0.raise_flag(FREED);
                 debug_assert!(raised, "the lock is taken back before the reference");
             }
         }
@@ -242,6 +314,19 @@ fn close_locked<T: Closable>(handle: &Handle<T>, g: &mut OwnerGuard<'_, T>) {
     }
 }
 
+/// `modbus_close` or `modbus_free` from a signal handler that interrupted a call of
+/// its thread on the handle (this thread holds the lock): the close without the lock
+/// of `Stop::close_in_handler`, which the interrupted call finishes as it releases the
+/// lock ([`CLOSED`]); with `freed`, the application's reference goes to that call too
+/// ([`FREED`]).
+fn close_in_handler<T>(handle: &Handle<T>, freed: bool) {
+    handle.stop.close_in_handler();
+    let flags = if freed { CLOSED | FREED } else { CLOSED };
+    // This thread holds the lock: the raise cannot be refused.
+    let raised = handle.value.raise_flag(flags);
+    debug_assert!(raised);
+}
+
 /// Closes a handle whose lock another thread holds: stops its waits, then closes
 /// with the lock, which the waiting call gives up at once.
 ///
@@ -257,13 +342,13 @@ unsafe fn close_under_other_thread<T: Closable>(ptr: *mut Handle<T>) {
             handle.stop.note_close();
             handle.stop.end_stop();
             // SAFETY: `g` is the lock of `ptr`.
-            unsafe { unlock_call(ptr, g) };
+            unsafe { release_slow(ptr, g) };
         }
         // Cannot happen (the holder was another thread, and a handler of ours never
         // keeps the lock); a handler's close all the same.
         Entry::HeldByThisThread => {
             handle.stop.end_stop();
-            handle.stop.close_in_handler();
+            close_in_handler(handle, false);
         }
     }
 }
@@ -278,16 +363,20 @@ unsafe fn close_under_other_thread<T: Closable>(ptr: *mut Handle<T>) {
 pub unsafe fn close<T: Closable>(ptr: *mut Handle<T>) {
     // SAFETY: guaranteed by the caller.
     let Some(handle) = (unsafe { ptr.as_ref() }) else { return };
+    let deferred = cancel::defer_rare(false);
     match handle.value.try_lock() {
         Some(mut g) => {
             close_locked(handle, &mut g);
             handle.stop.note_close();
             // SAFETY: `g` is the lock of `ptr`.
-            unsafe { unlock_call(ptr, g) };
+            unsafe { release_slow(ptr, g) };
         }
-        None if handle.value.holder() == current_thread() => handle.stop.close_in_handler(),
+        None if handle.value.holder() == current_thread() => close_in_handler(handle, false),
         // SAFETY: `ptr` is live.
         None => unsafe { close_under_other_thread(ptr) },
+    }
+    if deferred {
+        cancel::resume();
     }
 }
 
@@ -300,23 +389,31 @@ pub unsafe fn close<T: Closable>(ptr: *mut Handle<T>) {
 pub unsafe fn free<T: Closable>(ptr: *mut Handle<T>) {
     // SAFETY: guaranteed by the caller.
     let Some(handle) = (unsafe { ptr.as_ref() }) else { return };
-    match handle.value.try_lock() {
+    let deferred = cancel::defer_rare(false);
+    let handed_over = match handle.value.try_lock() {
         Some(g) => {
-            drop(g);
             // Not closed, as libmodbus; a `modbus_tcp_accept` waiting unlocked still
             // ends (EBADF), and frees the handle as it leaves.
             handle.stop.note_close();
+            // SAFETY: `g` is the lock of `ptr`.
+            unsafe { release_slow(ptr, g) };
+            false
         }
         None if handle.value.holder() == current_thread() => {
-            handle.stop.close_in_handler();
-            // This thread holds the lock: the raise cannot be refused.
-            let raised = handle.value.raise_flag();
-            debug_assert!(raised);
-            return;
+            close_in_handler(handle, true);
+            true
         }
-        // SAFETY: `ptr` is live.
-        None => unsafe { close_under_other_thread(ptr) },
+        None => {
+            // SAFETY: `ptr` is live.
+            unsafe { close_under_other_thread(ptr) };
+            false
+        }
+    };
+    if !handed_over {
+        // SAFETY: the application's reference, given up here.
+        unsafe { give_back(ptr) };
     }
-    // SAFETY: the application's reference, given up here.
-    unsafe { give_back(ptr) };
+    if deferred {
+        cancel::resume();
+    }
 }
