@@ -18,6 +18,11 @@
 #                              returns < 100 ms, the waiting one -1 EBADF; free under
 #                              valgrind (ours)
 #  6 handler-call              calls from a handler on the interrupted context: EDEADLK
+#  7 fork-thread               another thread forks during the call: the child's calls
+#                              on the context return at once (no lock left held)
+#  8 cancel, cancel-close      pthread_cancel of the thread in the call: ours lets the
+#                              call end (timeout; modbus_close from another thread) and
+#                              cancels at the next call; the context works after it
 # Roles client (modbus_read_registers, silent peer) and server (modbus_receive, peer
 # that sends nothing); transports tcp and rtu (socat pty pair), and for ours rtutcp
 # and ascii. Every process started is stopped by its PID (the harness kills a hung
@@ -161,6 +166,9 @@ done
 add_case 5 thread-close "client server"
 add_case 5 thread-free "client server" valgrind
 add_case 6 handler-call "client server"
+add_case 7 fork-thread "client server"
+add_case 8 cancel "client server"
+add_case 8 cancel-close "client server"
 
 NRUNS=${#R_NAME[@]}
 echo "$NRUNS runs, $JOBS at a time"

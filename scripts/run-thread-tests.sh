@@ -25,7 +25,7 @@
 # and the libc calls it intercepts; it does not see inside Rust's std (uninstrumented;
 # the library uses it for allocation and I/O wrappers only), and it only judges the
 # interleavings that happened in this run. helgrind/DRD are not used: they know
-# pthread primitives only, and the context lock (src/lock.rs) is atomics and futex calls,
+# pthread primitives only, and the context lock (src/handle/lock.rs) is atomics and futex calls,
 # so every access made under it would be reported. Deadlock detection would need a
 # checker thread inside the library (and its feature flag); the watchdog covers hangs.
 #

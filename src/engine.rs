@@ -127,20 +127,9 @@ fn drive_rts(g: &mut Guard<'_>, hook: Option<&RtsHook>, on: bool) {
 }
 
 /// Calls an application's callback with the context unlocked, so that it may call
-/// `modbus_get_socket` and friends on it.
+/// `modbus_get_socket` and friends on it (see `handle::call_unlocked`).
 pub fn call_unlocked<R>(g: &mut Guard<'_>, f: impl FnOnce() -> R) -> R {
-    // The handle must outlive the callback, which may free it (or a signal handler
-    // may, meanwhile): a reference held across it.
-    let stop = std::sync::Arc::clone(&g.stop);
-    stop.refs.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-    let r = OwnerGuard::unlocked(g, f);
-    if stop.refs.fetch_sub(1, std::sync::atomic::Ordering::SeqCst) == 1 {
-        // `modbus_free` came meanwhile: the handle is ours to free, when this call
-        // releases the lock (see `OwnerGuard::release`).
-        stop.refs.store(1, std::sync::atomic::Ordering::SeqCst);
-        OwnerGuard::raise_flag(g);
-    }
-    r
+    crate::handle::call_unlocked(g, f)
 }
 
 /// The RTS sequence's sleeps (a stop cuts them short; the wait that follows the

@@ -7,8 +7,9 @@
 //! - [`context`] and [`engine`]: a `modbus_t` context and the libmodbus flows that drive
 //!   the protocol over a transport (send, receive, confirm, error recovery, debug
 //!   trace); `server` (private) the server's receive and reply.
-//! - [`lock`] and `stop` (private): the context lock, whose word names its owner, and
-//!   what stopping a waiting call needs without it.
+//! - [`handle`]: a handle's lifetime (make, call, wait unlocked, callbacks unlocked,
+//!   close, free), with its lock ([`lock`], whose word names its owner) and what
+//!   stopping a waiting call needs without it (`stop`, crate-private).
 //! - [`ffi`]: the exported C ABI, thin shims that check arguments and map errors to
 //!   `-1`/`NULL` plus `errno` in one place.
 //!
@@ -34,8 +35,11 @@ use rsmodbus_proto::server_ext;
 pub mod context;
 pub mod engine;
 pub mod ffi;
-pub mod lock;
+pub mod handle;
 mod server;
 mod stdio;
-mod stop;
 pub mod transport;
+
+/// The context lock, by its own name (the engine's guard, the tests).
+pub use handle::lock;
+use handle::stop;

@@ -22,6 +22,15 @@
  *   thread-free     another thread calls modbus_free while this one waits
  *   handler-call    the handler calls modbus_get_socket, modbus_set_slave,
  *                   modbus_read_registers on the context its signal interrupted
+ *   fork-thread     another thread forks while this one waits in the call; the child
+ *                   uses the context (calls return at once, as with libmodbus, which
+ *                   has no lock), the waiting call is not disturbed
+ *   cancel          a worker thread waits in the call (1 s timeout), the main thread
+ *                   cancels it (pthread_cancel) at 0.3 s: ours defers the cancellation
+ *                   over the call (it returns at its timeout) and acts at the start of
+ *                   the worker's next call; then the context works from the main thread
+ *   cancel-close    the same with no timeout: the main thread closes the context at
+ *                   0.6 s, which ends the call (EBADF), then the cancellation acts
  * ROLE: client (modbus_read_registers to a silent peer) | server (modbus_receive with a
  * connected peer that sends nothing). TRANSPORT: tcp | rtu | rtutcp | ascii (the last
  * two are rsmodbus extensions, looked up with dlsym). A B: the two ends of a pty pair
@@ -304,7 +313,81 @@ static void h_calls(int sig)
     errno = e;
 }
 
-enum helper_kind { HELP_SIGNAL, HELP_CLOSE, HELP_FREE };
+/* fork-thread: the fork child's exit code (bits of its failed steps; 100 + signal if
+ * it died; -1 when it hung and was killed) and how long it took */
+static volatile int g_fork_status = -3;
+static volatile double g_fork_s = -1;
+
+/* fork-thread: called by the helper thread while the main thread waits in a call on
+ * g_ctx. The child (a copy of this thread, its only thread) uses the context: each
+ * call must return at once and succeed. Waits up to `limit` seconds for the child. */
+static void fork_and_use(double limit)
+{
+    int sock = modbus_get_socket(g_ctx), st = 0;
+    double t0 = now();
+    pid_t pid = fork();
+    if (pid == 0) {
+        int bad = 0;
+        if (modbus_set_slave(g_ctx, 1) != 0) {
+            bad |= 1;
+        }
+        if (modbus_get_socket(g_ctx) != sock) {
+            bad |= 2;
+        }
+        if (modbus_flush(g_ctx) < 0) {
+            bad |= 4;
+        }
+        if (modbus_set_response_timeout(g_ctx, 0, 200000) != 0) {
+            bad |= 8;
+        }
+        modbus_free(g_ctx);
+        _exit(bad);
+    }
+    if (pid < 0) {
+        g_fork_status = -2;
+        return;
+    }
+    for (;;) {
+        if (waitpid(pid, &st, WNOHANG) == pid) {
+            g_fork_s = now() - t0;
+            g_fork_status = WIFEXITED(st) ? WEXITSTATUS(st) : 100 + WTERMSIG(st);
+            return;
+        }
+        if (now() - t0 > limit) {
+            kill(pid, SIGKILL);
+            waitpid(pid, &st, 0);
+            g_fork_s = now() - t0;
+            g_fork_status = -1;
+            return;
+        }
+        sleep_s(0.005);
+    }
+}
+
+/* cancel, cancel-close: the thread that waits in the call */
+struct worker {
+    int client;
+    uint8_t *req;
+    uint16_t *regs;
+    volatile int rc, e, returned, second_returned;
+    volatile double t_returned;
+};
+
+static void *worker_main(void *arg)
+{
+    struct worker *w = arg;
+    int rc = w->client ? modbus_read_registers(g_ctx, 0, 1, w->regs) : modbus_receive(g_ctx, w->req);
+    /* no cancellation point from here to the next call (clock_gettime is none) */
+    w->e = errno;
+    w->rc = rc;
+    w->t_returned = now();
+    w->returned = 1;
+    modbus_set_slave(g_ctx, 1);
+    w->second_returned = 1;
+    return NULL;
+}
+
+enum helper_kind { HELP_SIGNAL, HELP_CLOSE, HELP_FREE, HELP_FORK };
 struct helper {
     enum helper_kind kind;
     double delay;
@@ -336,6 +419,10 @@ static void *helper_main(void *arg)
         modbus_free(g_ctx);
         g_helper_call_s = now() - t0;
         say("NOTE modbus_free from another thread returned in %.3f ms", g_helper_call_s * 1e3);
+        break;
+    case HELP_FORK:
+        fork_and_use(3.0);
+        say("NOTE fork child: status %d after %.3f ms", g_fork_status, g_fork_s * 1e3);
         break;
     }
     return NULL;
@@ -424,10 +511,12 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
     /* default: client waits 10 s for a response, server forever for a request */
     modbus_set_response_timeout(ctx, 10, 0);
     modbus_set_indication_timeout(ctx, 0, 0);
-    if (starts(cs, "client-timeout") || streq(cs, "handler-call")) {
+    if (starts(cs, "client-timeout") || streq(cs, "handler-call") || streq(cs, "fork-thread") ||
+        streq(cs, "cancel")) {
         modbus_set_response_timeout(ctx, 1, 0);
     }
-    if (starts(cs, "server-timeout") || streq(cs, "handler-call")) {
+    if (starts(cs, "server-timeout") || streq(cs, "handler-call") || streq(cs, "fork-thread") ||
+        streq(cs, "cancel")) {
         modbus_set_indication_timeout(ctx, 1, 0);
     }
 
@@ -537,9 +626,80 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         } else if (streq(cs, "thread-free")) {
             help = (struct helper){HELP_FREE, vg ? 1.0 : 0.3, 0};
             have_helper = 1;
+        } else if (streq(cs, "fork-thread")) {
+            help = (struct helper){HELP_FORK, 0.3, 0};
+            have_helper = 1;
         }
         if (have_helper) {
             pthread_create(&helper_tid, NULL, helper_main, &help);
+        }
+
+        if (starts(cs, "cancel")) {
+            struct worker w = {client, req, regs, -2, 0, 0, 0, 0};
+            pthread_t wt;
+            void *res = NULL;
+            double t_cancel, t_close = 0, t_set;
+            int closing = streq(cs, "cancel-close");
+            say("BLOCKING");
+            t0 = now();
+            pthread_create(&wt, NULL, worker_main, &w);
+            sleep_s(vg ? 1.0 : 0.3);
+            t_cancel = g_t_signal = now();
+            pthread_cancel(wt);
+            if (closing) {
+                sleep_s(0.3);
+                t_close = now();
+                modbus_close(ctx);
+            }
+            pthread_join(wt, &res);
+            t1 = now();
+            say("RETURNED joined after %.3f s (%.3f s after pthread_cancel); the call %s", t1 - t0,
+                t1 - t_cancel, w.returned ? "returned" : "never returned");
+            check(res == PTHREAD_CANCELED, "the worker thread was cancelled");
+            if (ours) {
+                check(w.returned, "the call was not cut short: it returned (rc %d, %s)", w.rc,
+                        ename(w.rc == -1 ? w.e : 0));
+                if (closing) {
+                    check(w.rc == -1 && w.e == EBADF && w.t_returned - t_close < slack,
+                            "it ended with the main thread's modbus_close: -1 EBADF %.3f s "
+                            "after it (rc %d, %s)",
+                            w.t_returned - t_close, w.rc, ename(w.rc == -1 ? w.e : 0));
+                } else {
+                    check(w.rc == -1 && w.e == ETIMEDOUT && w.t_returned - t0 >= 0.9 &&
+                                  w.t_returned - t0 <= 1.5 + (vg ? 3.0 : 0.0),
+                            "it ended at its timeout: -1 ETIMEDOUT after %.3f s (rc %d, %s)",
+                            w.t_returned - t0, w.rc, ename(w.rc == -1 ? w.e : 0));
+                }
+                check(!w.second_returned && t1 - w.t_returned < slack,
+                        "the cancellation acted at the start of the next call, %.3f s after "
+                        "the first returned",
+                        t1 - w.t_returned);
+            } else {
+                check(!w.returned && t1 - t_cancel < slack,
+                        "cancelled inside the call: never returned, joined %.3f s after "
+                        "pthread_cancel",
+                        t1 - t_cancel);
+                say("DIFF debian-cancel-in-call: pthread_cancel acts inside the waiting call "
+                    "(select is a cancellation point); ours lets the call end and cancels at "
+                    "the next call");
+            }
+            t_set = now();
+            rc = modbus_set_slave(ctx, 1);
+            t_set = now() - t_set;
+            check(rc == 0 && t_set < 0.1,
+                    "then the main thread uses the context: modbus_set_slave %d after %.3f ms", rc,
+                    t_set * 1e3);
+            modbus_close(ctx);
+            check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d after close",
+                    fds_before, mbt_count_fds());
+            if (serial) {
+                tcgetattr(obs_fd, &tios_after);
+                check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
+                        tios_str(&tios_after), tios_str(&tios_before));
+            }
+            modbus_free(ctx);
+            ctx = NULL;
+            goto done;
         }
 
         say("BLOCKING");
@@ -554,7 +714,8 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         say("RETURNED rc=%d errno=%s after %.3f s (%.3f s after the %s)", rc,
             ename(rc == -1 ? e : 0), t1 - t0, t1 - g_t_signal,
             streq(cs, "thread-close") ? "modbus_close"
-            : streq(cs, "thread-free") ? "modbus_free" : "signal");
+            : streq(cs, "thread-free") ? "modbus_free"
+            : streq(cs, "fork-thread") ? "fork" : "signal");
 
         if (starts(cs, "term-") || streq(cs, "free-exit")) {
             check(0, "the handler should have ended the process; the call returned instead");
@@ -688,10 +849,22 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
                     h_rc_slave, h_read_s);
             }
             modbus_close(ctx);
+        } else if (streq(cs, "fork-thread")) {
+            check(g_fork_status == 0 && g_fork_s < 1.0,
+                    "the fork child's calls on the context (set_slave, get_socket, flush, "
+                    "set_response_timeout, free) returned at once and succeeded: status %d "
+                    "(-1: hung, killed; else bits of the failed steps) after %.3f ms",
+                    g_fork_status, g_fork_s * 1e3);
+            check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
+                    "the waiting call is not disturbed: -1 ETIMEDOUT after %.3f s (rc %d, %s; "
+                    "0.9-1.5 s)",
+                    t1 - t0, rc, ename(rc == -1 ? e : 0));
+            modbus_close(ctx);
         } else {
             check(0, "unknown case %s", cs);
         }
     }
+done:
     if (ctx != NULL) {
         modbus_free(ctx);
     }

@@ -5,7 +5,8 @@ use std::ffi::{c_char, c_int, c_uint};
 use crate::context::{Context, Timeout};
 use crate::engine;
 use crate::error::{Error, strerror_modbus_c};
-use crate::ffi::{Modbus, close_handle, fail, free_handle, with_ctx};
+use crate::ffi::{Modbus, fail, with_ctx};
+use crate::handle;
 
 /// Frees a context. NULL is a no-op. The connection is not closed (call
 /// `modbus_close` first), as in libmodbus, unless a call is inside the context (a
@@ -18,7 +19,7 @@ use crate::ffi::{Modbus, close_handle, fail, free_handle, with_ctx};
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_free(ctx: *mut Modbus) {
     // SAFETY: the caller hands back ownership of a context made by `into_handle`.
-    unsafe { free_handle(ctx) }
+    unsafe { handle::free(ctx) }
 }
 
 /// Opens the serial line or TCP connection.
@@ -41,7 +42,7 @@ pub unsafe extern "C" fn modbus_connect(ctx: *mut Modbus) -> c_int {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_close(ctx: *mut Modbus) {
     // SAFETY: forwarded caller contract.
-    unsafe { close_handle(ctx) }
+    unsafe { handle::close(ctx) }
 }
 
 /// Discards pending input. Returns the bytes discarded (TCP) or 0 (RTU).

@@ -3,8 +3,9 @@
 
 use std::ffi::c_int;
 
-use crate::error::Error;
-use crate::ffi::{Modbus, fail, with_ctx};
+use crate::engine::Guard;
+use crate::error::{Error, Result};
+use crate::ffi::{Modbus, with_ctx};
 use crate::transport::listen;
 
 /// Opens an IPv4 listening socket on the context's address and port, for up to
@@ -25,52 +26,35 @@ pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_in
 /// # Safety
 /// `ctx` must be NULL or a live context; `s` NULL or a valid pointer.
 unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
-    // SAFETY: guaranteed by the caller.
-    let checked = unsafe {
-        with_ctx(ctx, |g| if s.is_null() || !g.line.accepts_clients() { Err(Error::INVALID) } else { Ok(0) })
+    let check = |g: &mut Guard<'_>| if s.is_null() || !g.line.accepts_clients() { Err(Error::INVALID) } else { Ok(()) };
+    // SAFETY: `s` is non-NULL and valid per the caller once `check` passed, which
+    // comes first.
+    let wait = |w: &crate::handle::Waiting<'_>| listen::accept(unsafe { *s }, w.wake_fd(), &|| w.closed());
+    let then = |g: &mut Guard<'_>, accepted: Result<(c_int, Option<String>)>, closed: bool| match accepted {
+        Ok((fd, _)) if closed => {
+            // Closed while the client was being accepted.
+            crate::transport::close(fd);
+            Err(Error::STOPPED)
+        }
+        Ok((fd, peer)) => {
+            // Modbus/TCP Security: the client is served only once it has
+            // authenticated (a failure closes its socket).
+            crate::engine::accepted(g, fd, peer.as_deref())?;
+            Ok(fd)
+        }
+        Err(e) => {
+            // As libmodbus: the context's socket is accept's -1, unless the context
+            // was closed while waiting (nothing left to change).
+            if !closed {
+                g.set_descriptor(-1);
+            }
+            Err(e)
+        }
     };
-    if checked < 0 {
-        return -1;
-    }
-    // SAFETY: `ctx` is live (the call above succeeded on it); the reference taken here
-    // keeps it so while the lock is not held.
-    let Some(handle) = (unsafe { crate::ffi::acquire(ctx) }) else { return fail(Error::INVALID) };
-    // SAFETY: `s` is non-NULL and valid per the caller.
-    let listen_fd = unsafe { *s };
-    let stop = handle.stop();
-    let closes = stop.closes();
-    stop.set_accepting(true);
-    let accepted = listen::accept(listen_fd, stop.wake_fd(), &|| stop.closes() != closes);
-    stop.set_accepting(false);
-    // SAFETY: forwarded caller contract.
-    let rc = unsafe {
-        crate::ffi::with_ctx_result(ctx, |g| match accepted {
-            Ok((fd, _)) if g.stop.closes() != closes => {
-                // Closed while the client was being accepted.
-                crate::transport::close(fd);
-                Err(Error::STOPPED)
-            }
-            Ok((fd, peer)) => {
-                // Modbus/TCP Security: the client is served only once it has
-                // authenticated (a failure closes its socket).
-                crate::engine::accepted(g, fd, peer.as_deref())?;
-                Ok(fd)
-            }
-            Err(e) => {
-                // As libmodbus: the context's socket is accept's -1, unless the
-                // context was closed while waiting (nothing left to change).
-                if g.stop.closes() == closes {
-                    g.set_descriptor(-1);
-                }
-                Err(e)
-            }
-        })
-    };
-    // SAFETY: the reference taken above.
-    unsafe { crate::ffi::release(ctx) };
-    // errno after the release: freeing the handle (when a `modbus_free` came
+    // errno after the wait's end: freeing the handle (when a `modbus_free` came
     // meanwhile) must not change it.
-    crate::ffi::status(rc)
+    // SAFETY: forwarded caller contract.
+    crate::ffi::status(unsafe { crate::handle::wait_unlocked(ctx, check, wait, then) })
 }
 
 /// Accepts one client on the listening socket `*s`; the new socket becomes the

@@ -17,17 +17,14 @@
 //!
 //! Everything a signal handler does here is async-signal-safe: atomics and system
 //! calls, no allocation, no lock. The module uses no other of the library (it sits
-//! below the context, which holds it).
+//! below the context, which holds it); what stops and closes a call is the handle's
+//! (`crate::handle`), the rest is for the engine's waits.
 
 use std::cell::UnsafeCell;
 use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering::SeqCst};
 
 /// The stop state of one context (see the module documentation).
 pub struct Stop {
-    /// References to the handle that keep it from being freed: the application's
-    /// (until `modbus_free`), plus one per `modbus_tcp_accept` waiting unlocked and
-    /// per custom RTS callback running with the lock released. The last one out frees.
-    pub refs: AtomicU32,
     fd: AtomicI32,
     /// Stoppers shutting `fd` down right now: the descriptor may not be closed or
     /// replaced until they are done (its number could be reused under them).
@@ -56,7 +53,6 @@ unsafe impl Send for Stop {}
 impl Default for Stop {
     fn default() -> Self {
         Stop {
-            refs: AtomicU32::new(1),
             fd: AtomicI32::new(-1),
             shutting: AtomicU32::new(0),
             stoppers: AtomicU32::new(0),
@@ -97,7 +93,7 @@ impl Stop {
     }
 
     /// The number of closes so far (see `accepting`).
-    pub fn closes(&self) -> u32 {
+    pub(super) fn closes(&self) -> u32 {
         self.closes.load(SeqCst)
     }
 
@@ -148,7 +144,7 @@ impl Stop {
     /// Signals are blocked while `shutting` is raised: a handler of this thread that
     /// closed the context itself would otherwise wait in [`Stop::set_fd`] for this
     /// very frame, which cannot run before the handler returns.
-    pub fn begin_stop(&self) {
+    pub(super) fn begin_stop(&self) {
         self.stoppers.fetch_add(1, SeqCst);
         // SAFETY: sigset_t is plain data, filled by sigfillset; pthread_sigmask reads
         // `all` and writes the old mask into `old`, both live locals.
@@ -174,13 +170,13 @@ impl Stop {
     }
 
     /// The close that [`Stop::begin_stop`] announced is done.
-    pub fn end_stop(&self) {
+    pub(super) fn end_stop(&self) {
         self.drain_wake();
         self.stoppers.fetch_sub(1, SeqCst);
     }
 
     /// Counts a close and wakes `modbus_tcp_accept` if one waits.
-    pub fn note_close(&self) {
+    pub(super) fn note_close(&self) {
         self.closes.fetch_add(1, SeqCst);
         if self.accepting.load(SeqCst) != 0 {
             self.wake_waiters();
@@ -188,11 +184,31 @@ impl Stop {
     }
 
     /// `modbus_tcp_accept` starts (true) or stops (false) waiting.
-    pub fn set_accepting(&self, waiting: bool) {
+    pub(super) fn set_accepting(&self, waiting: bool) {
         if waiting {
             self.accepting.fetch_add(1, SeqCst);
         } else {
             self.accepting.fetch_sub(1, SeqCst);
+        }
+    }
+
+    /// In a fork child (one thread, the forking one): the stops, shutdowns and
+    /// accepts other threads were making do not go on there, so they are forgotten
+    /// (else every call would fail with EBADF, or a change of descriptor wait for
+    /// ever); and the child gets a wake-up descriptor of its own (the inherited one
+    /// is the parent's too: a wake of one would be read by the other).
+    pub(super) fn after_fork_in_child(&self) {
+        self.stoppers.store(0, SeqCst);
+        self.shutting.store(0, SeqCst);
+        self.accepting.store(0, SeqCst);
+        // SAFETY: plain system calls with integer arguments.
+        let fresh = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
+        if fresh >= 0 {
+            let inherited = self.wake.swap(fresh, SeqCst);
+            if inherited >= 0 {
+                // SAFETY: the child's copy of the descriptor this value owned.
+                unsafe { libc::close(inherited) };
+            }
         }
     }
 
@@ -202,7 +218,7 @@ impl Stop {
     /// lock. The number is kept open on /dev/null, so that nothing else can get it
     /// while the interrupted call may still use it; that call ends with EBADF and
     /// closes it (see [`Stop::take_handled`]).
-    pub fn close_in_handler(&self) {
+    pub(super) fn close_in_handler(&self) {
         self.closed_by_handler.store(true, SeqCst);
         self.note_close();
         let fd = self.fd.swap(-1, SeqCst);
@@ -230,7 +246,7 @@ impl Stop {
 
     /// After a call: `Some(fd)` when a handler closed the context under it, `fd` being
     /// the descriptor the handler closed (-1: it found none). Clears the state.
-    pub fn take_handled(&self) -> Option<i32> {
+    pub(super) fn take_handled(&self) -> Option<i32> {
         if !self.closed_by_handler.load(SeqCst) {
             return None;
         }
