@@ -613,10 +613,11 @@ fn receive_timeout_set(fd: i32, socket: &mut Option<ClientSocket>, timeout: Time
     true
 }
 
-/// What a step on a socket of a Modbus/TCP Security context without a session (one
-/// handed over that this context did not connect or accept, or whose session was
-/// dropped when its peer went) ends with: EMBTLS, unless the peer has gone, which a
-/// read of it would say (ECONNRESET, as on a TCP socket).
+/// What a read, peek or wait on a socket of a Modbus/TCP Security context without a
+/// session (one handed over that this context did not connect or accept, or whose
+/// session was dropped when its peer went) ends with: EMBTLS, unless the stream has
+/// ended, which a read of it would say (ECONNRESET, as on a TCP socket). A write
+/// without a session is always EMBTLS (a peer that stopped sending may still read).
 #[cold]
 fn no_session(fd: i32) -> Error {
     let mut byte = [0u8; 1];
@@ -670,7 +671,7 @@ fn tls_write(
     frame: &[u8],
     timeout: Timeout,
 ) -> Result<usize> {
-    let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
+    let Some(session) = session.as_deref_mut() else { return Err(Error(EMBTLS)) };
     let deadline = Some(super::now() + timeout.duration());
     session.send(fd, frame, deadline, &|| stop.stopping())
 }
