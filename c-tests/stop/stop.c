@@ -241,6 +241,21 @@ static void check(int cond, const char *fmt, ...)
     }
 }
 
+/* After a close: the context's descriptors are all gone (as many as before it
+   connected) and, on a serial line, the terminal settings are back. */
+static void check_line_released(const char *when, int fds_before, int serial, int obs_fd,
+                                const struct termios *before)
+{
+    check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d %s", fds_before,
+          mbt_count_fds(), when);
+    if (serial) {
+        struct termios after;
+        tcgetattr(obs_fd, &after);
+        check(tios_equal(&after, before), "termios back (%s; before %s)", tios_str(&after),
+              tios_str(before));
+    }
+}
+
 /* ------------------------------------------------------------------ child */
 
 static void say(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
@@ -487,7 +502,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
     const int vg = valgrind_mode();
     const double slack = vg ? 5.0 : 1.0; /* valgrind runs threads one at a time, slowly */
     struct sigaction sa;
-    struct termios tios_before, tios_after;
+    struct termios tios_before;
     struct helper help;
     pthread_t helper_tid;
     int have_helper = 0, obs_fd = -1, listen_s = -1, fds_before, rc, e;
@@ -690,13 +705,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
                     "then the main thread uses the context: modbus_set_slave %d after %.3f ms", rc,
                     t_set * 1e3);
             modbus_close(ctx);
-            check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d after close",
-                    fds_before, mbt_count_fds());
-            if (serial) {
-                tcgetattr(obs_fd, &tios_after);
-                check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
-                        tios_str(&tios_after), tios_str(&tios_before));
-            }
+            check_line_released("after close", fds_before, serial, obs_fd, &tios_before);
             modbus_free(ctx);
             ctx = NULL;
             goto done;
@@ -727,13 +736,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
                     ename(rc == -1 ? e : 0));
             check(t1 - g_t_signal < 1.0, "returned %.3f s after the signal (< 1 s)",
                     t1 - g_t_signal);
-            check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d now",
-                    fds_before, mbt_count_fds());
-            if (serial) {
-                tcgetattr(obs_fd, &tios_after);
-                check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
-                        tios_str(&tios_after), tios_str(&tios_before));
-            }
+            check_line_released("now", fds_before, serial, obs_fd, &tios_before);
             /* phase 2: the same context connects again and works */
             if (client) {
                 rc = modbus_connect(ctx);
@@ -797,13 +800,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
             }
             check(t1 - g_t_signal < slack, "it returned %.3f s after modbus_close (< %.0f s)",
                     t1 - g_t_signal, slack);
-            check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d now",
-                    fds_before, mbt_count_fds());
-            if (serial) {
-                tcgetattr(obs_fd, &tios_after);
-                check(tios_equal(&tios_after, &tios_before), "termios back (%s; before %s)",
-                        tios_str(&tios_after), tios_str(&tios_before));
-            }
+            check_line_released("now", fds_before, serial, obs_fd, &tios_before);
         } else if (streq(cs, "thread-free")) {
             double limit = vg ? 2.0 : 0.1;
             check(g_helper_call_s >= 0 && g_helper_call_s < limit,

@@ -631,11 +631,6 @@ impl Tls {
     pub fn forget(&mut self, fd: i32) {
         self.parked.remove(&fd);
     }
-
-    /// Sessions parked.
-    pub fn parked(&self) -> usize {
-        self.parked.len()
-    }
 }
 
 #[cfg(test)]
