@@ -11,7 +11,7 @@
 //! 4. generates the five public headers with cbindgen into `$OUT_DIR/include/` and,
 //!    when `RSMODBUS_UPDATE_HEADERS=1`, into the committed `include/`. A committed
 //!    header that differs from the generated one only produces a cargo warning here;
-//!    `scripts/check-headers.sh` turns it into a failure. The `header` column of
+//!    `c-tests/suites/headers.sh` turns it into a failure. The `header` column of
 //!    `abi/exports.txt` says which header declares each function; the `#define`s of
 //!    the error numbers are those of `proto/src/error.rs` (`@ERRNO NAME@` lines of
 //!    the configurations in `cbindgen/`).
@@ -338,7 +338,7 @@ fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
     let ffi_root = manifest_dir.join(FFI_ROOT);
     let gen_dir = out_dir.join("include");
     // Headers of an earlier run must not stand in for ones this run cannot make
-    // (scripts/check-headers.sh compares the committed headers with these).
+    // (c-tests/suites/headers.sh compares the committed headers with these).
     let _ = fs::remove_dir_all(&gen_dir);
     if !ffi_root.exists() {
         println!("cargo:warning={FFI_ROOT} does not exist yet; headers not generated");
@@ -396,7 +396,7 @@ fn generate_headers(manifest_dir: &Path, out_dir: &Path) {
     if !stale.is_empty() {
         println!(
             "cargo:warning=committed header(s) out of date: include/{}; run \
-             `RSMODBUS_UPDATE_HEADERS=1 cargo build` (scripts/check-headers.sh fails until then)",
+             `RSMODBUS_UPDATE_HEADERS=1 cargo build` (c-tests/suites/headers.sh fails until then)",
             stale.join(", include/")
         );
     }

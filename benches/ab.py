@@ -4,7 +4,7 @@
 the waiting floor take turns in slices of BENCH_SLICE s, in a new random order every
 cycle, pinned to BENCH_PIN when set.
 
-    python3 benches/ab.py A_DIR B_DIR [CASE ...]      (scripts/bench-ab.sh builds the DIRs)
+    python3 benches/ab.py A_DIR B_DIR [CASE ...]      (benches/ab.sh builds the DIRs)
 
 A_DIR and B_DIR each hold a libmodbus.so.5. BENCH_SECONDS (default 30) is the time per
 pairing, BENCH_TRANSPORTS the transports (default tcp). Prints per case each pairing's

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Builds the C programs of benches/ into DIR (default target/bench), against Debian's
 # <modbus.h> and libmodbus.so (the library actually loaded is chosen at run time by
-# LD_LIBRARY_PATH). Used by scripts/bench.sh, run-fault-tests.sh and run-soak.sh.
+# LD_LIBRARY_PATH). Used by scripts/bench.sh, faults.sh and soak.sh.
 # MB_CFLAGS and MB_LDFLAGS replace where <modbus.h> and libmodbus.so come from
 # (scripts/build-pgo.sh: our include/ and its instrumented library).
 #

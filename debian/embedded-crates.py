@@ -10,7 +10,7 @@ licence files in cargo's registry.
 
     python3 debian/embedded-crates.py           rewrites the list in debian/copyright
     python3 debian/embedded-crates.py --check   exit 1 if the list is out of date
-                                                (scripts/check-package.sh runs it)
+                                                (c-tests/suites/package.sh runs it)
 
 Every licence the list names must have a License paragraph in debian/copyright.
 

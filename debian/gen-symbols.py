@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: MIT OR Apache-2.0
 """Writes debian/librsmodbus5.symbols (dpkg-gensymbols format) from the table of
-the exports, abi/exports.txt (which scripts/check-symbols.sh compares with the
+the exports, abi/exports.txt (which c-tests/suites/symbols.sh compares with the
 library), so the package follows the exports: every row at its "since" version,
 which for the symbols of Debian's libmodbus5 is the minimum version of Debian's own
-symbols file (abi/debian-libmodbus5.symbols; check-symbols.sh checks that they
+symbols file (abi/debian-libmodbus5.symbols; symbols.sh checks that they
 agree), for later libmodbus functions the libmodbus release that added them, and
 for rsmodbus' own ("rsmodbus") this package's version, with the alternative
 dependency template 1 (librsmodbus5): libmodbus5 lacks them.

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: MIT OR Apache-2.0
-"""Structural checks of the manual (called by scripts/check-man.sh).
+"""Structural checks of the manual (called by c-tests/suites/man.sh).
 
     check-pages.py --exports FILE --headers DIR --pages DIR [--debian-man DIR]
 

@@ -13,7 +13,7 @@
 # both against Debian's, the bare floor, and system calls, instructions and heap
 # allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_SLICE,
 # BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN,
-# BENCH_FLOOR_PARTS, BENCH_RESULTS (see benches/README.md). scripts/run-bench-smoke.sh is the short run
+# BENCH_FLOOR_PARTS, BENCH_RESULTS (see benches/README.md). c-tests/suites/bench-smoke.sh is the short run
 # of the test command. "Ours" is the library the Debian packages ship, built with
 # profile-guided optimisation (scripts/build-pgo.sh); BENCH_PGO=0 measures a plain
 # `cargo build --release` instead.

@@ -149,6 +149,8 @@ case "${1:-}" in
         if run_target "$t" "$secs"; then passed=$((passed + 1)); else failed=$((failed + 1)); fi
     done
     echo "$passed passed, $failed failed"
+    # (the counts of c-tests/run, when it runs this as its suite fuzz-smoke)
+    [ -z "${MBT_COUNTS:-}" ] || echo "$passed $failed" >"$MBT_COUNTS"
     [ "$failed" -eq 0 ]
     ;;
 --all)

@@ -3,7 +3,7 @@
 # libmodbus is the oracle of the differential tests; mbpoll is an unmodified
 # consumer of libmodbus5; debhelper and dpkg-dev build the .deb packages
 # (scripts/build-deb.sh). python3-venv holds the interoperability tests' pinned pymodbus
-# (scripts/run-interop-tests.sh, from PyPI). At the end: llvm-profdata for
+# (c-tests/suites/interop.sh, from PyPI). At the end: llvm-profdata for
 # scripts/build-pgo.sh.
 set -euo pipefail
 packages=(gcc g++ make pkg-config binutils libmodbus-dev libmodbus5 socat mbpoll valgrind man-db

@@ -1,7 +1,7 @@
 //! The table of the exports, `abi/exports.txt`, against the sources: every
 //! `#[unsafe(no_mangle)]` function or static of `src/ffi/` has exactly one row, and
 //! every row names one of them, with a header and a version the table's format
-//! allows. (Reads files only; `scripts/check-symbols.sh` compares the table with the
+//! allows. (Reads files only; `c-tests/suites/symbols.sh` compares the table with the
 //! symbols of the built library.)
 
 use std::collections::{BTreeMap, BTreeSet};

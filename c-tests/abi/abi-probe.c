@@ -3,7 +3,7 @@
  *
  * The program is compiled twice, once against Debian's libmodbus headers
  * (-I/usr/include/modbus) and once against rsmodbus' generated headers
- * (-Iinclude), and scripts/check-abi.sh diffs the two outputs. Only the
+ * (-Iinclude), and c-tests/suites/abi.sh diffs the two outputs. Only the
  * differences named in abi/abi-probe-intended-differences.txt are accepted.
  *
  * It needs no library at run time: it only evaluates the headers' constants,

@@ -13,7 +13,7 @@
  *
  *   <prefix>N passed, M failed
  *
- * scripts/testlib.sh prints its own checks in the same form ("ok   - " / "FAIL - ").
+ * c-tests/common/testlib.sh prints its own checks in the same form ("ok   - " / "FAIL - ").
  * The prefix is empty unless the program sets one (chk_set_prefix); the summary line
  * is only counted by the runners when the prefix is empty then.
  *

@@ -67,6 +67,16 @@ def stop_all():
         stop(p)
 
 
+def summary(passed, failed):
+    """Prints the runner's last line "N passed, M failed" and writes "N M" to the file
+    $MBT_COUNTS names (c-tests/run's counts; unset: nothing written)."""
+    print(f"\n{passed} passed, {failed} failed")
+    counts = os.environ.get("MBT_COUNTS")
+    if counts:
+        with open(counts, "w") as f:
+            f.write(f"{passed} {failed}\n")
+
+
 def wait_output(p, timeout):
     """Waits up to timeout s for p to exit: (stdout, stderr), or None after stopping it."""
     try:

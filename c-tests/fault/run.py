@@ -28,7 +28,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "common"))
-from harness import ROOT, env_for, loaded_lib, start, stop, stop_all, wait_output, wait_ready  # noqa: E402
+from harness import ROOT, env_for, loaded_lib, start, stop, stop_all, summary, wait_output, wait_ready  # noqa: E402
 
 # The programs: c-tests/Makefile (target/c-tests-build/bin, or $CTEST_BUILD/bin).
 BUILD = os.path.join(os.environ.get("CTEST_BUILD", os.path.join(ROOT, "target", "c-tests-build")), "bin")
@@ -231,7 +231,7 @@ def main():
         fd = (f"{d[0]} ({ms.get('debian')} ms) / " + " / ".join(d[1:])) if d else "-"
         fo = (f"{o[0]} ({ms.get('ours')} ms) / " + " / ".join(o[1:])) if o else "-"
         print(f"| {transport.upper()} | {fault} | {fd} | {fo} | {NOTES.get((transport, fault), '')} |")
-    print(f"\n{passed} passed, {failed} failed")
+    summary(passed, failed)
     return 1 if failed else 0
 
 

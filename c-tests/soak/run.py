@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Soak and memcheck tests of rsmodbus (called by scripts/run-soak.sh).
+"""Soak and memcheck tests of rsmodbus (called by c-tests/suites/soak.sh).
 
 1. Soak: SOAK_TX verified transactions (default 20,000; 1,000,000 with SOAK_FULL=1),
    our client against our server, over TCP loopback and over a socat pty pair (RTU).
@@ -21,7 +21,7 @@ import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "common"))
 import harness  # noqa: E402
-from harness import ROOT, PtyPair, env_for, procs, start, stop, stop_all, wait_output, wait_ready  # noqa: E402
+from harness import ROOT, PtyPair, env_for, procs, start, stop, stop_all, summary, wait_output, wait_ready  # noqa: E402
 
 harness.STOP_GRACE = 10  # seconds from SIGTERM to SIGKILL (the shared default is 5)
 # The programs: c-tests/Makefile (target/c-tests-build/bin, or $CTEST_BUILD/bin).
@@ -194,7 +194,7 @@ def main():
     lifecycle("ours", False, 300)
     lifecycle("debian", False, 300)
     passed = sum(results)
-    print(f"\n{passed} passed, {len(results) - passed} failed")
+    summary(passed, len(results) - passed)
     return 0 if passed == len(results) else 1
 
 

@@ -66,6 +66,7 @@
 
 #include <modbus.h>
 
+#include "../common/check.h"
 #include "../common/mbt-fds.h"
 
 int mbt_is_rsmodbus(void); /* ../common/libinfo.c */
@@ -221,37 +222,19 @@ static const char *tios_str(const struct termios *t)
 }
 
 /* The checks of this process, child or harness (each is its own process: the child
- * is exec'd). */
-static int passed, failed;
-
-static void check(int cond, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void check(int cond, const char *fmt, ...)
-{
-    va_list ap;
-    printf("%s", cond ? "ok   - " : "FAIL - ");
-    va_start(ap, fmt);
-    vprintf(fmt, ap);
-    va_end(ap);
-    printf("\n");
-    fflush(stdout);
-    if (cond) {
-        passed++;
-    } else {
-        failed++;
-    }
-}
+ * is exec'd), are check.h's. */
 
 /* After a close: the context's descriptors are all gone (as many as before it
    connected) and, on a serial line, the terminal settings are back. */
 static void check_line_released(const char *when, int fds_before, int serial, int obs_fd,
                                 const struct termios *before)
 {
-    check(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d %s", fds_before,
+    EXPECT(mbt_count_fds() == fds_before, "descriptors: %d before connect, %d %s", fds_before,
           mbt_count_fds(), when);
     if (serial) {
         struct termios after;
         tcgetattr(obs_fd, &after);
-        check(tios_equal(&after, before), "termios back (%s; before %s)", tios_str(&after),
+        EXPECT(tios_equal(&after, before), "termios back (%s; before %s)", tios_str(&after),
               tios_str(before));
     }
 }
@@ -490,8 +473,8 @@ static int wait_go(void)
 
 static int child_done(void)
 {
-    say("DONE %d %d", passed, failed);
-    return failed == 0 ? 0 : 1;
+    say("DONE %d %d", chk_passed(), chk_failed());
+    return chk_failed() == 0 ? 0 : 1;
 }
 
 static int child_main(const char *cs, const char *role, const char *tr, const char *dev, int port)
@@ -518,7 +501,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
 
     ctx = make_ctx(tr, dev, client ? port : 0);
     if (ctx == NULL) {
-        check(0, "new context for %s: %s", tr, modbus_strerror(errno));
+        EXPECT(0, "new context for %s: %s", tr, modbus_strerror(errno));
         return child_done();
     }
     g_ctx = ctx;
@@ -557,7 +540,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
     if (serial) {
         obs_fd = open(dev, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
         if (obs_fd < 0 || tcgetattr(obs_fd, &tios_before) != 0) {
-            check(0, "open/tcgetattr %s: %s", dev, strerror(errno));
+            EXPECT(0, "open/tcgetattr %s: %s", dev, strerror(errno));
             return child_done();
         }
     }
@@ -566,7 +549,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         socklen_t alen = sizeof(a);
         listen_s = modbus_tcp_listen(ctx, 1);
         if (listen_s < 0 || getsockname(listen_s, (struct sockaddr *) &a, &alen) != 0) {
-            check(0, "modbus_tcp_listen: %s", modbus_strerror(errno));
+            EXPECT(0, "modbus_tcp_listen: %s", modbus_strerror(errno));
             return child_done();
         }
         say("PORT %d", ntohs(a.sin_port));
@@ -586,16 +569,16 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         pthread_join(helper_tid, NULL);
         say("RETURNED rc=%d errno=%s after %.3f s", rc, ename(rc == -1 ? e : 0), t1 - t0);
         if (!ours && !restart) {
-            check(rc == -1 && e == EINTR && t1 - g_t_signal < 0.5,
+            EXPECT(rc == -1 && e == EINTR && t1 - g_t_signal < 0.5,
                     "accept without SA_RESTART: -1 EINTR at the signal (rc %d, %s)", rc, ename(e));
             if (rc == -1 && e == EINTR) {
                 say("DIFF debian-accept-eintr: modbus_tcp_accept returns -1 EINTR at a "
                     "flag-only signal without SA_RESTART (ours keeps waiting)");
             }
         } else {
-            check(rc >= 0, "accept keeps waiting through the signal and accepts (rc %d, %s)", rc,
+            EXPECT(rc >= 0, "accept keeps waiting through the signal and accepts (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            check(g_flag && t1 > g_t_signal + 0.1,
+            EXPECT(g_flag && t1 > g_t_signal + 0.1,
                     "accept returned %.3f s after the signal (the client connects ~0.3 s after it)",
                     t1 - g_t_signal);
         }
@@ -614,14 +597,14 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
         rc = modbus_tcp_accept(ctx, &listen_s);
     }
     if (rc < 0) {
-        check(0, "connect/accept: %s", modbus_strerror(errno));
+        EXPECT(0, "connect/accept: %s", modbus_strerror(errno));
         return child_done();
     }
     say("CONNECTED");
     if (serial) {
         struct termios during;
         tcgetattr(obs_fd, &during);
-        check(!tios_equal(&during, &tios_before),
+        EXPECT(!tios_equal(&during, &tios_before),
                 "modbus_connect changed the line's termios (so restoring it can be checked)");
     }
     {
@@ -670,27 +653,27 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
             t1 = now();
             say("RETURNED joined after %.3f s (%.3f s after pthread_cancel); the call %s", t1 - t0,
                 t1 - t_cancel, w.returned ? "returned" : "never returned");
-            check(res == PTHREAD_CANCELED, "the worker thread was cancelled");
+            EXPECT(res == PTHREAD_CANCELED, "the worker thread was cancelled");
             if (ours) {
-                check(w.returned, "the call was not cut short: it returned (rc %d, %s)", w.rc,
+                EXPECT(w.returned, "the call was not cut short: it returned (rc %d, %s)", w.rc,
                         ename(w.rc == -1 ? w.e : 0));
                 if (closing) {
-                    check(w.rc == -1 && w.e == EBADF && w.t_returned - t_close < slack,
+                    EXPECT(w.rc == -1 && w.e == EBADF && w.t_returned - t_close < slack,
                             "it ended with the main thread's modbus_close: -1 EBADF %.3f s "
                             "after it (rc %d, %s)",
                             w.t_returned - t_close, w.rc, ename(w.rc == -1 ? w.e : 0));
                 } else {
-                    check(w.rc == -1 && w.e == ETIMEDOUT && w.t_returned - t0 >= 0.9 &&
+                    EXPECT(w.rc == -1 && w.e == ETIMEDOUT && w.t_returned - t0 >= 0.9 &&
                                   w.t_returned - t0 <= 1.5 + (vg ? 3.0 : 0.0),
                             "it ended at its timeout: -1 ETIMEDOUT after %.3f s (rc %d, %s)",
                             w.t_returned - t0, w.rc, ename(w.rc == -1 ? w.e : 0));
                 }
-                check(!w.second_returned && t1 - w.t_returned < slack,
+                EXPECT(!w.second_returned && t1 - w.t_returned < slack,
                         "the cancellation acted at the start of the next call, %.3f s after "
                         "the first returned",
                         t1 - w.t_returned);
             } else {
-                check(!w.returned && t1 - t_cancel < slack,
+                EXPECT(!w.returned && t1 - t_cancel < slack,
                         "cancelled inside the call: never returned, joined %.3f s after "
                         "pthread_cancel",
                         t1 - t_cancel);
@@ -701,7 +684,7 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
             t_set = now();
             rc = modbus_set_slave(ctx, 1);
             t_set = now() - t_set;
-            check(rc == 0 && t_set < 0.1,
+            EXPECT(rc == 0 && t_set < 0.1,
                     "then the main thread uses the context: modbus_set_slave %d after %.3f ms", rc,
                     t_set * 1e3);
             modbus_close(ctx);
@@ -727,25 +710,25 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
             : streq(cs, "fork-thread") ? "fork" : "signal");
 
         if (starts(cs, "term-") || streq(cs, "free-exit")) {
-            check(0, "the handler should have ended the process; the call returned instead");
+            EXPECT(0, "the handler should have ended the process; the call returned instead");
             return child_done();
         }
 
         if (streq(cs, "close-return")) {
-            check(rc == -1 && e == EBADF, "interrupted call: -1 EBADF (rc %d, %s)", rc,
+            EXPECT(rc == -1 && e == EBADF, "interrupted call: -1 EBADF (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            check(t1 - g_t_signal < 1.0, "returned %.3f s after the signal (< 1 s)",
+            EXPECT(t1 - g_t_signal < 1.0, "returned %.3f s after the signal (< 1 s)",
                     t1 - g_t_signal);
             check_line_released("now", fds_before, serial, obs_fd, &tios_before);
             /* phase 2: the same context connects again and works */
             if (client) {
                 rc = modbus_connect(ctx);
-                check(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
+                EXPECT(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
                         rc == -1 ? modbus_strerror(errno) : "");
                 if (rc == 0 && wait_go() == 0) {
                     memset(regs, 0, sizeof(regs));
                     rc = modbus_read_registers(ctx, 0, 1, regs);
-                    check(rc == 1 && regs[0] == 0x2A,
+                    EXPECT(rc == 1 && regs[0] == 0x2A,
                             "then a transaction with an answering peer (rc %d%s%s, value %#x)", rc,
                             rc == -1 ? ", " : "", rc == -1 ? modbus_strerror(errno) : "", regs[0]);
                 }
@@ -753,90 +736,90 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
                 rc = 0;
                 if (serial) {
                     rc = modbus_connect(ctx);
-                    check(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
+                    EXPECT(rc == 0, "modbus_connect again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
                             rc == -1 ? modbus_strerror(errno) : "");
                 }
                 if (rc == 0 && wait_go() == 0) {
                     if (!serial) {
                         rc = modbus_tcp_accept(ctx, &listen_s);
-                        check(rc >= 0, "modbus_tcp_accept again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
+                        EXPECT(rc >= 0, "modbus_tcp_accept again (rc %d%s%s)", rc, rc == -1 ? ", " : "",
                                 rc == -1 ? modbus_strerror(errno) : "");
                     }
                     if (rc >= 0) {
                         rc = modbus_receive(ctx, req);
-                        check(rc > 0, "then a request from the peer is received (rc %d%s%s)", rc,
+                        EXPECT(rc > 0, "then a request from the peer is received (rc %d%s%s)", rc,
                                 rc == -1 ? ", " : "", rc == -1 ? modbus_strerror(errno) : "");
                     }
                 }
             }
             modbus_close(ctx);
         } else if (starts(cs, "client-timeout") || starts(cs, "server-timeout")) {
-            check(g_flag, "the flag-only handler ran during the call");
-            check(rc == -1 && e == ETIMEDOUT, "-1 ETIMEDOUT (rc %d, %s)", rc,
+            EXPECT(g_flag, "the flag-only handler ran during the call");
+            EXPECT(rc == -1 && e == ETIMEDOUT, "-1 ETIMEDOUT (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            check(t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
+            EXPECT(t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
                     "after %.3f s: the timeout budget of 1 s, not restarted (0.9-1.5 s)", t1 - t0);
             modbus_close(ctx);
         } else if (starts(cs, "server-forever")) {
-            check(g_flag, "the flag-only handler ran during the call");
-            check(rc > 0, "still waiting after the signal, then the peer's request (rc %d, %s)",
+            EXPECT(g_flag, "the flag-only handler ran during the call");
+            EXPECT(rc > 0, "still waiting after the signal, then the peer's request (rc %d, %s)",
                     rc, ename(rc == -1 ? e : 0));
-            check(t1 - g_t_signal > 0.1, "returned %.3f s after the signal (the request comes "
+            EXPECT(t1 - g_t_signal > 0.1, "returned %.3f s after the signal (the request comes "
                     "~0.3 s after it)", t1 - g_t_signal);
             modbus_close(ctx);
         } else if (streq(cs, "thread-close")) {
             double limit = vg ? 2.0 : 0.1;
-            check(g_helper_call_s >= 0 && g_helper_call_s < limit,
+            EXPECT(g_helper_call_s >= 0 && g_helper_call_s < limit,
                     "modbus_close from another thread returned in %.3f ms (< %.0f ms)",
                     g_helper_call_s * 1e3, limit * 1e3);
             if (!ours && rc == -1 && e == ECONNRESET) {
-                check(1, "blocked call: -1 ECONNRESET (Debian: woken by shutdown(), recv "
+                EXPECT(1, "blocked call: -1 ECONNRESET (Debian: woken by shutdown(), recv "
                         "read the EOF before the descriptor was closed)");
                 say("DIFF debian-close-econnreset: the waiting call saw the shutdown's EOF "
                     "(ECONNRESET) before the close");
             } else {
-                check(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
+                EXPECT(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
                         ename(rc == -1 ? e : 0));
             }
-            check(t1 - g_t_signal < slack, "it returned %.3f s after modbus_close (< %.0f s)",
+            EXPECT(t1 - g_t_signal < slack, "it returned %.3f s after modbus_close (< %.0f s)",
                     t1 - g_t_signal, slack);
             check_line_released("now", fds_before, serial, obs_fd, &tios_before);
         } else if (streq(cs, "thread-free")) {
             double limit = vg ? 2.0 : 0.1;
-            check(g_helper_call_s >= 0 && g_helper_call_s < limit,
+            EXPECT(g_helper_call_s >= 0 && g_helper_call_s < limit,
                     "modbus_free from another thread returned in %.3f ms (< %.0f ms)",
                     g_helper_call_s * 1e3, limit * 1e3);
-            check(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
+            EXPECT(rc == -1 && e == EBADF, "blocked call: -1 EBADF (rc %d, %s)", rc,
                     ename(rc == -1 ? e : 0));
-            check(t1 - g_t_signal < slack, "it returned %.3f s after modbus_free (< %.0f s)",
+            EXPECT(t1 - g_t_signal < slack, "it returned %.3f s after modbus_free (< %.0f s)",
                     t1 - g_t_signal, slack);
             say("NOTE descriptors: %d before connect, %d after modbus_free", fds_before,
                 mbt_count_fds());
             /* ctx is gone: never touched again */
             ctx = NULL;
         } else if (streq(cs, "handler-call")) {
-            check(h_sock == sock_before, "modbus_get_socket in the handler: %d (before: %d)",
+            EXPECT(h_sock == sock_before, "modbus_get_socket in the handler: %d (before: %d)",
                     h_sock, sock_before);
             if (ours) {
-                check(h_rc_slave == -1 && h_errno_slave == EDEADLK && h_slave_s < 0.1,
+                EXPECT(h_rc_slave == -1 && h_errno_slave == EDEADLK && h_slave_s < 0.1,
                         "modbus_set_slave in the handler: -1 EDEADLK at once (rc %d, %s, %.3f ms)",
                         h_rc_slave, ename(h_errno_slave), h_slave_s * 1e3);
-                check(h_rc_read == -1 && h_errno_read == EDEADLK && h_read_s < 0.1,
+                EXPECT(h_rc_read == -1 && h_errno_read == EDEADLK && h_read_s < 0.1,
                         "modbus_read_registers in the handler: -1 EDEADLK at once (rc %d, %s, "
                         "%.3f ms)",
                         h_rc_read, ename(h_errno_read), h_read_s * 1e3);
-                check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
+                EXPECT(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
                         "the interrupted call goes on: -1 ETIMEDOUT after %.3f s (rc %d, %s; "
                         "0.9-1.5 s)",
                         t1 - t0, rc, ename(rc == -1 ? e : 0));
             } else {
-                check(h_rc_slave == 0, "modbus_set_slave in the handler: runs, rc %d (%s)",
+                EXPECT(h_rc_slave == 0, "modbus_set_slave in the handler: runs, rc %d (%s)",
                         h_rc_slave, ename(h_errno_slave));
-                check(h_rc_read == -1 && h_errno_read == ETIMEDOUT && h_read_s >= 0.9,
+                EXPECT(h_rc_read == -1 && h_errno_read == ETIMEDOUT && h_read_s >= 0.9,
                         "modbus_read_registers in the handler: runs, -1 ETIMEDOUT after the "
                         "response timeout (rc %d, %s, %.3f s)",
                         h_rc_read, ename(h_errno_read), h_read_s);
-                check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 1.5 && t1 - t0 <= 3.0,
+                EXPECT(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 1.5 && t1 - t0 <= 3.0,
                         "the interrupted call: -1 ETIMEDOUT after %.3f s (its 1 s plus the "
                         "handler's; 1.5-3 s) (rc %d, %s)",
                         t1 - t0, rc, ename(rc == -1 ? e : 0));
@@ -847,18 +830,18 @@ static int child_main(const char *cs, const char *role, const char *tr, const ch
             }
             modbus_close(ctx);
         } else if (streq(cs, "fork-thread")) {
-            check(g_fork_status == 0 && g_fork_s < 1.0,
+            EXPECT(g_fork_status == 0 && g_fork_s < 1.0,
                     "the fork child's calls on the context (set_slave, get_socket, flush, "
                     "set_response_timeout, free) returned at once and succeeded: status %d "
                     "(-1: hung, killed; else bits of the failed steps) after %.3f ms",
                     g_fork_status, g_fork_s * 1e3);
-            check(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
+            EXPECT(rc == -1 && e == ETIMEDOUT && t1 - t0 >= 0.9 && t1 - t0 <= 1.5,
                     "the waiting call is not disturbed: -1 ETIMEDOUT after %.3f s (rc %d, %s; "
                     "0.9-1.5 s)",
                     t1 - t0, rc, ename(rc == -1 ? e : 0));
             modbus_close(ctx);
         } else {
-            check(0, "unknown case %s", cs);
+            EXPECT(0, "unknown case %s", cs);
         }
     }
 done:
@@ -1114,7 +1097,7 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
         a_fd = open(dev_a, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
         b_fd = open(dev_b, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
         if (a_fd < 0 || b_fd < 0 || tcgetattr(a_fd, &raw) != 0) {
-            check(0, "%s: open the pty pair %s %s: %s", h_test, dev_a, dev_b, strerror(errno));
+            EXPECT(0, "%s: open the pty pair %s %s: %s", h_test, dev_a, dev_b, strerror(errno));
             goto out;
         }
         /* the line's state before modbus_connect: raw at 9600 baud, surely not what
@@ -1130,20 +1113,20 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
     } else if (client) {
         lis = tcp_listen_any(&lport);
         if (lis < 0) {
-            check(0, "%s: listen on 127.0.0.1: %s", h_test, strerror(errno));
+            EXPECT(0, "%s: listen on 127.0.0.1: %s", h_test, strerror(errno));
             goto out;
         }
     }
 
     if (pipe2(to_child, O_CLOEXEC) != 0 || pipe2(from_child, O_CLOEXEC) != 0) {
-        check(0, "pipe: %s", strerror(errno));
+        EXPECT(0, "pipe: %s", strerror(errno));
         goto out;
     }
     {
         pid_t harness = getpid();
         pid = fork();
         if (pid < 0) {
-            check(0, "fork: %s", strerror(errno));
+            EXPECT(0, "fork: %s", strerror(errno));
             goto out;
         }
         if (pid == 0) {
@@ -1382,33 +1365,33 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
                      WEXITSTATUS(status) == 99 && vg ? " (valgrind found errors)" : "");
         }
         if (t_blocking == 0 && !killed) {
-            check(0, "%s: the child ended before it blocked: %s", h_test, what);
+            EXPECT(0, "%s: the child ended before it blocked: %s", h_test, what);
             note("ended before blocking: %s", what);
             goto out;
         }
         if (t_blocking == 0) {
-            check(0, "%s: the child never reached the blocking call (killed)", h_test);
+            EXPECT(0, "%s: the child never reached the blocking call (killed)", h_test);
             note("never blocked");
             goto out;
         }
-        check((expected >> got) & 1u, "%s: %s (expected: %s)", h_test, what, expected_str);
+        EXPECT((expected >> got) & 1u, "%s: %s (expected: %s)", h_test, what, expected_str);
         if (!((expected >> got) & 1u)) {
             note("%s, expected %s", what, expected_str);
         } else if (got == OUT_ABORT && !fortify_msg) {
-            check(0, "%s: the abort is not glibc's \"bit out of range 0 - FD_SETSIZE on "
+            EXPECT(0, "%s: the abort is not glibc's \"bit out of range 0 - FD_SETSIZE on "
                     "fd_set\"", h_test);
         } else if (diff_name != NULL && got != OUT_EXIT0) {
             printf("DIFF %s: %s\n", diff_name, diff_what);
             note("DIFF %s: %s", diff_name, what);
         }
         if (got == OUT_EXIT0 && !exit_in_handler) {
-            check(done_seen, "%s: the child's own checks ran to the end", h_test);
+            EXPECT(done_seen, "%s: the child's own checks ran to the end", h_test);
         }
         if (got == OUT_EXIT0 && streq(cs, "close-return")) {
-            check(phase2_seen, "%s: the context was used again after the close", h_test);
+            EXPECT(phase2_seen, "%s: the context was used again after the close", h_test);
         }
         if (child_passed + child_failed > 0 || (got == OUT_EXIT0 && !exit_in_handler)) {
-            check(child_failed == 0 && child_passed > 0,
+            EXPECT(child_failed == 0 && child_passed > 0,
                     "%s: the child's checks: %d passed, %d failed", h_test, child_passed,
                     child_failed);
         }
@@ -1417,18 +1400,18 @@ static int harness_main(const char *self, const char *cs, const char *role, cons
             if (killed) {
                 /* already failed as a hang */
             } else if (t_signal > 0) {
-                check(got == OUT_EXIT0 && dt < limit,
+                EXPECT(got == OUT_EXIT0 && dt < limit,
                         "%s: exited %.3f s after the SIGTERM (< %.0f s)", h_test, dt, limit);
                 note("exit %.3f s after SIGTERM", dt);
             } else {
-                check(0, "%s: no SIGTERM was sent", h_test);
+                EXPECT(0, "%s: no SIGTERM was sent", h_test);
             }
             if (serial) {
                 tcgetattr(a_fd, &t_after);
-                check(have_during && !tios_equal(&t_during, &t_before),
+                EXPECT(have_during && !tios_equal(&t_during, &t_before),
                         "%s: modbus_connect changed the line's termios (%s)", h_test,
                         have_during ? tios_str(&t_during) : "?");
-                check(tios_equal(&t_after, &t_before),
+                EXPECT(tios_equal(&t_after, &t_before),
                         "%s: termios after the exit equals termios before connect (%s; before %s)",
                         h_test, tios_str(&t_after), tios_str(&t_before));
             }
@@ -1447,10 +1430,9 @@ out:
     if (b_fd >= 0) {
         close(b_fd);
     }
-    printf("RESULT %s %s%s%s%s\n", failed == 0 && passed > 0 ? "PASS" : "FAIL", h_test,
+    printf("RESULT %s %s%s%s%s\n", chk_failed() == 0 && chk_passed() > 0 ? "PASS" : "FAIL", h_test,
            h_summary[0] ? "  (" : "", h_summary, h_summary[0] ? ")" : "");
-    printf("%d passed, %d failed\n", passed, failed);
-    return failed == 0 && passed > 0 ? 0 : 1;
+    return chk_summary();
 }
 
 int main(int argc, char **argv)

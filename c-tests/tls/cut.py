@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 # TLS connections cut in the middle of a record, and peers that never send
-# close_notify (run-tls-tests.sh). Python's ssl module drives TLS through memory BIOs,
+# close_notify (tls.sh). Python's ssl module drives TLS through memory BIOs,
 # so that the encrypted bytes of a record can be cut anywhere.
 #
 #   cut.py clients PORT CERTDIR   against our poll-loop server (examples/tls-server.c):

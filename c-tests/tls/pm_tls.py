@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-# pymodbus on the other side of the Modbus/TCP Security tests (run-tls-tests.sh), mutual TLS:
+# pymodbus on the other side of the Modbus/TCP Security tests (tls.sh), mutual TLS:
 #
 #   pm_tls.py server HOST PORT CERTDIR     a pymodbus TLS server requiring a client certificate
 #                                          of the test CA; holding register i = 1000 + i

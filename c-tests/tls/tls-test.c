@@ -1,5 +1,5 @@
 /*
- * tls-test: the client side of the Modbus/TCP Security tests (scripts/run-tls-tests.sh),
+ * tls-test: the client side of the Modbus/TCP Security tests (c-tests/suites/tls.sh),
  * against examples/tls-server.c and its role policy (Operator: everything; Reader:
  * reads; anything else: refused with exception 01).
  *
@@ -657,7 +657,7 @@ int main(int argc, char *argv[])
         int e = connect_and_read(ctx, regs);
         EXPECT_DETAIL(e == 0, "reconnect: first connection", e ? modbus_strerror(e) : NULL);
         /* The peer resets the connection under us (the test's server is killed and
-         * restarted by the caller between the two halves: see run-tls-tests.sh). */
+         * restarted by the caller between the two halves: see tls.sh). */
         printf("WAITING\n");
         fflush(stdout);
         char line[16];

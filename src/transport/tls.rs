@@ -638,7 +638,7 @@ mod tests {
     use super::*;
 
     /// The decisions made before any decryption (decryption itself: the `password`
-    /// scenario of scripts/run-tls-tests.sh, with keys openssl encrypts at test time).
+    /// scenario of c-tests/suites/tls.sh, with keys openssl encrypts at test time).
     #[test]
     fn which_keys_need_a_password() {
         let encrypted = b"-----BEGIN ENCRYPTED PRIVATE KEY-----\nMAA=\n-----END ENCRYPTED PRIVATE KEY-----\n";

@@ -3,12 +3,12 @@
 # TCP and an RTU pty pair with VmRSS and open descriptors sampled (both must stay
 # flat), valgrind memcheck of our client, our server and context life cycles (no
 # errors, no definite leaks). Ends with "N passed, M failed"; non-zero on failure.
-#   scripts/run-soak.sh               short: 20,000 transactions per transport (~1-2 min)
-#   SOAK_FULL=1 scripts/run-soak.sh   1,000,000 transactions per transport
+#   c-tests/suites/soak.sh               short: 20,000 transactions per transport (~1-2 min)
+#   SOAK_FULL=1 c-tests/suites/soak.sh   1,000,000 transactions per transport
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 for tool in socat valgrind python3 gcc make; do
     command -v "$tool" >/dev/null || scripts/install-deps.sh >/dev/null
 done

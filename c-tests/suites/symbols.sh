@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# check-symbols.sh: the ELF identity and exported symbols of the built libmodbus.so
+# symbols.sh: the ELF identity and exported symbols of the built libmodbus.so
 # must be those of a drop-in for Debian's libmodbus.so.5.
 #
 # Checks, against committed data in abi/ (no network, no Debian library needed):
@@ -18,11 +18,11 @@
 #     (not the system's), and the version objects hold the values of modbus-version.h;
 #     a program built against Debian's libmodbus runs on it via LD_LIBRARY_PATH.
 #
-# Usage: scripts/check-symbols.sh [path/to/libmodbus.so]
+# Usage: c-tests/suites/symbols.sh [path/to/libmodbus.so]
 #        (default target/${PROFILE:-release}/libmodbus.so; run `cargo build --release` first)
 set -euo pipefail
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT"
 
 NAME=check-symbols

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# check-man.sh: the manual pages, generated from man/src by man/gen-man.py.
-#   - every row of abi/exports.txt (every exported symbol: scripts/check-symbols.sh
+# man.sh: the manual pages, generated from man/src by man/gen-man.py.
+#   - every row of abi/exports.txt (every exported symbol: c-tests/suites/symbols.sh
 #     compares them with the library) has its section-3 page, the man/src page its
 #     row names, and every page documents a row (fails when a function is added
 #     without a page);
@@ -17,13 +17,13 @@
 # Ends with "N passed, M failed".
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -uo pipefail
-cd "$(dirname "$0")/.." || exit 1
+cd "$(dirname "$0")/../.." || exit 1
 ROOT=$PWD
 WORK=$ROOT/target/check-man
 rm -rf "$WORK"
 mkdir -p "$WORK"
-# shellcheck source=scripts/testlib.sh
-. scripts/testlib.sh
+# shellcheck source=c-tests/common/testlib.sh
+. c-tests/common/testlib.sh
 CC=${CC:-gcc}
 LIB=$ROOT/target/release
 

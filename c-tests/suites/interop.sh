@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# run-interop-tests.sh: rsmodbus against an independent Modbus implementation, pymodbus,
+# interop.sh: rsmodbus against an independent Modbus implementation, pymodbus,
 # in both roles, over TCP (127.0.0.1 / ::1) and pty pairs (socat).
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -36,14 +36,14 @@
 # It is installed into target/interop/venv with Debian's python3 -m venv and pip, from
 # PyPI only; nothing else is fetched.
 #
-# usage: scripts/run-interop-tests.sh [--no-cargo] [--no-install] [--only REGEX] [--keep]
+# usage: c-tests/suites/interop.sh [--no-cargo] [--no-install] [--only REGEX] [--keep]
 #   --no-cargo    do not run cargo build --release
 #   --no-install  do not run pip (the venv must already hold the pinned versions)
 #   --only REGEX  run the cases whose name matches
 # Logs: target/interop/logs/<case>-*.log. Last line "N passed, M failed" (every check
 # of every program); exit status non-zero on any failure.
 set -uo pipefail
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT" || exit 2
 SRC=$ROOT/c-tests/interop
 OUT=$ROOT/target/interop
@@ -51,8 +51,8 @@ LOGS=$OUT/logs
 VENV=$OUT/venv
 OURS=$ROOT/target/release
 
-# shellcheck source=scripts/testlib.sh
-. "$ROOT/scripts/testlib.sh"
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
 BIN=$(c_build_dir)
 
 INSTALL=1

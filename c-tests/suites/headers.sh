@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# check-headers.sh: the committed C headers are cbindgen's output, declare exactly
+# headers.sh: the committed C headers are cbindgen's output, declare exactly
 # libmodbus' API, and compile unchanged with C and C++ programs written for libmodbus.
 #
 # Checks:
@@ -10,7 +10,7 @@
 #               headers lack and that has a row in abi/exports.txt; every row is
 #               declared in the header it names (its extensions section: "modbus.h
 #               extensions"). The signatures beyond Debian's are pinned by the
-#               SYNOPSIS of their pages (scripts/check-man.sh) and, for libmodbus'
+#               SYNOPSIS of their pages (c-tests/suites/man.sh) and, for libmodbus'
 #               own, by the ABI probe
 #   c-alone     each header compiles on its own as C89, C99 and C11 with
 #               -Wall -Wextra -Werror -pedantic-errors
@@ -22,9 +22,9 @@
 #               -Wall -Wextra -Werror and link against the built library
 #   pkg-config  target/<profile>/libmodbus.pc and libmodbus-uninstalled.pc: version
 #               equals LIBMODBUS_VERSION_STRING, flags build and run version.c
-#   abi-probe   scripts/check-abi.sh (constants, layout, macros, signatures vs Debian)
+#   abi-probe   c-tests/suites/abi.sh (constants, layout, macros, signatures vs Debian)
 #
-# Usage: scripts/check-headers.sh   (after `cargo build --release`; it runs cargo
+# Usage: c-tests/suites/headers.sh   (after `cargo build --release`; it runs cargo
 #        build again only to learn OUT_DIR, which is a no-op on a fresh tree)
 # Env:   PROFILE (release), DEBIAN_MODBUS_INCLUDE (/usr/include/modbus),
 #        LIBMODBUS_EXAMPLES (/usr/share/doc/libmodbus-dev/examples), CC, C            static=ok
@@ -32,7 +32,7 @@
             [[ $out == *"$header_version"* ]] || err "statically linked version.c printed: $out"
 set -euo pipefail
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT"
 
 NAME=check-headers
@@ -342,16 +342,17 @@ end "Version $header_version; Cflags ${cflags:-?}; Libs ${libs:-?}; Libs.private
 
 # --- abi-probe ---------------------------------------------------------------------
 begin abi-probe
-if scripts/check-abi.sh >"$TMP/abi.log" 2>&1; then
+if c-tests/suites/abi.sh >"$TMP/abi.log" 2>&1; then
     end "$(sed -n 's/^PASS: check-abi: //p' "$TMP/abi.log")"
 else
-    err "scripts/check-abi.sh failed:"
+    err "c-tests/suites/abi.sh failed:"
     current_errors+=("$(sed 's/^/         | /' "$TMP/abi.log" | head -n 60)")
     end
 fi
 
 # --- verdict -----------------------------------------------------------------------
 echo "$NAME: $passed passed, $failed failed"
+[ -z "${MBT_COUNTS:-}" ] || echo "$passed $failed" >"$MBT_COUNTS"
 if [[ $failed -gt 0 ]]; then
     echo "FAIL: $NAME: ${failures[*]}"
     exit 1

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# check-examples.sh: compiles the four programs of examples/ against the built
+# examples.sh: compiles the four programs of examples/ against the built
 # library (through target/release/libmodbus-uninstalled.pc, -Wall -Wextra -Werror)
 # and runs each against a peer, checking what they print and their exit codes:
 #   - tcp-client against tcp-server on loopback, then three clients at once against
@@ -10,16 +10,16 @@
 #   - tcp-client linked statically with libmodbus.a (pkg-config --static), and
 #     fully static (gcc -static).
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
-# Usage: scripts/check-examples.sh   (builds with `cargo build --release` first)
+# Usage: c-tests/suites/examples.sh   (builds with `cargo build --release` first)
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -uo pipefail
-cd "$(dirname "$0")/.." || exit 1
+cd "$(dirname "$0")/../.." || exit 1
 ROOT=$PWD
 WORK=$ROOT/target/check-examples
 rm -rf "$WORK"
 mkdir -p "$WORK"
-# shellcheck source=scripts/testlib.sh
-. scripts/testlib.sh
+# shellcheck source=c-tests/common/testlib.sh
+. c-tests/common/testlib.sh
 
 CC=${CC:-gcc}
 CFLAGS_W=(-Wall -Wextra -Werror -O2)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# run-extended-tests.sh: rsmodbus' client calls for the function codes beyond
+# extended.sh: rsmodbus' client calls for the function codes beyond
 # libmodbus (07, 08 and every diagnostics sub-function, 0B, 0C, 11, 14, 15, 18, 2B/0E)
 # against rsmodbus' server side of them (c-tests/extended/ext-test.c), including
 # listen-only mode, exact counters after known traffic and the event log contents.
@@ -14,20 +14,20 @@
 # valgrind memcheck when it is installed. Every process started here is stopped by
 # its PID.
 #
-# usage: scripts/run-extended-tests.sh [--no-cargo] [--no-valgrind] [--only REGEX]
+# usage: c-tests/suites/extended.sh [--no-cargo] [--no-valgrind] [--only REGEX]
 # Output goes to target/ext-tests (logs/ per run). The last line is
 # "N passed, M failed"; the exit status is non-zero if M > 0.
 set -u
 set -o pipefail
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 SRC=$ROOT/c-tests/extended
 OUT=${EXTTEST_OUT:-$ROOT/target/ext-tests}
 LOGS=$OUT/logs
 LIBDIR=$ROOT/target/release
 
-# shellcheck source=scripts/testlib.sh
-. "$ROOT/scripts/testlib.sh"
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
 
 parse_flags --no-valgrind --only -- "$@"
 

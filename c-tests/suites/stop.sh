@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# run-stop-tests.sh: stopping a context from a signal handler or from another thread,
+# stop.sh: stopping a context from a signal handler or from another thread,
 # never a deadlock (issue 19). c-tests/stop/stop.c, one run per case x role x transport,
 # first with Debian's libmodbus 3.1.6 (the oracle), then with ours; c-tests/stop/README.md
 # lists the cases and what each library must do.
@@ -29,7 +29,7 @@
 # child by its PID; the child dies with the harness, PR_SET_PDEATHSIG). Where Debian
 # aborts or hangs, that is its recorded behaviour ("DIFF name"), not a failure.
 #
-# usage: scripts/run-stop-tests.sh [--no-cargo] [--only REGEX] [--no-valgrind]
+# usage: c-tests/suites/stop.sh [--no-cargo] [--only REGEX] [--no-valgrind]
 #          [--jobs N] [--ours DIR] [--debian-only | --ours-only]
 #   --only REGEX  runs whose name matches, e.g. 'ours 3/' or '/rtu$' or 'close'
 #   --jobs N      runs at the same time (6); each is mostly asleep
@@ -38,17 +38,17 @@
 # Logs: target/stop/logs/<run>.log. Last line "N passed, M failed"; non-zero exit on
 # failure.
 set -uo pipefail
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT" || exit 2
 OUT=$ROOT/target/stop
-BIN=$OUT/bin
 LOGS=$OUT/logs
 LIBDIR=$OUT/lib
 OURS=$ROOT/target/release
 SRC=$ROOT/c-tests/stop
 
-# shellcheck source=scripts/testlib.sh
-. "$ROOT/scripts/testlib.sh"
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
+BIN=$(c_build_dir)
 
 JOBS=6
 LIBS="debian ours"
@@ -109,17 +109,10 @@ if [[ " $LIBS " == *" ours "* ]]; then
 fi
 echo "debian: $DEB_LIB"
 
-# One binary for both libraries: compiled against our headers (libmodbus-compatible),
-# linked against Debian's libmodbus.so; the loader picks the library at run time
+# One binary for both libraries (c-tests/Makefile, group STOP): compiled against our
+# headers, linked against Debian's libmodbus.so; the loader picks the library at run time
 # (LD_LIBRARY_PATH). rsmodbus-only constructors are looked up with dlsym.
-if gcc -std=c11 -O1 -g -Wall -Wextra -Werror -pthread -I"$ROOT/include" -o "$BIN/stop" \
-    "$SRC/stop.c" "$ROOT/c-tests/common/libinfo.c" -lmodbus -ldl >"$LOGS/build.log" 2>&1; then
-    ok "build stop (-Wall -Wextra -Werror)"
-else
-    bad "build stop" "$(head -n 20 "$LOGS/build.log")"
-    summary
-    exit 1
-fi
+c_build_group STOP || { summary; exit 1; }
 
 # ---------------------------------------------------------------- the runs
 # name: "<lib> <n>/<case>/<role>/<transport>[/valgrind]"

@@ -9,11 +9,11 @@
 # are printed, not judged: timing is never a pass/fail test here. Then two short runs
 # of the between-runs measurement (benches/repeat.py), whose report is checked too.
 #
-#   scripts/run-bench-smoke.sh    report in target/bench/smoke.md, log in target/bench/smoke.log
+#   c-tests/suites/bench-smoke.sh    report in target/bench/smoke.md, log in target/bench/smoke.log
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 mkdir -p target/bench
 report=target/bench/smoke.md
 rm -f "$report"
@@ -89,6 +89,9 @@ check(len(re.findall(r"^ +(ours/ours|waiting floor|data floor): mean [0-9.]+x, s
                      repeat, re.M)) == 3, "repeat: mean, sd and CI over the runs for ours/ours and the two floors")
 failed = checks.count(False)
 print(f"bench-smoke: {len(checks) - failed} passed, {failed} failed")
+if os.environ.get("MBT_COUNTS"):
+    with open(os.environ["MBT_COUNTS"], "w") as f:
+        f.write(f"{len(checks) - failed} {failed}\n")
 sys.exit(1 if failed else 0)
 PY
 [ "$status" -eq 0 ]

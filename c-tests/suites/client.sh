@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# run-c-tests.sh: differential C tests of rsmodbus against Debian's libmodbus 3.1.6.
+# client.sh: differential C tests of rsmodbus against Debian's libmodbus 3.1.6.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -9,7 +9,7 @@
 # (Debian-pinned) server are compared byte for byte; the only differences allowed are
 # the named ones in c-tests/allowed-differences.txt. See c-tests/README.md.
 #
-# usage: scripts/run-c-tests.sh [options]
+# usage: c-tests/suites/client.sh [options]
 #   --oracle-only      harness self-check: run everything with Debian's library on both
 #                      sides and compare strictly (no allowed difference is masked)
 #   --valgrind         also run every client scenario once under valgrind memcheck
@@ -21,14 +21,14 @@
 #   --keep-going-logs  print every failing diff in full (default: first 40 lines)
 # Environment: MBTEST_OUT (default target/c-tests), MBTEST_PORT (first port tried, 15020),
 #   MBTEST_OURS_DIR (our library's directory, default target/release)
-# Debian's own unit-test-client/server run in scripts/run-server-tests.sh (section 3),
+# Debian's own unit-test-client/server run in c-tests/suites/server.sh (section 3),
 # every client x server library combination.
 #
 # The last line is always "N passed, M failed"; the exit status is non-zero if M > 0.
 set -u
 set -o pipefail
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 CT=$ROOT/c-tests
 OUT=$(realpath -m "${MBTEST_OUT:-$ROOT/target/c-tests}")
 LOGS=$OUT/logs
@@ -36,8 +36,8 @@ OURS_DIR=$(realpath -m "${MBTEST_OURS_DIR:-$ROOT/target/release}")
 ALLOWED_FILE=$CT/allowed-differences.txt
 NORMALIZE=$CT/tools/normalize.awk
 
-# shellcheck source=scripts/testlib.sh
-. "$ROOT/scripts/testlib.sh"
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
 # The programs: c-tests/Makefile (group CLIENT_TESTS), shared by every MBTEST_OUT.
 BIN=$(c_build_dir)
 # mbtest-server and the pty relay get 5 s to end on SIGTERM.
@@ -584,7 +584,7 @@ ensure_deps
 mkdir -p "$OUT"
 exec 9>"$OUT/.lock"
 if ! flock -n 9; then
-    log "another run-c-tests.sh is using $OUT; waiting for it (set MBTEST_OUT to run in parallel)"
+    log "another client.sh is using $OUT; waiting for it (set MBTEST_OUT to run in parallel)"
     flock -w 900 9 || { log "gave up waiting for $OUT/.lock"; log "0 passed, 1 failed"; exit 1; }
 fi
 load_allowed

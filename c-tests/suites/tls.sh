@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# run-tls-tests.sh: Modbus/TCP Security (TLS, mutual authentication, roles) against
+# tls.sh: Modbus/TCP Security (TLS, mutual authentication, roles) against
 # real peers on loopback. Certificates are made at test time with openssl
 # (c-tests/tls/make-certs.sh). The server is examples/tls-server.c with its role
 # policy (Operator: everything; Reader: reads; anything else: exception 01); the
@@ -21,16 +21,16 @@
 #   - AddressSanitizer (with its leak checker) on the C programs: the test client's
 #     scenarios and the example server, built with -fsanitize=address.
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
-# Usage: scripts/run-tls-tests.sh [--no-cargo]
+# Usage: c-tests/suites/tls.sh [--no-cargo]
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -uo pipefail
-cd "$(dirname "$0")/.." || exit 1
+cd "$(dirname "$0")/../.." || exit 1
 ROOT=$PWD
 WORK=$ROOT/target/tls-tests
 rm -rf "$WORK"
 mkdir -p "$WORK"
-# shellcheck source=scripts/testlib.sh
-. scripts/testlib.sh
+# shellcheck source=c-tests/common/testlib.sh
+. c-tests/common/testlib.sh
 
 CARGO=1
 [ "${1:-}" = --no-cargo ] && CARGO=0

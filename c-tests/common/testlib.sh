@@ -1,7 +1,7 @@
 # shellcheck shell=bash
-# Shared helpers of the test scripts: check-examples.sh, check-package.sh and
-# check-man.sh, and the suites run-c-tests.sh, run-server-tests.sh,
-# run-extended-tests.sh, run-interop-tests.sh and run-thread-tests.sh.
+# Shared helpers of the test scripts: examples.sh, package.sh and
+# man.sh, and the suites client.sh, server.sh,
+# extended.sh, interop.sh and threads.sh.
 # Source it; it defines:
 #
 # Counting: passed, failed, and FAILED (what failed, for a closing list)
@@ -11,7 +11,9 @@
 #   tally PASS|FAIL WHAT    count one check, print nothing
 #   expect_line NAME FILE LINE    FILE must contain exactly the line LINE
 #   section TITLE           print a "=== TITLE ===" heading
-#   summary                 print "N passed, M failed" and return non-zero on failure
+#   summary                 print "N passed, M failed", write the counts for c-tests/run
+#                           (write_counts) and return non-zero on failure
+#   write_counts P F        "P F" into the file $MBT_COUNTS (when c-tests/run set it)
 #
 # Command line and our library (the run-*.sh suites; they set ROOT)
 #   parse_flags [FLAG...] -- "$@"   every suite takes -h/--help (prints the script's
@@ -118,7 +120,14 @@ section() { printf '\n=== %s ===\n' "$*"; }
 
 summary() {
     echo "$passed passed, $failed failed"
+    write_counts "$passed" "$failed"
     [ "$failed" -eq 0 ]
+}
+
+# write_counts PASSED FAILED: the counts c-tests/run adds to its totals, into the file
+# $MBT_COUNTS names (set by the runner; unset: nothing is written).
+write_counts() {
+    [ -z "${MBT_COUNTS:-}" ] || echo "$1 $2" >"$MBT_COUNTS"
 }
 
 # ------------------------------------------------------------ command line, library
@@ -235,7 +244,7 @@ c_build() {
     for t in "$@"; do
         log=${LOGS:-$base}/build-$t${san:+-$san}.log
         name="build $t (c-tests/Makefile${san:+, SAN=$san})"
-        # fd 9 is run-c-tests.sh's lock: make must not hold it.
+        # fd 9 is client.sh's lock: make must not hold it.
         if flock -w 900 "$base/.lock" make -C "$ROOT/c-tests" --no-print-directory "${vars[@]}" "$t" \
             >"$log" 2>&1 9>&-; then
             "$C_BUILD_RESULT" "$name" PASS
@@ -270,7 +279,7 @@ STOP_GRACE=3
 start_bg() {
     local o=$1 e=$2
     shift 2
-    # fd 9 is run-c-tests.sh's lock: a process left behind must not hold it.
+    # fd 9 is client.sh's lock: a process left behind must not hold it.
     if [ "$e" = "$o" ]; then
         "$@" >"$o" 2>&1 9>&- &
     else

@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # A/B throughput of two revisions of rsmodbus (benches/ab.py), pinned to CPU 1:
 #
-#   scripts/bench-ab.sh A B [CASE ...]
+#   benches/ab.sh A B [CASE ...]
 #
 # A and B are git revisions, each optionally followed by ":PATCH" (patch files applied
 # on top, several separated by ":"), e.g.
-#   scripts/bench-ab.sh 015e764 015e764:benches/experiments/lean-tcp-fc23-client.patch
+#   benches/ab.sh 015e764 015e764:benches/experiments/lean-tcp-fc23-client.patch
 # Each is built as a release library in a git worktree under target/ab/. The C programs
 # are those of the working tree. BENCH_SECONDS (default 30) per pairing; default case wr121.
 #

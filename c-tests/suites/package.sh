@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# check-package.sh: builds the Debian packages (scripts/build-deb.sh) and checks them
+# package.sh: builds the Debian packages (scripts/build-deb.sh) and checks them
 # without installing them on this machine (Debian's libmodbus5 stays: it is the
 # oracle of the differential tests):
 #   - control fields (dpkg-deb -f): names, version, Provides/Conflicts/Replaces
@@ -19,16 +19,16 @@
 #     over a pty: printed values, exit codes, and the libmodbus.so.5 it loaded
 #     (LD_DEBUG=libs, /proc/PID/maps).
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
-# Usage: scripts/check-package.sh [--no-build]   (--no-build: use target/debian/*.deb)
+# Usage: c-tests/suites/package.sh [--no-build]   (--no-build: use target/debian/*.deb)
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -uo pipefail
-cd "$(dirname "$0")/.." || exit 1
+cd "$(dirname "$0")/../.." || exit 1
 ROOT_DIR=$PWD
 WORK=$ROOT_DIR/target/check-package
 rm -rf "$WORK"
 mkdir -p "$WORK"
-# shellcheck source=scripts/testlib.sh
-. scripts/testlib.sh
+# shellcheck source=c-tests/common/testlib.sh
+. c-tests/common/testlib.sh
 CC=${CC:-gcc}
 MA=$(dpkg-architecture -qDEB_HOST_MULTIARCH)
 DEBS=$ROOT_DIR/target/debian

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# run-server-tests.sh: the server side of rsmodbus against Debian's libmodbus 3.1.6.
+# server.sh: the server side of rsmodbus against Debian's libmodbus 3.1.6.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -19,7 +19,7 @@
 #  5. 50 concurrent clients plus two misbehaving ones on one poll loop (multi.c).
 # Differences are allowed only when named in c-tests/server/allowed-differences.txt.
 #
-# usage: scripts/run-server-tests.sh [--no-cargo] [--no-valgrind] [--only REGEX]
+# usage: c-tests/suites/server.sh [--no-cargo] [--no-valgrind] [--only REGEX]
 # Environment: MBTEST_OURS_DIR (our library's directory, default target/release; the
 #   test command also runs section 3 against the profile-guided build, target/pgo/release),
 #   SRVTEST_OUT (default target/server-tests).
@@ -28,15 +28,15 @@
 set -u
 set -o pipefail
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 SRC=$ROOT/c-tests/server
 OUT=$(realpath -m "${SRVTEST_OUT:-$ROOT/target/server-tests}")
 LOGS=$OUT/logs
 OURS_DIR=$(realpath -m "${MBTEST_OURS_DIR:-$ROOT/target/release}")
 ALLOWED=$SRC/allowed-differences.txt
 
-# shellcheck source=scripts/testlib.sh
-. "$ROOT/scripts/testlib.sh"
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
 
 parse_flags --no-valgrind --only -- "$@"
 

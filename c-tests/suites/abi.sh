@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# check-abi.sh: compare the ABI facts of rsmodbus' headers with Debian's libmodbus.
+# abi.sh: compare the ABI facts of rsmodbus' headers with Debian's libmodbus.
 #
 # Builds c-tests/abi/abi-probe.c twice with -Wall -Wextra -Werror -Wpedantic
 # (c-tests/Makefile, group ABI), once against Debian's headers (/usr/include/modbus,
@@ -11,11 +11,11 @@
 # The probe also checks, at compile time, the type of every declared function
 # against the libmodbus 3.1.x signatures, so a wrong prototype fails the build.
 #
-# Usage: scripts/check-abi.sh   (no build of the crate needed: headers only)
+# Usage: c-tests/suites/abi.sh   (no build of the crate needed: headers only)
 # Env:   DEBIAN_MODBUS_INCLUDE (default /usr/include/modbus), CC (default gcc)
 set -euo pipefail
 
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT"
 
 NAME=check-abi

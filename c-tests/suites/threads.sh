@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# run-thread-tests.sh: many threads sharing one rsmodbus context.
+# threads.sh: many threads sharing one rsmodbus context.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -29,11 +29,11 @@
 # so every access made under it would be reported. Deadlock detection would need a
 # checker thread inside the library (and its feature flag); the watchdog covers hangs.
 #
-# usage: scripts/run-thread-tests.sh [--no-cargo] [--no-tsan] [--long] [--ntx N]
+# usage: c-tests/suites/threads.sh [--no-cargo] [--no-tsan] [--long] [--ntx N]
 #   --long   100,000 transactions per thread (1.6 M per context), TSan runs included
 # Logs: target/threads/logs. Last line "N passed, M failed"; non-zero exit on failure.
 set -uo pipefail
-ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT" || exit 2
 OUT=$ROOT/target/threads
 LOGS=$OUT/logs
@@ -43,8 +43,8 @@ TSAN_LIB_DIR=$TSAN_TARGET/x86_64-unknown-linux-gnu/release
 NTHREADS=16
 NTX=10000
 
-# shellcheck source=scripts/testlib.sh
-. "$ROOT/scripts/testlib.sh"
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
 # The programs: c-tests/Makefile, group THREADS (plain) and SAN=thread's threads.
 BIN=$(c_build_dir)
 TSAN_BIN=$(c_build_dir thread)/threads
