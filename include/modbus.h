@@ -348,6 +348,11 @@ typedef struct _modbus_device_id_object {
     char value[256];
 } modbus_device_id_object_t;
 
+/* The event-driven client (modbus_process(3)): called once per request with what
+ * the blocking call returns (rc), or -1 and the errno it sets (error). */
+struct pollfd;
+typedef void (*modbus_callback_t)(modbus_t *ctx, int request_id, int rc, int error, void *user_data);
+
 /**
  * rsmodbus extension: the error recovery mode of `ctx`, as `modbus_set_error_recovery`
  * left it: 0 (`MODBUS_ERROR_RECOVERY_NONE`) or the OR of `MODBUS_ERROR_RECOVERY_LINK`
@@ -358,6 +363,223 @@ typedef struct _modbus_device_id_object {
  * `ctx` must be NULL or a live context.
  */
 MODBUS_API int modbus_get_error_recovery(modbus_t *ctx);
+
+/**
+ * Reads `nb` coils (FC 01) into `dest` (one byte per coil), without waiting: returns
+ * a request id (>= 0), or -1 with errno. `dest` must stay valid until `cb` runs,
+ * which gets `rc` = `nb` or -1 with the error. A NULL `cb` only writes the values.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` NULL or valid for `nb` bytes until the
+ * request completes.
+ */
+MODBUS_API
+int modbus_read_bits_async(modbus_t *ctx,
+                           int addr,
+                           int nb,
+                           uint8_t *dest,
+                           modbus_callback_t cb,
+                           void *user_data);
+
+/**
+ * Reads `nb` discrete inputs (FC 02) into `dest`, without waiting (see
+ * `modbus_read_bits_async`).
+ *
+ * # Safety
+ * As `modbus_read_bits_async`.
+ */
+MODBUS_API
+int modbus_read_input_bits_async(modbus_t *ctx,
+                                 int addr,
+                                 int nb,
+                                 uint8_t *dest,
+                                 modbus_callback_t cb,
+                                 void *user_data);
+
+/**
+ * Reads `nb` holding registers (FC 03) into `dest`, without waiting: `rc` is the
+ * number read.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` NULL or valid for `nb` values until
+ * the request completes.
+ */
+MODBUS_API
+int modbus_read_registers_async(modbus_t *ctx,
+                                int addr,
+                                int nb,
+                                uint16_t *dest,
+                                modbus_callback_t cb,
+                                void *user_data);
+
+/**
+ * Reads `nb` input registers (FC 04) into `dest`, without waiting.
+ *
+ * # Safety
+ * As `modbus_read_registers_async`.
+ */
+MODBUS_API
+int modbus_read_input_registers_async(modbus_t *ctx,
+                                      int addr,
+                                      int nb,
+                                      uint16_t *dest,
+                                      modbus_callback_t cb,
+                                      void *user_data);
+
+/**
+ * Writes one coil (FC 05), without waiting: `rc` is 1.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API
+int modbus_write_bit_async(modbus_t *ctx,
+                           int addr,
+                           int status,
+                           modbus_callback_t cb,
+                           void *user_data);
+
+/**
+ * Writes one holding register (FC 06), without waiting: `rc` is 1.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API
+int modbus_write_register_async(modbus_t *ctx,
+                                int addr,
+                                uint16_t value,
+                                modbus_callback_t cb,
+                                void *user_data);
+
+/**
+ * Writes `nb` coils (FC 0F) from `src`, without waiting (the values are copied at
+ * once): `rc` is the count the server confirmed.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `src` NULL or valid for `nb` bytes.
+ */
+MODBUS_API
+int modbus_write_bits_async(modbus_t *ctx,
+                            int addr,
+                            int nb,
+                            const uint8_t *src,
+                            modbus_callback_t cb,
+                            void *user_data);
+
+/**
+ * Writes `nb` holding registers (FC 10) from `src`, without waiting (the values
+ * are copied at once): `rc` is the count the server confirmed.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `src` NULL or valid for `nb` values.
+ */
+MODBUS_API
+int modbus_write_registers_async(modbus_t *ctx,
+                                 int addr,
+                                 int nb,
+                                 const uint16_t *src,
+                                 modbus_callback_t cb,
+                                 void *user_data);
+
+/**
+ * Sets a register to `(current & and_mask) | (or_mask & ~and_mask)` (FC 16),
+ * without waiting: `rc` is 1.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API
+int modbus_mask_write_register_async(modbus_t *ctx,
+                                     int addr,
+                                     uint16_t and_mask,
+                                     uint16_t or_mask,
+                                     modbus_callback_t cb,
+                                     void *user_data);
+
+/**
+ * Writes `write_nb` registers then reads `read_nb` (FC 17), without waiting: `rc`
+ * is the number read.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `src` valid for `write_nb` values, `dest`
+ * for `read_nb` values until the request completes.
+ */
+MODBUS_API
+int modbus_write_and_read_registers_async(modbus_t *ctx,
+                                          int write_addr,
+                                          int write_nb,
+                                          const uint16_t *src,
+                                          int read_addr,
+                                          int read_nb,
+                                          uint16_t *dest,
+                                          modbus_callback_t cb,
+                                          void *user_data);
+
+/**
+ * Asks the server for its id (FC 11), without waiting: at most `max_dest` bytes of
+ * the answer go to `dest`; `rc` is the byte count the server sent.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` NULL or valid for `max_dest` bytes
+ * until the request completes.
+ */
+MODBUS_API
+int modbus_report_slave_id_async(modbus_t *ctx,
+                                 int max_dest,
+                                 uint8_t *dest,
+                                 modbus_callback_t cb,
+                                 void *user_data);
+
+/**
+ * What to wait for: `pfd->fd` (-1 while not connected), `pfd->events` (`POLLIN`,
+ * `POLLOUT`, or 0), and in `*timeout_ms` (may be NULL) the milliseconds until
+ * `modbus_process` is due even without an event (-1: no deadline; 0: call it now).
+ * Returns the number of requests pending, or -1 with errno.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `pfd` NULL or writable; `timeout_ms` NULL or
+ * writable.
+ */
+MODBUS_API int modbus_get_pollfd(modbus_t *ctx, struct pollfd *pfd, int *timeout_ms);
+
+/**
+ * Does the I/O that `revents` (from `poll`, for the descriptor of
+ * `modbus_get_pollfd`; 0 when the wait timed out) says is ready and what the clock
+ * says is due, without blocking, and calls the callbacks of the requests that
+ * completed. Returns how many completed, or -1 with errno.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_process(modbus_t *ctx, short revents);
+
+/**
+ * The requests queued and in flight on `ctx`, or -1 with errno.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_pending(modbus_t *ctx);
+
+/**
+ * Completes request `request_id` with ECANCELED (its callback runs before this
+ * returns); its answer, should it come, is dropped. Returns 0, or -1 with errno
+ * (EINVAL: no such request pending).
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_cancel(modbus_t *ctx, int request_id);
+
+/**
+ * How many requests may be on the wire at once on a TCP context (pipelining):
+ * 1..=256, default 1; a serial line always has one. Returns 0, or -1 with errno.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_set_max_in_flight(modbus_t *ctx, int n);
 
 /**
  * Reads the eight exception status outputs of a serial device (FC 07) into

@@ -62,6 +62,45 @@ pub struct Context {
     /// What a close from a signal handler or another thread needs without the lock
     /// (see [`crate::stop`]); shared with the handle and the line.
     pub stop: Arc<Stop>,
+    /// The event-driven client's requests and state (see [`crate::outstanding`]);
+    /// `None` until the first asynchronous call.
+    pub outstanding: Option<Box<crate::outstanding::Outstanding>>,
+    /// The transaction ids of the last TCP requests whose answer did not come in
+    /// time: a late answer is dropped, never taken for the next request's.
+    pub timed_out: TimedOut,
+}
+
+/// The transaction ids of the last few requests that timed out (see
+/// [`Context::timed_out`]).
+#[derive(Debug, Default)]
+pub struct TimedOut {
+    ids: [u16; 8],
+    len: usize,
+    next: usize,
+}
+
+impl TimedOut {
+    pub fn push(&mut self, tid: u16) {
+        self.ids[self.next] = tid;
+        self.next = (self.next + 1) % self.ids.len();
+        self.len = (self.len + 1).min(self.ids.len());
+    }
+
+    /// True when `tid` was one of them (it is forgotten then).
+    pub fn take(&mut self, tid: u16) -> bool {
+        let n = self.ids.len();
+        for k in 0..self.len {
+            let i = (self.next + n - 1 - k) % n;
+            if self.ids[i] == tid {
+                // Forgotten: the slot gets a copy of the oldest kept id.
+                let oldest = (self.next + n - self.len) % n;
+                self.ids[i] = self.ids[oldest];
+                self.len -= 1;
+                return true;
+            }
+        }
+        false
+    }
 }
 
 /// Frame buffers a context lends to each transaction and takes back: a transaction
@@ -116,6 +155,8 @@ impl Context {
             server_ext: None,
             spare: SpareFrames::default(),
             stop,
+            outstanding: None,
+            timed_out: TimedOut::default(),
         }
     }
 

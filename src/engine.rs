@@ -59,6 +59,7 @@ pub fn accepted(ctx: &mut Context, fd: i32, peer: Option<&str>) -> Result<()> {
 /// `modbus_close`: the line closes its descriptor (a serial line gets its saved
 /// settings back first).
 pub fn close(ctx: &mut Context) {
+    crate::event::cancel_all(ctx);
     ctx.rx.clear();
     ctx.line.close();
 }
@@ -194,13 +195,7 @@ pub fn send_msg(g: &mut Guard<'_>, buf: &mut [u8], len: usize) -> Result<usize> 
 #[inline(never)]
 fn send_traced_or_encoded(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
     if g.debug {
-        use std::fmt::Write as _;
-        let mut line = String::with_capacity(adu.len() * 4 + 1);
-        for b in adu {
-            let _ = write!(line, "[{b:02X}]");
-        }
-        line.push('\n');
-        crate::stdio::out(format_args!("{line}"));
+        trace_sent(adu);
     }
     let mut chars = [0u8; ascii::MAX_ENCODED];
     let wire = if g.framing() == Framing::Ascii {
@@ -213,6 +208,17 @@ fn send_traced_or_encoded(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
         Ok(n) if n == wire.len() => Ok(adu.len()),
         first => send_after_failure(g, wire, adu.len(), first),
     }
+}
+
+/// The debug trace of a frame sent: each byte as `[XX]`, then a new line.
+pub fn trace_sent(bytes: &[u8]) {
+    use std::fmt::Write as _;
+    let mut line = String::with_capacity(bytes.len() * 4 + 1);
+    for b in bytes {
+        let _ = write!(line, "[{b:02X}]");
+    }
+    line.push('\n');
+    crate::stdio::out(format_args!("{line}"));
 }
 
 /// A send whose first write did not take the whole frame: a short write is
@@ -477,6 +483,7 @@ pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Resul
         g.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
     }
+    crate::event::idle(g)?;
     let mut out = g.spare.take();
     let result = exchange_with(g, req, &mut out, rsp);
     g.spare.give(out);
@@ -487,7 +494,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
     let n = build_request(g, req, out);
     note_diagnostics(g, &out[..n]);
     let sent = send_msg(g, out, n)?;
-    let received = receive_msg(g, rsp, MsgKind::Confirmation)?;
+    let received = receive_answer(g, rsp, &out[..sent])?;
     let req_adu = &out[..sent];
     let (len, rsp_adu) = match received {
         Received::Frame(len) => (len, &rsp[..len]),
@@ -530,8 +537,33 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
     }
 }
 
+/// Receives the confirmation of the TCP request `req` (or of a serial one). An answer
+/// to an earlier request of this context that timed out (its transaction id says
+/// so) is dropped and the receive starts again: libmodbus takes it as this request's
+/// answer and fails it (EMBBADDATA), and the next request's too.
+fn receive_answer(g: &mut Guard<'_>, rsp: &mut AduBuf, req: &[u8]) -> Result<Received> {
+    let tcp = g.framing() == Framing::Tcp;
+    loop {
+        match receive_msg(g, rsp, MsgKind::Confirmation) {
+            Ok(Received::Frame(len)) if tcp && len >= 2 && rsp[..2] != req[..2] => {
+                let tid = u16::from_be_bytes([rsp[0], rsp[1]]);
+                if !g.timed_out.take(tid) {
+                    return Ok(Received::Frame(len));
+                }
+                g.diag().err(format_args!("Late answer with transaction ID 0x{tid:X} dropped\n"));
+            }
+            Err(e) if tcp && e == Error::TIMED_OUT => {
+                g.timed_out.push(u16::from_be_bytes([req[0], req[1]]));
+                return Err(e);
+            }
+            other => return other,
+        }
+    }
+}
+
 /// `modbus_send_raw_request[_tid]`: `raw[0]` is the unit, the rest is the PDU.
 pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
+    crate::event::idle(g)?;
     let mut out: AduBuf = [0; MAX_ADU_LENGTH];
     let h = g.framing().write_header(&mut out, raw[0], tid);
     let pdu = &raw[1..];

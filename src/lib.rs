@@ -34,8 +34,10 @@ use rsmodbus_proto::server_ext;
 
 pub mod context;
 pub mod engine;
+pub mod event;
 pub mod ffi;
 pub mod handle;
+pub mod outstanding;
 mod server;
 mod stdio;
 pub mod transport;

@@ -34,6 +34,13 @@
 #   link_so5 DIR            DIR/libmodbus.so.5 -> libmodbus.so; fails without the .so
 #   loaded_ours NAME LOG LIB  the "LOADED path (rsmodbus ...)" line in LOG
 #                           (c-tests/interop/interop.c) names LIB
+#   libinfo_ours NAME LOG   the first LIBINFO line in LOG (c-tests/common/libinfo.c)
+#                           names $OURS_LIB, and rsmodbus (one check)
+#   program_checks NAME LOG RC  adds the checks a C program counted itself
+#                           (c-tests/common/check.h: its "N passed, M failed" line in
+#                           LOG; its FAIL lines shown) and one check "NAME: exit 0";
+#                           no summary line is one failure
+#   valgrind_clean NAME DIR  one check: no valgrind.*.log of DIR has a line
 #
 # Building the C programs: c-tests/Makefile, the one build of them all (run-*.sh; ROOT set)
 #   c_build_dir [SAN]       where the Makefile puts a variant's programs: $CTEST_BUILD
@@ -217,6 +224,46 @@ loaded_ours() {
         ok "$name: loaded $path"
     else
         bad "$name: wrong library" "${line:-no LOADED line}" "expected $lib"
+    fi
+}
+
+libinfo_ours() {
+    local name=$1 log=$2 lib
+    lib=$(sed -n 's/^LIBINFO: pid [0-9]* libmodbus.so.5 = \([^ ]*\) .*/\1/p' "$log" | head -n 1)
+    if [ -n "$lib" ] && [ "$(readlink -f "$lib")" = "$OURS_LIB" ] && grep -q '^LIBINFO: .*(rsmodbus ' "$log"; then
+        result "$name: loaded our libmodbus.so.5 ($lib)" PASS
+    else
+        result "$name: loaded our libmodbus.so.5" FAIL "LIBINFO says '${lib:-nothing}'"
+    fi
+}
+
+program_checks() {
+    local name=$1 log=$2 rc=$3 n p f
+    n=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -n 1)
+    grep '^FAIL - ' "$log" | cut -c1-300 | sed 's/^/    | /'
+    if [ -z "$n" ]; then
+        result "$name" FAIL "no summary line (exit $rc; see $log)"
+        return 1
+    fi
+    p=$(echo "$n" | awk '{print $1}')
+    f=$(echo "$n" | awk '{print $3}')
+    passed=$((passed + p))
+    failed=$((failed + f))
+    [ "$f" = 0 ] || FAILED+=("$name: $f checks (see $log)")
+    if [ "$rc" = 0 ] && [ "$f" = 0 ]; then
+        result "$name: $p checks, exit 0" PASS
+    else
+        result "$name: $p passed, $f failed, exit $rc" FAIL "see $log"
+        return 1
+    fi
+}
+
+valgrind_clean() {
+    if cat "$2"/valgrind.*.log 2>/dev/null | grep -q .; then
+        result "$1: valgrind memcheck clean" FAIL "see $2/valgrind.*.log"
+        cat "$2"/valgrind.*.log | head -n 30 | sed 's/^/    | /'
+    else
+        result "$1: valgrind memcheck clean" PASS
     fi
 }
 

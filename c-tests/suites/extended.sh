@@ -58,7 +58,7 @@ start_pty_pair() { # start_pty_pair DIR: socat links DIR/server and DIR/client
 # ------------------------------------------------------------ runs
 # run_case NAME VALGRIND(0|1) MODE TRANSPORT
 run_case() {
-    local name=$1 vg=$2 mode=$3 t=$4 d=$LOGS/$1 args=() pre=() rc lib n p f
+    local name=$1 vg=$2 mode=$3 t=$4 d=$LOGS/$1 args=() pre=() rc
     selected "$name" || return 0
     mkdir -p "$d"
     if [ "$t" = rtu ] || [ "$t" = ascii ]; then
@@ -84,39 +84,10 @@ run_case() {
     [ -n "$SOCAT_PID" ] && stop_pid "$SOCAT_PID"
     SOCAT_PID=
 
-    # The library the program mapped must be ours.
-    lib=$(sed -n 's/^LIBINFO: pid [0-9]* libmodbus.so.5 = \([^ ]*\) .*/\1/p' "$d/out.log" | head -n 1)
-    if [ -n "$lib" ] && [ "$(readlink -f "$lib")" = "$OURS_LIB" ] && grep -q '^LIBINFO: .*(rsmodbus ' "$d/out.log"; then
-        result "$name: loaded our libmodbus.so.5 ($lib)" PASS
-    else
-        result "$name: loaded our libmodbus.so.5" FAIL "LIBINFO says '${lib:-nothing}'"
-    fi
-    # The program's own checks.
-    n=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$d/out.log" | tail -n 1)
-    p=$(echo "$n" | awk '{print $1}')
-    f=$(echo "$n" | awk '{print $3}')
-    grep '^FAIL - ' "$d/out.log" | cut -c1-300 | sed 's/^/    | /'
-    if [ -z "$n" ]; then
-        result "$name" FAIL "no summary line (exit $rc; see $d)"
-        tail -n 5 "$d/err.log" | sed 's/^/    | /'
-        return
-    fi
-    passed=$((passed + p))
-    failed=$((failed + f))
-    [ "$f" = 0 ] || FAILED+=("$name: $f checks (see $d/out.log)")
-    if [ "$rc" = 0 ] && [ "$f" = 0 ]; then
-        result "$name: $p checks, exit 0" PASS
-    else
-        result "$name: $p passed, $f failed, exit $rc" FAIL "see $d"
-    fi
-    if [ "$vg" = 1 ]; then
-        if cat "$d"/valgrind.*.log 2>/dev/null | grep -q .; then
-            result "$name: valgrind memcheck clean" FAIL "see $d/valgrind.*.log"
-            cat "$d"/valgrind.*.log | head -n 30 | sed 's/^/    | /'
-        else
-            result "$name: valgrind memcheck clean (client and server processes)" PASS
-        fi
-    fi
+    # The library the program mapped must be ours; the program's own checks.
+    libinfo_ours "$name" "$d/out.log"
+    program_checks "$name" "$d/out.log" "$rc" || tail -n 5 "$d/err.log" | sed 's/^/    | /'
+    if [ "$vg" = 1 ]; then valgrind_clean "$name" "$d"; fi
 }
 
 section "our client against our server, fully configured"

@@ -216,17 +216,7 @@ pub unsafe extern "C" fn modbus_write_and_read_registers(
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            check_write_and_read_counts(write_nb, read_nb, &mut g.diag())?;
-            if (write_nb > 0 && src.is_null()) || (read_nb > 0 && dest.is_null()) {
-                return Err(Error::INVALID);
-            }
-            let values: &[u16] = if write_nb > 0 {
-                // SAFETY: `src` is non-NULL and holds `write_nb` (<= 121) values.
-                slice::from_raw_parts(src, write_nb as usize)
-            } else {
-                &[]
-            };
-            let req = Request::WriteAndReadRegisters { write_addr, write_nb, values, read_addr, read_nb };
+            let req = write_and_read_request(g, write_addr, write_nb, src, read_addr, read_nb, dest)?;
             let mut rsp = g.spare.take();
             let done = engine::exchange(g, &req, &mut rsp);
             if let Ok(done) = &done {
@@ -238,6 +228,33 @@ pub unsafe extern "C" fn modbus_write_and_read_registers(
             done.map(|done| done.count)
         })
     }
+}
+
+/// The request of `modbus_write_and_read_registers[_async]`, its arguments checked
+/// as libmodbus checks them.
+///
+/// # Safety
+/// `src` valid for `write_nb` values (when positive) for `'a`.
+pub unsafe fn write_and_read_request<'a>(
+    g: &mut Guard<'_>,
+    write_addr: c_int,
+    write_nb: c_int,
+    src: *const u16,
+    read_addr: c_int,
+    read_nb: c_int,
+    dest: *mut u16,
+) -> Result<Request<'a>> {
+    check_write_and_read_counts(write_nb, read_nb, &mut g.diag())?;
+    if (write_nb > 0 && src.is_null()) || (read_nb > 0 && dest.is_null()) {
+        return Err(Error::INVALID);
+    }
+    let values: &[u16] = if write_nb > 0 {
+        // SAFETY: `src` is non-NULL and holds `write_nb` (<= 121) values (contract).
+        unsafe { slice::from_raw_parts(src, write_nb as usize) }
+    } else {
+        &[]
+    };
+    Ok(Request::WriteAndReadRegisters { write_addr, write_nb, values, read_addr, read_nb })
 }
 
 /// Asks the server for its id (FC 11). Copies at most `max_dest` bytes of the

@@ -18,8 +18,12 @@ use crate::handle;
 /// `ctx` must be NULL or a live context; it must not be used afterwards.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_free(ctx: *mut Modbus) {
-    // SAFETY: the caller hands back ownership of a context made by `into_handle`.
-    unsafe { handle::free(ctx) }
+    // SAFETY: the caller hands back ownership of a context made by `into_handle`;
+    // what the event-driven client has pending completes (ECANCELED) first.
+    unsafe {
+        crate::ffi::event::cancel_pending(ctx);
+        handle::free(ctx)
+    }
 }
 
 /// Opens the serial line or TCP connection.
@@ -41,8 +45,12 @@ pub unsafe extern "C" fn modbus_connect(ctx: *mut Modbus) -> c_int {
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_close(ctx: *mut Modbus) {
-    // SAFETY: forwarded caller contract.
-    unsafe { handle::close(ctx) }
+    // SAFETY: forwarded caller contract. The close completes what the event-driven
+    // client had pending (ECANCELED); the callbacks run after it.
+    unsafe {
+        handle::close(ctx);
+        crate::ffi::event::fire_cancelled(ctx);
+    }
 }
 
 /// Discards pending input. Returns the bytes discarded (TCP) or 0 (RTU).

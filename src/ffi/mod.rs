@@ -7,6 +7,7 @@
 pub mod client;
 pub mod context;
 pub mod data;
+pub mod event;
 pub mod extensions;
 pub mod rtu;
 pub mod server;

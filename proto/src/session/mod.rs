@@ -7,6 +7,7 @@
 
 use core::time::Duration;
 
+pub mod pipeline;
 pub mod receive;
 
 use crate::error::{Error, errno};

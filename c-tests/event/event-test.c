@@ -1,0 +1,524 @@
+/*
+ * event-test: the event-driven client (modbus_*_async, modbus_get_pollfd,
+ * modbus_process, modbus_pending, modbus_cancel, modbus_set_max_in_flight) against
+ * a server no one here wrote (benches/mb-server.c on Debian's libmodbus, or on ours),
+ * and against servers of its own for what a real one does not do (never answer,
+ * answer late).
+ *
+ *   event-test tcp PORT       mb-server on 127.0.0.1:PORT, then the in-process cases
+ *   event-test rtu DEVICE     mb-server rtu on the other end of a pty pair (slave 1,
+ *                             115200 8N1)
+ *
+ * Every asynchronous result is compared with the blocking call's on the same context
+ * and server: rc, errno and the values. One line per check (c-tests/common/check.h);
+ * the library in use first (LIBINFO).
+ *
+ * SPDX-License-Identifier: MIT OR Apache-2.0
+ */
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE
+#endif
+#include <arpa/inet.h>
+#include <errno.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <pthread.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <modbus.h>
+
+#include "../common/check.h"
+
+int mbt_is_rsmodbus(void); /* c-tests/common/libinfo.c, which prints LIBINFO first */
+static void chain_cb(modbus_t *ctx, int id, int rc, int error, void *user);
+static void free_cb(modbus_t *ctx, int id, int rc, int error, void *user);
+static int freed_flag;
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double) ts.tv_sec + (double) ts.tv_nsec / 1e9;
+}
+
+/* ---------------------------------------------------------------- completions */
+#define MAX_REQ 4096
+
+struct result {
+    int done; /* times its callback ran */
+    int rc;
+    int error;
+};
+static struct result results[MAX_REQ];
+static int completed;
+
+static void on_done(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    (void) ctx;
+    struct result *r = user != NULL ? user : (id >= 0 && id < MAX_REQ ? &results[id] : NULL);
+    completed++;
+    if (r != NULL) {
+        r->done++;
+        r->rc = rc;
+        r->error = error;
+    }
+}
+
+static void reset(void)
+{
+    memset(results, 0, sizeof(results));
+    completed = 0;
+}
+
+/* Runs the loop until nothing is pending or `limit_s` passed; returns the seconds it took. */
+static double drive(modbus_t *ctx, double limit_s)
+{
+    double t0 = now_s();
+    while (modbus_pending(ctx) > 0 && now_s() - t0 < limit_s) {
+        struct pollfd pfd;
+        int timeout = -1;
+        if (modbus_get_pollfd(ctx, &pfd, &timeout) < 0) {
+            EXPECT(0, "modbus_get_pollfd: %s", modbus_strerror(errno));
+            break;
+        }
+        if (timeout < 0 || timeout > 1000) {
+            timeout = 1000;
+        }
+        int n = pfd.fd >= 0 && pfd.events != 0 ? poll(&pfd, 1, timeout) : (usleep((unsigned) timeout * 1000), 0);
+        if (modbus_process(ctx, n > 0 ? pfd.revents : 0) < 0) {
+            EXPECT(0, "modbus_process: %s", modbus_strerror(errno));
+            break;
+        }
+    }
+    return now_s() - t0;
+}
+
+/* One request, to its end: the callback's (rc, error). */
+static struct result one(modbus_t *ctx, int id)
+{
+    struct result r = {0, -2, -2};
+    if (id < 0) {
+        r.rc = -1;
+        r.error = errno;
+        r.done = 1;
+        return r;
+    }
+    drive(ctx, 10);
+    if (id < MAX_REQ) {
+        r = results[id];
+    }
+    return r;
+}
+
+static int same_result(const char *what, int brc, int berr, struct result a)
+{
+    return EXPECT(a.done == 1 && a.rc == brc && (brc != -1 || a.error == berr),
+                  "%s: async rc %d error %d (%s), blocking rc %d errno %d (callbacks: %d)", what, a.rc, a.error,
+                  a.rc == -1 ? modbus_strerror(a.error) : "ok", brc, brc == -1 ? berr : 0, a.done);
+}
+
+/* ---------------------------------------------------------------- against a real server */
+static void compare_calls(modbus_t *ctx, int serial)
+{
+    uint16_t regs_b[64], regs_a[64], src[8] = {11, 22, 33, 44, 55, 66, 77, 88};
+    uint8_t bits_b[64], bits_a[64], id_b[64], id_a[64];
+    uint8_t coils[10] = {1, 0, 1, 1, 0, 0, 1, 0, 1, 1};
+    int brc, berr;
+    struct result a;
+
+    reset();
+    /* Writes first: each call's result, blocking then asynchronous. */
+    brc = modbus_write_registers(ctx, 0, 8, src);
+    berr = errno;
+    a = one(ctx, modbus_write_registers_async(ctx, 8, 8, src, on_done, NULL));
+    same_result("write_registers (FC 10)", brc, berr, a);
+
+    brc = modbus_write_bits(ctx, 0, 10, coils);
+    berr = errno;
+    a = one(ctx, modbus_write_bits_async(ctx, 10, 10, coils, on_done, NULL));
+    same_result("write_bits (FC 0F)", brc, berr, a);
+
+    brc = modbus_write_bit(ctx, 30, 1);
+    berr = errno;
+    a = one(ctx, modbus_write_bit_async(ctx, 31, 1, on_done, NULL));
+    same_result("write_bit (FC 05)", brc, berr, a);
+
+    brc = modbus_write_register(ctx, 20, 0x1234);
+    berr = errno;
+    a = one(ctx, modbus_write_register_async(ctx, 21, 0x1234, on_done, NULL));
+    same_result("write_register (FC 06)", brc, berr, a);
+
+    brc = modbus_mask_write_register(ctx, 20, 0x00F2, 0x0025);
+    berr = errno;
+    a = one(ctx, modbus_mask_write_register_async(ctx, 21, 0x00F2, 0x0025, on_done, NULL));
+    same_result("mask_write_register (FC 16)", brc, berr, a);
+
+    /* Reads: the same values both ways. */
+    memset(regs_b, 0, sizeof(regs_b));
+    memset(regs_a, 0xFF, sizeof(regs_a));
+    brc = modbus_read_registers(ctx, 0, 22, regs_b);
+    berr = errno;
+    a = one(ctx, modbus_read_registers_async(ctx, 0, 22, regs_a, on_done, NULL));
+    if (same_result("read_registers (FC 03)", brc, berr, a)) {
+        EXPECT(memcmp(regs_a, regs_b, 22 * sizeof(uint16_t)) == 0 && regs_a[8] == 11 && regs_a[21] == regs_b[20],
+               "read_registers: the same 22 values (reg 8 = %u, reg 21 = 0x%04X)", regs_a[8], regs_a[21]);
+    }
+
+    memset(regs_a, 0xFF, sizeof(regs_a));
+    brc = modbus_read_input_registers(ctx, 0, 5, regs_b);
+    berr = errno;
+    a = one(ctx, modbus_read_input_registers_async(ctx, 0, 5, regs_a, on_done, NULL));
+    if (same_result("read_input_registers (FC 04)", brc, berr, a)) {
+        EXPECT(memcmp(regs_a, regs_b, 5 * sizeof(uint16_t)) == 0, "read_input_registers: the same values");
+    }
+
+    memset(bits_a, 0x55, sizeof(bits_a));
+    brc = modbus_read_bits(ctx, 0, 32, bits_b);
+    berr = errno;
+    a = one(ctx, modbus_read_bits_async(ctx, 0, 32, bits_a, on_done, NULL));
+    if (same_result("read_bits (FC 01)", brc, berr, a)) {
+        EXPECT(memcmp(bits_a, bits_b, 32) == 0 && bits_a[10] == 1 && bits_a[31] == 1 && bits_a[11] == 0,
+               "read_bits: the same 32 values");
+    }
+
+    memset(bits_a, 0x55, sizeof(bits_a));
+    brc = modbus_read_input_bits(ctx, 0, 16, bits_b);
+    berr = errno;
+    a = one(ctx, modbus_read_input_bits_async(ctx, 0, 16, bits_a, on_done, NULL));
+    if (same_result("read_input_bits (FC 02)", brc, berr, a)) {
+        EXPECT(memcmp(bits_a, bits_b, 16) == 0, "read_input_bits: the same values");
+    }
+
+    memset(regs_a, 0xFF, sizeof(regs_a));
+    brc = modbus_write_and_read_registers(ctx, 40, 3, src, 40, 4, regs_b);
+    berr = errno;
+    a = one(ctx, modbus_write_and_read_registers_async(ctx, 40, 3, src + 3, 40, 4, regs_a, on_done, NULL));
+    if (same_result("write_and_read_registers (FC 17)", brc, berr, a)) {
+        EXPECT(regs_a[0] == 44 && regs_a[2] == 66 && regs_a[3] == regs_b[3], "write_and_read_registers: %u %u %u",
+               regs_a[0], regs_a[1], regs_a[2]);
+    }
+
+    memset(id_a, 0, sizeof(id_a));
+    memset(id_b, 0, sizeof(id_b));
+    brc = modbus_report_slave_id(ctx, sizeof(id_b), id_b);
+    berr = errno;
+    a = one(ctx, modbus_report_slave_id_async(ctx, sizeof(id_a), id_a, on_done, NULL));
+    if (same_result("report_slave_id (FC 11)", brc, berr, a)) {
+        EXPECT(brc > 0 && memcmp(id_a, id_b, (size_t) brc) == 0, "report_slave_id: the same %d bytes", brc);
+    }
+
+    /* An exception answer: the same errno. */
+    brc = modbus_read_registers(ctx, 60000, 2, regs_b);
+    berr = errno;
+    a = one(ctx, modbus_read_registers_async(ctx, 60000, 2, regs_a, on_done, NULL));
+    same_result("exception (illegal data address)", brc, berr, a);
+
+    /* Arguments the blocking call refuses, refused at once. */
+    errno = 0;
+    int id = modbus_read_registers_async(ctx, 0, 200, regs_a, on_done, NULL);
+    EXPECT(id == -1 && errno == EMBMDATA, "too many registers: -1 EMBMDATA at once (got %d, %s)", id,
+           modbus_strerror(errno));
+    id = modbus_read_bits_async(ctx, 0, 4, NULL, on_done, NULL);
+    EXPECT(id == -1 && errno == EINVAL, "NULL destination: -1 EINVAL (got %d)", id);
+    EXPECT(modbus_pending(ctx) == 0, "nothing pending after refused requests (%d)", modbus_pending(ctx));
+
+    /* A blocking call while requests are pending: EBUSY. */
+    reset();
+    id = modbus_read_registers_async(ctx, 0, 1, regs_a, on_done, NULL);
+    errno = 0;
+    brc = modbus_read_registers(ctx, 0, 1, regs_b);
+    EXPECT(brc == -1 && errno == EBUSY, "a blocking call with a request pending: -1 EBUSY (got %d, %s)", brc,
+           modbus_strerror(errno));
+    a = one(ctx, id);
+    EXPECT(a.done == 1 && a.rc == 1, "the pending request completes (rc %d)", a.rc);
+
+    /* Cancel: the callback runs inside modbus_cancel, with ECANCELED. */
+    reset();
+    id = modbus_read_registers_async(ctx, 0, 1, regs_a, on_done, NULL);
+    int rc = modbus_cancel(ctx, id);
+    EXPECT(rc == 0 && results[id].done == 1 && results[id].rc == -1 && results[id].error == ECANCELED,
+           "modbus_cancel: 0, the callback ran with ECANCELED (rc %d, done %d, error %d)", rc, results[id].done,
+           results[id].error);
+    EXPECT(modbus_cancel(ctx, id) == -1 && errno == EINVAL, "cancel of a completed request: -1 EINVAL");
+    EXPECT(modbus_pending(ctx) == 0, "nothing pending after the cancel");
+    if (serial) {
+        /* The cancelled request may have gone out: its answer is still on the line. */
+        usleep(100000);
+        modbus_flush(ctx);
+    }
+
+    /* Many requests queued at once: each gets its own answer, in order of their ids. */
+    reset();
+    if (!serial) {
+        EXPECT(modbus_set_max_in_flight(ctx, 16) == 0, "modbus_set_max_in_flight(16)");
+    }
+    EXPECT(modbus_set_max_in_flight(ctx, 0) == -1 && errno == EINVAL, "modbus_set_max_in_flight(0): EINVAL");
+    EXPECT(modbus_set_max_in_flight(ctx, 257) == -1 && errno == EINVAL, "modbus_set_max_in_flight(257): EINVAL");
+    static uint16_t many[200][1];
+    int n = serial ? 20 : 200, ok = 0, first = -1;
+    for (int i = 0; i < n; i++) {
+        int k = modbus_read_registers_async(ctx, i % 22, 1, many[i], on_done, NULL);
+        if (first < 0) {
+            first = k;
+        }
+    }
+    EXPECT(modbus_pending(ctx) == n, "%d requests pending (%d)", n, modbus_pending(ctx));
+    double took = drive(ctx, 30);
+    for (int i = 0; i < n; i++) {
+        ok += results[first + i].done == 1 && results[first + i].rc == 1;
+    }
+    int right = 0;
+    uint16_t ref[22];
+    modbus_read_registers(ctx, 0, 22, ref);
+    for (int i = 0; i < n; i++) {
+        right += many[i][0] == ref[i % 22];
+    }
+    EXPECT(ok == n && right == n && completed == n, "%d requests%s: %d completed once with rc 1, %d right values (%.3f s)",
+           n, serial ? "" : " 16 deep", ok, right, took);
+    modbus_set_max_in_flight(ctx, 1);
+
+    /* A callback that submits the next request. */
+    reset();
+    static int chain_left;
+    chain_left = 5;
+    modbus_read_registers_async(ctx, 0, 1, regs_a, chain_cb, &chain_left);
+    drive(ctx, 10);
+    EXPECT(chain_left == 0 && modbus_pending(ctx) == 0, "five requests, each submitted by the last one's callback");
+
+    /* Close with requests pending: each completes with ECANCELED before the close returns. */
+    reset();
+    int ids[3];
+    for (int i = 0; i < 3; i++) {
+        ids[i] = modbus_read_registers_async(ctx, 0, 1, regs_a, on_done, NULL);
+    }
+    modbus_process(ctx, 0); /* the first goes out */
+    modbus_close(ctx);
+    int cancelled = 0;
+    for (int i = 0; i < 3; i++) {
+        cancelled += results[ids[i]].done == 1 && results[ids[i]].error == ECANCELED;
+    }
+    EXPECT(cancelled == 3 && modbus_pending(ctx) == 0, "modbus_close: 3 pending requests completed with ECANCELED (%d)",
+           cancelled);
+}
+
+static uint16_t chain_regs[1];
+static void chain_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    int *left = user;
+    (void) id;
+    (void) error;
+    if (rc == 1 && --*left > 0) {
+        modbus_read_registers_async(ctx, 0, 1, chain_regs, chain_cb, left);
+    }
+}
+
+/* ---------------------------------------------------------------- servers of our own */
+static int listen_any(int *port)
+{
+    int s = socket(AF_INET, SOCK_STREAM, 0), one_ = 1;
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    socklen_t len = sizeof(a);
+    setsockopt(s, SOL_SOCKET, SO_REUSEADDR, &one_, sizeof(one_));
+    if (bind(s, (struct sockaddr *) &a, sizeof(a)) != 0 || listen(s, 8) != 0 ||
+        getsockname(s, (struct sockaddr *) &a, &len) != 0) {
+        return -1;
+    }
+    *port = ntohs(a.sin_port);
+    return s;
+}
+
+/* A server that answers each read of holding registers with its transaction id as
+ * the value, `delay_ms[i]` after the i-th request (then as fast as it can). */
+struct late_server {
+    int listen_fd;
+    int delay_ms[4];
+};
+
+static int read_full(int fd, uint8_t *b, size_t n)
+{
+    size_t got = 0;
+    while (got < n) {
+        ssize_t k = recv(fd, b + got, n - got, 0);
+        if (k <= 0) {
+            return -1;
+        }
+        got += (size_t) k;
+    }
+    return 0;
+}
+
+static void *late_server_main(void *arg)
+{
+    struct late_server *s = arg;
+    int c = accept(s->listen_fd, NULL, NULL);
+    uint8_t req[12], rsp[11];
+    for (int i = 0; c >= 0; i++) {
+        if (read_full(c, req, 12) != 0) {
+            break;
+        }
+        if (i < 4 && s->delay_ms[i] > 0) {
+            usleep((unsigned) s->delay_ms[i] * 1000);
+        }
+        memcpy(rsp, req, 4);
+        rsp[4] = 0;
+        rsp[5] = 5;
+        rsp[6] = req[6];
+        rsp[7] = 3;
+        rsp[8] = 2;
+        rsp[9] = req[0];
+        rsp[10] = req[1];
+        if (send(c, rsp, sizeof(rsp), MSG_NOSIGNAL) != (ssize_t) sizeof(rsp)) {
+            break;
+        }
+    }
+    if (c >= 0) {
+        close(c);
+    }
+    return NULL;
+}
+
+static void own_servers(void)
+{
+    int port, lf;
+    uint16_t v[4] = {0};
+
+    /* 1. A server that accepts and never answers: the response timeout, from the send. */
+    lf = listen_any(&port);
+    modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_response_timeout(ctx, 0, 200000);
+    reset();
+    double t0 = now_s();
+    int id = modbus_read_registers_async(ctx, 0, 1, v, on_done, NULL);
+    EXPECT(id >= 0 && modbus_pending(ctx) == 1, "queued on a context not connected yet (id %d)", id);
+    drive(ctx, 5);
+    double t = now_s() - t0;
+    EXPECT(results[id].done == 1 && results[id].rc == -1 && results[id].error == ETIMEDOUT && t >= 0.19 && t < 1.5,
+           "a server that never answers: ETIMEDOUT after %.3f s (response timeout 0.2 s)", t);
+
+    /* 2. A callback that frees its context: the request behind it completes inside
+     *    modbus_free (ECANCELED), and no callback runs after. */
+    reset();
+    freed_flag = 0;
+    modbus_read_registers_async(ctx, 0, 1, v, free_cb, NULL);
+    int behind = modbus_read_registers_async(ctx, 0, 1, v, on_done, NULL);
+    for (int loops = 0; !freed_flag && loops < 100; loops++) {
+        struct pollfd pfd;
+        int timeout;
+        modbus_get_pollfd(ctx, &pfd, &timeout);
+        poll(&pfd, pfd.fd >= 0 ? 1 : 0, timeout < 0 ? 100 : timeout);
+        modbus_process(ctx, pfd.revents);
+    }
+    EXPECT(freed_flag && results[behind].done == 1 && results[behind].error == ECANCELED && completed == 1,
+           "a callback freed its context: the request behind it completed inside modbus_free (ECANCELED), once");
+    close(lf);
+
+    /* 3. Late answers: request 1 times out, its answer comes while request 2 waits;
+     *    request 2 gets its own answer (the value is the transaction id). */
+    struct late_server s = {.delay_ms = {700, 0, 0, 0}};
+    s.listen_fd = listen_any(&port);
+    pthread_t th;
+    pthread_create(&th, NULL, late_server_main, &s);
+    ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_response_timeout(ctx, 0, 500000);
+    reset();
+    uint16_t v1[1] = {0}, v2[1] = {0}, v3[1] = {0};
+    int r1 = modbus_read_registers_async(ctx, 0, 1, v1, on_done, NULL);
+    drive(ctx, 5);
+    EXPECT(results[r1].error == ETIMEDOUT, "late server: the first request times out (%s)",
+           modbus_strerror(results[r1].error));
+    int r2 = modbus_read_registers_async(ctx, 0, 1, v2, on_done, NULL);
+    int r3 = modbus_read_registers_async(ctx, 0, 1, v3, on_done, NULL);
+    drive(ctx, 5);
+    EXPECT(results[r2].rc == 1 && results[r3].rc == 1 && v2[0] == 2 && v3[0] == 3,
+           "late server: the next requests get their own answers (tids %u, %u; the late answer to tid 1 dropped)",
+           v2[0], v3[0]);
+    modbus_close(ctx);
+    modbus_free(ctx);
+    pthread_join(th, NULL);
+    close(s.listen_fd);
+
+    /* 4. The same with the blocking calls: libmodbus 3.1.6 and 3.1.12 take the late
+     *    answer as the next request's and fail it (EMBBADDATA); rsmodbus drops it. */
+    struct late_server s2 = {.delay_ms = {700, 0, 0, 0}};
+    s2.listen_fd = listen_any(&port);
+    pthread_create(&th, NULL, late_server_main, &s2);
+    ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_response_timeout(ctx, 0, 500000);
+    modbus_connect(ctx);
+    int rc1 = modbus_read_registers(ctx, 0, 1, v1);
+    int e1 = errno;
+    int rc2 = modbus_read_registers(ctx, 0, 1, v2);
+    int e2 = errno;
+    EXPECT(rc1 == -1 && e1 == ETIMEDOUT, "blocking, late server: the first call times out (%s)", modbus_strerror(e1));
+    EXPECT(rc2 == 1 && v2[0] == 2,
+           "blocking, late server: the next call gets its own answer, tid %u (libmodbus: -1 EMBBADDATA; got %d %s)",
+           v2[0], rc2, rc2 == -1 ? modbus_strerror(e2) : "");
+    modbus_close(ctx);
+    modbus_free(ctx);
+    pthread_join(th, NULL);
+    close(s2.listen_fd);
+}
+
+static void free_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    (void) id;
+    (void) rc;
+    (void) error;
+    (void) user;
+    modbus_free(ctx);
+    freed_flag = 1;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 3) {
+        fprintf(stderr, "usage: %s tcp PORT | rtu DEVICE\n", argv[0]);
+        return 2;
+    }
+    setvbuf(stdout, NULL, _IOLBF, 0);
+    if (!mbt_is_rsmodbus()) {
+        fprintf(stderr, "the event-driven client is rsmodbus': this is not it\n");
+        return 97;
+    }
+    int serial = strcmp(argv[1], "rtu") == 0;
+    modbus_t *ctx = serial ? modbus_new_rtu(argv[2], 115200, 'N', 8, 1) : modbus_new_tcp("127.0.0.1", atoi(argv[2]));
+    if (ctx == NULL || (serial && modbus_set_slave(ctx, 1) != 0) || modbus_connect(ctx) != 0) {
+        EXPECT(0, "connect to the server: %s", modbus_strerror(errno));
+        return chk_summary();
+    }
+    modbus_set_response_timeout(ctx, 2, 0);
+    chk_set_prefix(serial ? "rtu: " : "tcp: ");
+    compare_calls(ctx, serial);
+    if (serial) {
+        /* A broadcast: completes without an answer, after the turnaround, rc as a write's. */
+        reset();
+        modbus_connect(ctx);
+        /* The answer to the request that was on the line when it closed. */
+        usleep(100000);
+        modbus_flush(ctx);
+        modbus_set_slave(ctx, 0);
+        double t0 = now_s();
+        struct result a = one(ctx, modbus_write_register_async(ctx, 50, 7, on_done, NULL));
+        double t = now_s() - t0;
+        EXPECT(a.done == 1 && a.rc == 1 && t >= 0.09 && t < 1.0,
+               "broadcast write_register: rc 1 after %.3f s without an answer (turnaround 0.1 s)", t);
+        modbus_set_slave(ctx, 1);
+        uint16_t v = 0;
+        int rc = modbus_read_registers(ctx, 50, 1, &v);
+        EXPECT(rc == 1 && v == 7, "the broadcast reached the server (register 50 = %u)", v);
+        modbus_close(ctx);
+    } else {
+        chk_set_prefix("own servers: ");
+        own_servers();
+        chk_set_prefix("");
+    }
+    modbus_free(ctx);
+    chk_set_prefix("");
+    return chk_summary();
+}

@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# c-tests/suites/event.sh: the event-driven client (modbus_*_async, modbus_process...,
+# c-tests/event/event-test.c, loading our library) against a server no one here
+# wrote: benches/mb-server.c, a plain libmodbus server, on Debian's libmodbus and on
+# ours, over TCP (then servers of the test's own: one that never answers, one that
+# answers late) and RTU on a pty pair. Every asynchronous result is compared with the
+# blocking call's on the same context. Once more under valgrind memcheck.
+#
+# Usage: c-tests/suites/event.sh [--no-cargo] [--no-valgrind] [--only REGEX]
+# Logs: target/event-tests/<case>/. Last line "N passed, M failed".
+# SPDX-License-Identifier: MIT OR Apache-2.0
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+cd "$ROOT" || exit 2
+OUT=$ROOT/target/event-tests
+LIBDIR=$ROOT/target/release
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
+parse_flags --only --no-valgrind -- "$@"
+
+section "build"
+our_lib_result "$LIBDIR" 2
+rm -rf "$OUT"
+mkdir -p "$OUT"
+LOGS=$OUT
+c_build_group EVENT || { summary; exit 1; }
+BIN=$(c_build_dir)
+DEB_LIB=$(readlink -f "$(ldconfig -p | awk '$1 == "libmodbus.so.5" {print $NF; exit}')")
+
+# run_case NAME SERVER_LIB(debian|ours) TRANSPORT(tcp|rtu) [valgrind]
+run_case() {
+    local name=$1 lib=$2 t=$3 vg=${4:-} srv_env=() pre=() where rc
+    selected "$name" || return 0
+    WORK=$OUT/$name
+    mkdir -p "$WORK"
+    if [ "$lib" = ours ]; then srv_env=(LD_LIBRARY_PATH="$LIBDIR"); fi
+    if [ "$t" = rtu ]; then
+        if ! pty_pair pty "$WORK/server" "$WORK/client"; then
+            result "$name: pty pair" FAIL "see $WORK/pty.log"
+            return
+        fi
+        start server env "${srv_env[@]}" "$BIN/mb-server" rtu "$WORK/server"
+        where=$WORK/client
+    else
+        start server env "${srv_env[@]}" "$BIN/mb-server" tcp 0
+    fi
+    if ! wait_ready server READY 10; then
+        result "$name: mb-server ready" FAIL "$(tail -n 3 "$WORK/server.log")"
+        stop server
+        stop pty
+        return
+    fi
+    [ "$t" = tcp ] && where=$(sed -n 's/^READY //p' "$WORK/server.log" | head -n 1)
+    # The server's library is the one asked for.
+    local mapped
+    mapped=$(sed -n 's/^LIBINFO: pid [0-9]* libmodbus.so.5 = \([^ ]*\) .*/\1/p' "$WORK/server.log" | head -n 1)
+    if [ "$lib" = ours ]; then
+        [ "$(readlink -f "$mapped")" = "$OURS_LIB" ]
+    else
+        [ "$(readlink -f "$mapped")" = "$DEB_LIB" ]
+    fi && result "$name: mb-server loaded $lib's libmodbus.so.5 ($mapped)" PASS ||
+        result "$name: mb-server loaded $lib's libmodbus.so.5" FAIL "LIBINFO says '${mapped:-nothing}'"
+    if [ "$vg" = valgrind ]; then
+        pre=(valgrind -q --error-exitcode=99 --leak-check=full --errors-for-leak-kinds=definite
+            --show-leak-kinds=definite --log-file="$WORK/valgrind.%p.log")
+    fi
+    start_bg "$WORK/out.log" "$WORK/err.log" \
+        env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 300 "${pre[@]}" "$BIN/event-test" "$t" "$where"
+    wait_pid "$LAST_PID"
+    rc=$?
+    stop server
+    stop pty
+    libinfo_ours "$name" "$WORK/out.log"
+    program_checks "$name" "$WORK/out.log" "$rc" || tail -n 5 "$WORK/err.log" | sed 's/^/    | /'
+    if [ "$vg" = valgrind ]; then valgrind_clean "$name" "$WORK"; fi
+}
+
+section "against Debian's libmodbus server"
+run_case debian-tcp debian tcp
+run_case debian-rtu debian rtu
+section "against our server"
+run_case ours-tcp ours tcp
+run_case ours-rtu ours rtu
+if [ "$VALGRIND" = 1 ] && command -v valgrind >/dev/null; then
+    section "under valgrind memcheck"
+    run_case valgrind-tcp debian tcp valgrind
+fi
+
+section "summary"
+summary

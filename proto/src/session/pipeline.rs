@@ -1,0 +1,298 @@
+//! The requests of an event-driven client, without I/O: the queue, what goes on the
+//! wire next, which request an answer belongs to, and when each one times out.
+//!
+//! A request is queued with its sealed ADU ([`Pipeline::submit`]). Up to
+//! `max_in_flight` of them are on the wire at once (always one on a serial framing);
+//! [`Pipeline::fill`] moves the next ones from the queue to the wire, their bytes
+//! appended to one output buffer so that requests queued together go out in one
+//! write. Each request in flight has its own deadline, the response timeout from the
+//! moment it went out. An answer is matched by its transaction id on TCP (in any
+//! order), or is the answer of the one request in flight on a serial line
+//! ([`Pipeline::answer`]); an answer whose request is gone (it timed out, or was
+//! cancelled) is recognised by its transaction id and dropped, never handed to
+//! another request. A broadcast (unit 0 on a serial framing) expects no answer: it
+//! completes once it is out, after the line's turnaround delay.
+//!
+//! The payload `T` is what the driver does with a completed request (where its values
+//! go, whom to tell): the pipeline only carries it.
+
+use core::time::Duration;
+use std::collections::VecDeque;
+
+use crate::frame::{Framing, MAX_ADU_LENGTH};
+
+/// How many requests a context may hold (queued and in flight): a submit beyond
+/// fails with EAGAIN.
+pub const MAX_PENDING: usize = 1024;
+/// The deepest pipelining: the transaction ids of the requests in flight and of
+/// those that timed out stay distinct.
+pub const MAX_IN_FLIGHT: usize = 256;
+/// How many transaction ids of requests that timed out or were cancelled while on
+/// the wire are remembered, so that their late answers are dropped.
+const GONE_REMEMBERED: usize = 512;
+/// The silence after a broadcast on a serial line before the next request (the
+/// serial line specification's turnaround delay is 100 to 200 ms).
+pub const TURNAROUND: Duration = Duration::from_millis(100);
+
+/// A request and its state.
+pub struct Entry<T> {
+    pub id: i32,
+    /// The sealed ADU as it goes on the wire (ASCII: its characters); the response
+    /// checks compare the answer with [`Entry::adu`].
+    wire: Vec<u8>,
+    /// The sealed ADU (binary, for the response checks).
+    adu: Vec<u8>,
+    /// The transaction id (TCP).
+    pub tid: u16,
+    pub broadcast: bool,
+    /// When the answer is due (set when it goes out).
+    deadline: Option<Duration>,
+    pub payload: T,
+}
+
+impl<T> Entry<T> {
+    /// The request's ADU (sealed, binary).
+    pub fn adu(&self) -> &[u8] {
+        &self.adu
+    }
+}
+
+/// How a request ended, as the pipeline sees it.
+pub enum End {
+    /// Its answer: the frame the driver received, to be checked against the request.
+    Answered,
+    /// Sent, and no answer expected (a broadcast).
+    Sent,
+    /// Its response timeout passed.
+    TimedOut,
+    /// Cancelled, or dropped by a close, or by a failure of the line (the errno).
+    Failed(i32),
+}
+
+/// What an answer the driver received is.
+pub enum Answer<T> {
+    /// The answer of this request (taken out of the pipeline).
+    Of(Entry<T>),
+    /// An answer whose request is gone (it timed out or was cancelled): dropped.
+    Stale,
+    /// An answer no request of this pipeline asked for (an unknown transaction id,
+    /// or a serial frame with nothing in flight).
+    Unexpected,
+}
+
+/// The requests of one context.
+pub struct Pipeline<T> {
+    framing: Framing,
+    queue: VecDeque<Entry<T>>,
+    in_flight: VecDeque<Entry<T>>,
+    max_in_flight: usize,
+    /// The bytes of the requests that went in flight and are not written yet.
+    out: Vec<u8>,
+    /// The transaction ids of requests that left the wire before their answer came.
+    gone: VecDeque<u16>,
+    next_id: i32,
+}
+
+impl<T> Pipeline<T> {
+    pub fn new(framing: Framing) -> Self {
+        Pipeline {
+            framing,
+            queue: VecDeque::new(),
+            in_flight: VecDeque::new(),
+            max_in_flight: 1,
+            out: Vec::new(),
+            gone: VecDeque::new(),
+            next_id: 0,
+        }
+    }
+
+    /// The framing the pipeline was made for.
+    pub fn framing(&self) -> Framing {
+        self.framing
+    }
+
+    /// The depth of pipelining: 1..=[`MAX_IN_FLIGHT`]; a serial framing keeps 1.
+    pub fn set_max_in_flight(&mut self, n: usize) -> bool {
+        if n == 0 || n > MAX_IN_FLIGHT {
+            return false;
+        }
+        self.max_in_flight = n;
+        true
+    }
+
+    pub fn max_in_flight(&self) -> usize {
+        if self.framing == Framing::Tcp { self.max_in_flight } else { 1 }
+    }
+
+    /// Queued plus in flight.
+    pub fn pending(&self) -> usize {
+        self.queue.len() + self.in_flight.len()
+    }
+
+    pub fn in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.queue.is_empty() && self.in_flight.is_empty()
+    }
+
+    /// Queues a request: `adu` sealed (binary), `wire` what goes on the line (the
+    /// same bytes, or its ASCII characters: empty means `adu`). Returns its id (>= 0),
+    /// or `None` when the queue is full.
+    pub fn submit(&mut self, adu: &[u8], wire: &[u8], tid: u16, broadcast: bool, payload: T) -> Option<i32> {
+        if self.pending() >= MAX_PENDING || adu.len() > MAX_ADU_LENGTH {
+            return None;
+        }
+        let id = self.next_id;
+        self.next_id = if self.next_id == i32::MAX { 0 } else { self.next_id + 1 };
+        let wire = if wire.is_empty() { adu.to_vec() } else { wire.to_vec() };
+        self.queue.push_back(Entry { id, wire, adu: adu.to_vec(), tid, broadcast, deadline: None, payload });
+        Some(id)
+    }
+
+    /// Moves the next requests from the queue to the wire, as many as the depth
+    /// allows (a broadcast holds the line for its turnaround: nothing goes with it
+    /// or after it until then); their bytes are appended to [`Pipeline::output`].
+    /// `response` is the response timeout, counted from `now`. Returns how many went.
+    pub fn fill(&mut self, now: Duration, response: Duration) -> usize {
+        let mut moved = 0;
+        while self.in_flight.len() < self.max_in_flight() && !self.in_flight.iter().any(|e| e.broadcast) {
+            let Some(mut e) = self.queue.pop_front() else { break };
+            self.out.extend_from_slice(&e.wire);
+            e.deadline = Some(now + if e.broadcast { TURNAROUND } else { response });
+            // A transaction id used again: its old request's late answer can no
+            // longer be told apart; this request's answer wins.
+            if self.framing == Framing::Tcp {
+                self.gone.retain(|&t| t != e.tid);
+            }
+            self.in_flight.push_back(e);
+            moved += 1;
+        }
+        moved
+    }
+
+    /// Bytes to write.
+    pub fn output(&self) -> &[u8] {
+        &self.out
+    }
+
+    /// `n` bytes of [`Pipeline::output`] were written.
+    pub fn wrote(&mut self, n: usize) {
+        self.out.drain(..n.min(self.out.len()));
+    }
+
+    /// The earliest time something is due: an answer's deadline or the end of a
+    /// broadcast's turnaround.
+    pub fn deadline(&self) -> Option<Duration> {
+        self.in_flight.iter().filter_map(|e| e.deadline).min()
+    }
+
+    /// The earliest deadline of a request that waits for an answer (a receive's
+    /// time limit).
+    pub fn answer_deadline(&self) -> Option<Duration> {
+        self.in_flight.iter().filter(|e| !e.broadcast).filter_map(|e| e.deadline).min()
+    }
+
+    /// Expects an answer: a request in flight that is not a broadcast.
+    pub fn awaits_answer(&self) -> bool {
+        self.in_flight.iter().any(|e| !e.broadcast)
+    }
+
+    /// The requests whose time is up at `now`: broadcasts whose turnaround ended
+    /// ([`End::Sent`]) and requests whose response timeout passed
+    /// ([`End::TimedOut`]), in the order they went out.
+    pub fn due(&mut self, now: Duration) -> Vec<(Entry<T>, End)> {
+        let mut ended = Vec::new();
+        let mut i = 0;
+        while i < self.in_flight.len() {
+            if self.in_flight[i].deadline.is_some_and(|d| now >= d) {
+                let e = self.in_flight.remove(i).expect("index checked");
+                if e.broadcast {
+                    ended.push((e, End::Sent));
+                } else {
+                    self.forget(e.tid);
+                    ended.push((e, End::TimedOut));
+                }
+            } else {
+                i += 1;
+            }
+        }
+        ended
+    }
+
+    /// Remembers the transaction id of a request that left the wire before its
+    /// answer came.
+    fn forget(&mut self, tid: u16) {
+        if self.framing != Framing::Tcp {
+            return;
+        }
+        if self.gone.len() == GONE_REMEMBERED {
+            self.gone.pop_front();
+        }
+        self.gone.push_back(tid);
+    }
+
+    /// The request an answer belongs to. `tid`: the answer's transaction id (TCP).
+    pub fn answer(&mut self, tid: Option<u16>) -> Answer<T> {
+        let index = match (self.framing, tid) {
+            (Framing::Tcp, Some(tid)) => self.in_flight.iter().position(|e| e.tid == tid && !e.broadcast),
+            (Framing::Tcp, None) => None,
+            _ => self.in_flight.iter().position(|e| !e.broadcast),
+        };
+        match index {
+            Some(i) => Answer::Of(self.in_flight.remove(i).expect("index found")),
+            None => match tid {
+                Some(tid) if self.framing == Framing::Tcp => {
+                    if let Some(k) = self.gone.iter().position(|&t| t == tid) {
+                        self.gone.remove(k);
+                        Answer::Stale
+                    } else {
+                        Answer::Unexpected
+                    }
+                }
+                _ => Answer::Unexpected,
+            },
+        }
+    }
+
+    /// Takes request `id` out, wherever it is. A request on the wire is remembered
+    /// as gone (its answer will be dropped); one partly written cannot be taken back
+    /// from the line, so its bytes go out all the same.
+    pub fn cancel(&mut self, id: i32) -> Option<Entry<T>> {
+        if let Some(i) = self.queue.iter().position(|e| e.id == id) {
+            return self.queue.remove(i);
+        }
+        let i = self.in_flight.iter().position(|e| e.id == id)?;
+        let e = self.in_flight.remove(i).expect("index found");
+        if !e.broadcast {
+            self.forget(e.tid);
+        }
+        Some(e)
+    }
+
+    /// Takes every request out (a close, a lost line): those in flight first, in the
+    /// order they went out, then the queue. The output is dropped.
+    pub fn drain(&mut self) -> Vec<Entry<T>> {
+        self.out.clear();
+        let mut all: Vec<Entry<T>> = self.in_flight.drain(..).collect();
+        all.extend(self.queue.drain(..));
+        all
+    }
+
+    /// Takes the requests in flight out (the line failed under them), keeping the
+    /// queue; the output is dropped.
+    pub fn drain_in_flight(&mut self) -> Vec<Entry<T>> {
+        self.out.clear();
+        self.in_flight.drain(..).collect()
+    }
+
+    /// The ids of the requests, in flight then queued (tests, `modbus_pending`).
+    pub fn ids(&self) -> impl Iterator<Item = i32> + '_ {
+        self.in_flight.iter().chain(self.queue.iter()).map(|e| e.id)
+    }
+}
+
+#[cfg(test)]
+#[path = "pipeline_tests.rs"]
+mod tests;

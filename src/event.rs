@@ -1,0 +1,438 @@
+//! The event-driven client: the same receive machine as the blocking calls, on the
+//! same line, driven by readiness instead of blocking waits. The application owns the
+//! loop: it asks what to wait for ([`interest`]), waits (its `poll`, `epoll`, libuv...),
+//! and hands what happened to [`process`], which does the I/O that is ready without
+//! ever blocking on it, and completes requests. The requests and their matching are
+//! `proto::session::pipeline`'s; the state between calls is the context's
+//! [`Outstanding`].
+//!
+//! Rules: a request's response timeout runs from the moment it goes out; the byte
+//! timeout as usual; an answer that comes after its request timed out is dropped
+//! (TCP: by its transaction id); a failure of the line completes everything in flight
+//! and queued with its error and closes the line, which the next request opens again.
+//! No recovery sleeps here: where the blocking calls sleep and flush, the line is
+//! flushed at once.
+
+use std::time::Duration;
+
+use crate::context::Context;
+use crate::engine::{self, AduBuf, Guard};
+use crate::error::{Error, Result};
+use crate::outstanding::{Completion, Deliver, Done, Outstanding, Receiving};
+use crate::proto::confirm::{self, Rejection};
+use crate::proto::decode::counted_data;
+use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
+use crate::proto::request::Request;
+use crate::proto::session::pipeline::{Answer, End, Entry, MAX_PENDING};
+use crate::proto::session::receive::{Dest, Finished, Outcome, ReadHow, Receiver, Step};
+use crate::proto::session::{Recovery, Timeout};
+use crate::proto::{Diag, ascii};
+use crate::transport;
+
+/// What to wait for before the next [`process`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Interest {
+    /// The descriptor (-1: none yet).
+    pub fd: i32,
+    /// `POLLIN` and/or `POLLOUT`.
+    pub events: i16,
+    /// Call [`process`] by then at the latest (`None`: no deadline).
+    pub until: Option<Duration>,
+}
+
+fn state(ctx: &mut Context) -> &mut Outstanding {
+    let framing = ctx.framing();
+    ctx.outstanding.get_or_insert_with(|| Box::new(Outstanding::new(framing)))
+}
+
+/// Requests given and not completed.
+pub fn pending(ctx: &Context) -> usize {
+    ctx.outstanding.as_ref().map_or(0, |o| o.pending())
+}
+
+/// A blocking call may run: nothing of the event-driven client is pending.
+pub fn idle(ctx: &Context) -> Result<()> {
+    if pending(ctx) > 0 { Err(Error(libc::EBUSY)) } else { Ok(()) }
+}
+
+/// `modbus_set_max_in_flight`.
+pub fn set_max_in_flight(ctx: &mut Context, n: i32) -> Result<()> {
+    if n < 1 || !state(ctx).pipeline.set_max_in_flight(n as usize) {
+        return Err(Error::INVALID);
+    }
+    Ok(())
+}
+
+/// Queues `req`; returns its id. `EINVAL` without a slave (serial), `EAGAIN` when the
+/// queue is full.
+pub fn submit(ctx: &mut Context, req: &Request<'_>, completion: Completion) -> Result<i32> {
+    if ctx.session.slave < 0 {
+        ctx.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
+        return Err(Error::INVALID);
+    }
+    if state(ctx).pending() >= MAX_PENDING {
+        return Err(Error(libc::EAGAIN));
+    }
+    let mut buf: AduBuf = [0; MAX_ADU_LENGTH];
+    let n = engine::build_request(ctx, req, &mut buf);
+    let framing = ctx.framing();
+    let len = framing.seal(&mut buf, n);
+    let mut chars = [0u8; ascii::MAX_ENCODED];
+    let wire: &[u8] = if framing == Framing::Ascii {
+        let k = ascii::encode(&buf[..len], &mut chars);
+        &chars[..k]
+    } else {
+        &[]
+    };
+    let broadcast = framing != Framing::Tcp && ctx.session.slave == 0;
+    let tid = ctx.t_id;
+    let id = state(ctx).pipeline.submit(&buf[..len], wire, tid, broadcast, completion);
+    id.ok_or(Error(libc::EAGAIN))
+}
+
+/// `modbus_cancel`: completes request `id` with ECANCELED.
+pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
+    let o = ctx.outstanding.as_deref_mut().ok_or(Error::INVALID)?;
+    let e = o.pipeline.cancel(id).ok_or(Error::INVALID)?;
+    if o.pipeline.in_flight() == 0 {
+        // Nothing to receive for any more (a late answer is dropped by its id).
+        o.receiving = None;
+    }
+    o.done.push_back(Done { id: e.id, completion: e.payload, result: Err(libc::ECANCELED), data: Vec::new() });
+    Ok(())
+}
+
+/// A close: everything pending completes with ECANCELED.
+pub fn cancel_all(ctx: &mut Context) {
+    if let Some(o) = ctx.outstanding.as_deref_mut() {
+        o.fail_all(libc::ECANCELED);
+    }
+}
+
+/// The next completed request, for the C layer to deliver and call back.
+pub fn take_done(ctx: &mut Context) -> Option<Done> {
+    ctx.outstanding.as_deref_mut()?.done.pop_front()
+}
+
+/// What to wait for (see [`Interest`]).
+pub fn interest(ctx: &Context) -> Interest {
+    let fd = ctx.fd();
+    let Some(o) = ctx.outstanding.as_deref() else { return Interest { fd, events: 0, until: None } };
+    if o.pending() == 0 {
+        return Interest { fd, events: 0, until: None };
+    }
+    let now = transport::now();
+    // Bytes already read (a TLS session's plaintext, the read-ahead of the last
+    // answer) that an expected answer may be made of.
+    let expecting = o.receiving.is_some() || o.pipeline.awaits_answer();
+    let here = expecting && (ctx.line.pending() > 0 || (o.receiving.is_none() && !ctx.rx.available().is_empty()));
+    if fd < 0 || !o.done.is_empty() || here {
+        // To connect, to report, or bytes already here: at once.
+        return Interest { fd, events: 0, until: Some(now) };
+    }
+    let mut events = 0;
+    if !o.pipeline.output().is_empty() {
+        events |= libc::POLLOUT;
+    }
+    let mut until = o.pipeline.deadline();
+    if o.receiving.is_some() || o.pipeline.awaits_answer() {
+        events |= libc::POLLIN;
+        if let Some(r) = &o.receiving {
+            if let Step::Wait { until: Some(t) } = r.step {
+                until = Some(until.map_or(t, |u| u.min(t)));
+            }
+        }
+    }
+    if o.pipeline.in_flight() < o.pipeline.max_in_flight() && o.pipeline.pending() > o.pipeline.in_flight() {
+        // Room on the wire for a queued request: go now.
+        until = Some(now);
+    }
+    Interest { fd, events, until }
+}
+
+/// `modbus_process`: the I/O `revents` says is ready, and what the clock says is due.
+/// Returns the number of requests completed (their results wait in the context for
+/// the C layer: [`take_done`]).
+pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
+    let Some(mut o) = g.outstanding.take() else { return Ok(0) };
+    let before = o.done.len();
+    let mut readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
+    run(g, &mut o, &mut readable);
+    let completed = o.done.len() - before;
+    g.outstanding = Some(o);
+    Ok(completed)
+}
+
+fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) {
+    for _ in 0..4 * MAX_PENDING {
+        let now = transport::now();
+        let mut progress = false;
+        for (e, end) in o.pipeline.due(now) {
+            progress = true;
+            let result = match end {
+                End::Sent => Ok(0),
+                _ => Err(libc::ETIMEDOUT),
+            };
+            if matches!(end, End::Sent) {
+                // A broadcast: rc as a write's.
+                complete_broadcast(o, e);
+            } else {
+                if g.debug {
+                    engine::error_print(g, Error::TIMED_OUT, Some("select"));
+                }
+                push(o, e, result, Vec::new());
+            }
+        }
+        if o.pipeline.in_flight() == 0 {
+            o.receiving = None;
+        }
+        if o.pipeline.is_empty() {
+            return;
+        }
+        if g.fd() < 0 {
+            // The first request of a context not connected yet, or the next after
+            // the line was lost.
+            o.receiving = None;
+            g.rx.clear();
+            if let Err(e) = engine::connect(g) {
+                engine::error_print(g, e, Some("connect"));
+                o.fail_all(e.errno());
+                return;
+            }
+            progress = true;
+        }
+        if write(g, o, now) {
+            progress = true;
+        }
+        if g.fd() < 0 {
+            continue;
+        }
+        if o.receiving.is_some() || o.pipeline.awaits_answer() {
+            if let Some(f) = receive(g, o, readable) {
+                progress = true;
+                let r = o.receiving.take().expect("the receive that ended");
+                finish(g, o, f, &r.msg[..]);
+            }
+        }
+        if !progress {
+            return;
+        }
+    }
+}
+
+/// Moves requests to the wire and writes what is waiting; true when bytes went out.
+fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
+    let response = g.session.timeouts.response.duration();
+    o.pipeline.fill(now, response);
+    let out = o.pipeline.output();
+    if out.is_empty() {
+        return false;
+    }
+    if g.debug {
+        engine::trace_sent(out);
+    }
+    let written = match g.line.write_at_once(out) {
+        Some(r) => r,
+        None => {
+            let timeout = g.session.timeouts.response;
+            g.line.write(out, timeout)
+        }
+    };
+    match written {
+        Ok(n) => {
+            o.pipeline.wrote(n);
+            n > 0
+        }
+        Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => false,
+        Err(e) => {
+            engine::error_print(g, e, None);
+            lost(g, o, e);
+            true
+        }
+    }
+}
+
+/// The line failed: everything pending completes with its error, and the line is
+/// closed (the next request opens it again).
+fn lost(g: &mut Guard<'_>, o: &mut Outstanding, e: Error) {
+    o.fail_all(e.errno());
+    engine::close(g);
+}
+
+/// Drives the receive under way (or a new one) until it ends (`Some`) or must wait.
+fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Option<Finished> {
+    if o.receiving.is_none() {
+        let now = transport::now();
+        let deadline = o.pipeline.answer_deadline().unwrap_or(now);
+        let mut s = g.session;
+        s.kind = MsgKind::Confirmation;
+        s.line = g.line.caps(MsgKind::Confirmation, s.timeouts.response);
+        // Never a blocking read under a kernel timeout: readiness decides.
+        s.line.timed_reads = false;
+        s.expecting = None;
+        s.read_ahead = true;
+        let left = deadline.saturating_sub(now).max(Duration::from_micros(1));
+        s.timeouts.response = Timeout::new(left.as_secs() as u32, left.subsec_micros().max(1));
+        let mut msg = Box::new([0u8; MAX_ADU_LENGTH]);
+        let mut machine = Receiver::new(&s, || now);
+        let step = machine.start(&s, &mut msg[..], &mut g.rx, || now);
+        o.receiving = Some(Receiving { machine, settings: s, step, msg });
+    }
+    let r = o.receiving.as_mut().expect("made above");
+    let ctx: &mut Context = g;
+    loop {
+        let result = match r.step {
+            Step::Frame(len) => return Some(Finished::frame(len)),
+            Step::Done(f) => return Some(f),
+            Step::Wait { until } => {
+                if *readable || ctx.line.pending() > 0 {
+                    *readable = false;
+                    Ok(0)
+                } else if until.is_some_and(|u| transport::now() >= u) {
+                    Err(Error::TIMED_OUT)
+                } else {
+                    return None;
+                }
+            }
+            Step::Read { dest, how: _ } => {
+                let room = match dest {
+                    Dest::Message { from, to } => &mut r.msg[from..to],
+                    Dest::ReadAhead => &mut ctx.rx.buf[..],
+                };
+                ctx.line.read(room, ReadHow::Queued, ctx.debug)
+            }
+            Step::Peek { .. } => ctx.line.peek(&mut ctx.rx.buf, false),
+        };
+        r.step = r.machine.next(&r.settings, result, &mut r.msg[..], &mut ctx.rx, transport::now);
+    }
+}
+
+/// Completes `e` with `result` and the answer's data.
+fn push(o: &mut Outstanding, e: Entry<Completion>, result: std::result::Result<i32, i32>, data: Vec<u8>) {
+    o.done.push_back(Done { id: e.id, completion: e.payload, result, data });
+}
+
+/// A broadcast is out: it completes as its write would (the count it wrote).
+fn complete_broadcast(o: &mut Outstanding, e: Entry<Completion>) {
+    let rc = broadcast_count(e.adu());
+    push(o, e, Ok(rc), Vec::new());
+}
+
+/// What a write returns for a request that gets no answer: the count it writes (1
+/// for a single coil or register, the quantity of a multiple write).
+fn broadcast_count(adu: &[u8]) -> i32 {
+    use crate::proto::fc;
+    let pdu = &adu[1..];
+    match pdu[0] {
+        fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS if pdu.len() >= 5 => {
+            i32::from(u16::from_be_bytes([pdu[3], pdu[4]]))
+        }
+        _ => 1,
+    }
+}
+
+/// The values an answer brings for `deliver`, and what the call returns.
+fn values(framing: Framing, deliver: Deliver, rsp: &[u8], count: i32) -> (i32, Vec<u8>) {
+    let h = framing.header_length();
+    match deliver {
+        Deliver::Bits { nb, .. } => (nb, counted_data(&rsp[h..], count as usize).to_vec()),
+        Deliver::Registers { .. } if count > 0 => (count, counted_data(&rsp[h..], 2 * count as usize).to_vec()),
+        Deliver::Registers { .. } | Deliver::Count => (count, Vec::new()),
+        Deliver::Bytes { max, .. } => {
+            let n = (count.max(0) as usize).min(max.max(0) as usize);
+            (count, counted_data(&rsp[h..], n).to_vec())
+        }
+    }
+}
+
+/// The recovery a failed receive or a mismatched answer asks for, without sleeping.
+fn recover(g: &mut Guard<'_>, o: &mut Outstanding, recovery: Recovery, e: Error) {
+    match recovery {
+        Recovery::None => {}
+        Recovery::Flush | Recovery::SleepFlush => {
+            g.rx.clear();
+            g.line.purge();
+        }
+        Recovery::Reconnect | Recovery::ReconnectAfterSleep => lost(g, o, e),
+    }
+}
+
+/// A failure of the line itself (not of one answer).
+fn is_lost(e: Error) -> bool {
+    matches!(e.0, libc::ECONNRESET | libc::EPIPE | libc::ENOTCONN | libc::EBADF | libc::ECONNABORTED | libc::ENETDOWN)
+}
+
+/// Checks a frame against the request it answers and completes that request.
+fn answered(g: &mut Guard<'_>, o: &mut Outstanding, rsp: &[u8]) {
+    let framing = g.framing();
+    let tid = (framing == Framing::Tcp && rsp.len() >= 2).then(|| u16::from_be_bytes([rsp[0], rsp[1]]));
+    let e = match o.pipeline.answer(tid) {
+        Answer::Of(e) => e,
+        Answer::Stale | Answer::Unexpected => {
+            if g.debug {
+                let what = match tid {
+                    Some(t) => format!("Answer with transaction ID 0x{t:X} dropped (no request waits for it)\n"),
+                    None => "Answer dropped (no request waits for it)\n".to_string(),
+                };
+                g.diag().err(format_args!("{what}"));
+            }
+            return;
+        }
+    };
+    let mut diag = g.diag();
+    match confirm::check(framing, e.adu(), rsp, &mut diag) {
+        Ok(count) => {
+            let (rc, data) = values(framing, e.payload.deliver, rsp, count);
+            push(o, e, Ok(rc), data);
+        }
+        Err(Rejection::Exception(err)) => {
+            engine::error_print(g, err, None);
+            push(o, e, Err(err.errno()), Vec::new());
+        }
+        Err(Rejection::Mismatch(err)) | Err(Rejection::Foreign(err)) => {
+            push(o, e, Err(err.errno()), Vec::new());
+            let recovery = crate::proto::session::after_mismatch(g.session.recovery);
+            recover(g, o, recovery, err);
+        }
+    }
+}
+
+/// Writes the message of a receive that ended, and acts on its outcome.
+fn finish(g: &mut Guard<'_>, o: &mut Outstanding, f: Finished, msg: &[u8]) {
+    if g.debug && f.traced > 0 {
+        use std::fmt::Write as _;
+        let mut trace = String::with_capacity(f.traced * 4 + 1);
+        for b in &msg[..f.traced] {
+            let _ = write!(trace, "<{b:02X}>");
+        }
+        trace.push('\n');
+        crate::stdio::out(format_args!("{trace}"));
+    }
+    match f.outcome {
+        Outcome::Frame(len) => answered(g, o, &msg[..len]),
+        // A serial frame for another slave: not ours; keep listening.
+        Outcome::Ignored { .. } => {}
+        Outcome::Failed { error, .. } if error == Error::TIMED_OUT && f.traced == 0 => {
+            // The first request's deadline: `due` completes it.
+        }
+        Outcome::Failed { error, .. } if is_lost(error) => {
+            engine::error_print(g, error, Some("read"));
+            lost(g, o, error);
+        }
+        Outcome::BadChecksum { .. } | Outcome::Failed { .. } => {
+            let error = match f.outcome {
+                Outcome::Failed { error, .. } => error,
+                _ => Error::BAD_CRC,
+            };
+            engine::error_print(g, error, None);
+            // The oldest request in flight is the one this answer was for.
+            let oldest = o.pipeline.ids().next();
+            if let Some(id) = oldest {
+                if let Some(e) = o.pipeline.cancel(id) {
+                    push(o, e, Err(error.errno()), Vec::new());
+                }
+            }
+            recover(g, o, f.recovery, error);
+        }
+    }
+}

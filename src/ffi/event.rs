@@ -1,0 +1,523 @@
+//! modbus.h extensions: the event-driven client. Each `_async` call queues a request
+//! and returns its id at once; the application waits on the descriptor
+//! `modbus_get_pollfd` names and calls `modbus_process`, which does the I/O that is
+//! ready and calls each completed request's callback with what the blocking call
+//! would have returned. The driver is `crate::event`; here are the arguments, the
+//! values written out, and the callbacks (run with the context unlocked, so that
+//! they may call the library on it, free it included).
+
+use std::ffi::{c_int, c_short, c_void};
+use std::slice;
+
+use crate::engine::Guard;
+use crate::error::{Error, Result};
+use crate::event;
+use crate::ffi::{Modbus, fail, with_ctx};
+use crate::outstanding::{Completion, Deliver, Done, RawCallback};
+use crate::proto::data::{registers_from_be, set_bits_from_bytes};
+use crate::proto::fc;
+use crate::proto::limits::{MAX_READ_BITS, MAX_READ_REGISTERS};
+use crate::proto::request::{Request, check_read_count, check_write_count};
+
+/// `modbus_callback_t`: called once per request, from `modbus_process` (or
+/// `modbus_cancel`, `modbus_close`, `modbus_free`) on the calling thread. `rc` is
+/// what the blocking call returns, or -1 with `error` the errno it would set
+/// (ECANCELED for a cancelled request).
+pub type Callback = Option<CallbackFn>;
+
+/// The function behind a non-NULL [`Callback`].
+pub type CallbackFn =
+    unsafe extern "C" fn(ctx: *mut Modbus, request_id: c_int, rc: c_int, error: c_int, user_data: *mut c_void);
+
+fn completion(cb: Callback, user_data: *mut c_void, deliver: Deliver) -> Completion {
+    // SAFETY: the same C function pointer type but for the first argument's pointee
+    // (`modbus_t *` and `void *` are passed alike); it is called back with the
+    // context's `modbus_t *`.
+    let callback = cb.map(|f| unsafe { std::mem::transmute::<CallbackFn, RawCallback>(f) });
+    Completion { callback, user_data, deliver }
+}
+
+/// Writes a completed request's values where its call said, then calls its callback
+/// with the context unlocked; one at a time, until none is left (a callback may
+/// close or free the context: what is left is then completed by that close).
+///
+/// # Safety
+/// `ctx` is the live handle `g` locks; the pointers of each request are the
+/// application's, valid until its callback (the `_async` calls' contract).
+unsafe fn fire(ctx: *mut Modbus, g: &mut Guard<'_>) -> c_int {
+    let mut fired = 0;
+    while let Some(done) = event::take_done(g) {
+        fired += 1;
+        // SAFETY: forwarded caller contract.
+        let (rc, error) = unsafe { deliver(&done) };
+        if let Some(cb) = done.completion.callback {
+            let user = done.completion.user_data;
+            // SAFETY: the application's callback, with its own user data.
+            crate::engine::call_unlocked(g, || unsafe { cb(ctx.cast(), done.id, rc, error, user) });
+        }
+    }
+    fired
+}
+
+/// The values of a completed request into the application's buffers; (rc, errno).
+///
+/// # Safety
+/// The request's pointers are valid for the counts its call gave.
+unsafe fn deliver(done: &Done) -> (c_int, c_int) {
+    match done.result {
+        Err(errno) => (-1, errno),
+        Ok(rc) => {
+            match done.completion.deliver {
+                Deliver::Bits { dest, nb } => {
+                    // SAFETY: `dest` holds `nb` bytes (the call's contract).
+                    let dest = unsafe { slice::from_raw_parts_mut(dest, nb as usize) };
+                    set_bits_from_bytes(dest, &done.data);
+                }
+                Deliver::Registers { dest } if !done.data.is_empty() => {
+                    // SAFETY: the count was checked to be the requested one, for
+                    // which `dest` has room.
+                    let dest = unsafe { slice::from_raw_parts_mut(dest, done.data.len() / 2) };
+                    registers_from_be(&done.data, dest);
+                }
+                Deliver::Bytes { dest, .. } if !done.data.is_empty() => {
+                    // SAFETY: at most `max` bytes, the room `dest` has.
+                    let dest = unsafe { slice::from_raw_parts_mut(dest, done.data.len()) };
+                    dest.copy_from_slice(&done.data);
+                }
+                _ => {}
+            }
+            (rc, 0)
+        }
+    }
+}
+
+/// Queues a request on `ctx` and returns its id (C convention).
+///
+/// # Safety
+/// `ctx` NULL or live; the request's destination valid until its callback.
+unsafe fn submit<'a>(
+    ctx: *mut Modbus,
+    cb: Callback,
+    user_data: *mut c_void,
+    deliver: Deliver,
+    req: impl FnOnce(&mut Guard<'_>) -> Result<Request<'a>>,
+) -> c_int {
+    let c = completion(cb, user_data, deliver);
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let r = req(g)?;
+            event::submit(g, &r, c)
+        })
+    }
+}
+
+/// Reads `nb` coils (FC 01) into `dest` (one byte per coil), without waiting: returns
+/// a request id (>= 0), or -1 with errno. `dest` must stay valid until `cb` runs,
+/// which gets `rc` = `nb` or -1 with the error. A NULL `cb` only writes the values.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` NULL or valid for `nb` bytes until the
+/// request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_bits_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    nb: c_int,
+    dest: *mut u8,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { read_bits(ctx, fc::READ_COILS, addr, nb, dest, cb, user_data) }
+}
+
+/// Reads `nb` discrete inputs (FC 02) into `dest`, without waiting (see
+/// `modbus_read_bits_async`).
+///
+/// # Safety
+/// As `modbus_read_bits_async`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_input_bits_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    nb: c_int,
+    dest: *mut u8,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { read_bits(ctx, fc::READ_DISCRETE_INPUTS, addr, nb, dest, cb, user_data) }
+}
+
+/// # Safety
+/// As `modbus_read_bits_async`.
+unsafe fn read_bits(
+    ctx: *mut Modbus,
+    function: u8,
+    addr: c_int,
+    nb: c_int,
+    dest: *mut u8,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if dest.is_null() {
+        return fail(Error::INVALID);
+    }
+    let what = if function == fc::READ_COILS { "bits" } else { "discrete inputs" };
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        submit(ctx, cb, user_data, Deliver::Bits { dest, nb }, |g| {
+            check_read_count(nb, MAX_READ_BITS, what, &mut g.diag())?;
+            Ok(Request::ReadBits { function, addr, nb })
+        })
+    }
+}
+
+/// Reads `nb` holding registers (FC 03) into `dest`, without waiting: `rc` is the
+/// number read.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` NULL or valid for `nb` values until
+/// the request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_registers_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    nb: c_int,
+    dest: *mut u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { read_registers(ctx, fc::READ_HOLDING_REGISTERS, addr, nb, dest, cb, user_data) }
+}
+
+/// Reads `nb` input registers (FC 04) into `dest`, without waiting.
+///
+/// # Safety
+/// As `modbus_read_registers_async`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_input_registers_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    nb: c_int,
+    dest: *mut u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { read_registers(ctx, fc::READ_INPUT_REGISTERS, addr, nb, dest, cb, user_data) }
+}
+
+/// # Safety
+/// As `modbus_read_registers_async`.
+unsafe fn read_registers(
+    ctx: *mut Modbus,
+    function: u8,
+    addr: c_int,
+    nb: c_int,
+    dest: *mut u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if dest.is_null() {
+        return fail(Error::INVALID);
+    }
+    let what = if function == fc::READ_HOLDING_REGISTERS { "registers" } else { "input registers" };
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        submit(ctx, cb, user_data, Deliver::Registers { dest }, |g| {
+            check_read_count(nb, MAX_READ_REGISTERS, what, &mut g.diag())?;
+            Ok(Request::ReadRegisters { function, addr, nb })
+        })
+    }
+}
+
+/// Writes one coil (FC 05), without waiting: `rc` is 1.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_write_bit_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    status: c_int,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, Deliver::Count, |_| Ok(Request::WriteBit { addr, on: status != 0 })) }
+}
+
+/// Writes one holding register (FC 06), without waiting: `rc` is 1.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_write_register_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    value: u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, Deliver::Count, |_| Ok(Request::WriteRegister { addr, value })) }
+}
+
+/// Writes `nb` coils (FC 0F) from `src`, without waiting (the values are copied at
+/// once): `rc` is the count the server confirmed.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `src` NULL or valid for `nb` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_write_bits_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    nb: c_int,
+    src: *const u8,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if src.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        submit(ctx, cb, user_data, Deliver::Count, |g| {
+            check_write_count(fc::WRITE_MULTIPLE_COILS, nb, &mut g.diag())?;
+            // SAFETY: `src` is non-NULL and holds `nb` (checked) bytes.
+            Ok(Request::WriteBits { addr, bits: slice::from_raw_parts(src, nb as usize) })
+        })
+    }
+}
+
+/// Writes `nb` holding registers (FC 10) from `src`, without waiting (the values
+/// are copied at once): `rc` is the count the server confirmed.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `src` NULL or valid for `nb` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_write_registers_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    nb: c_int,
+    src: *const u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if src.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        submit(ctx, cb, user_data, Deliver::Count, |g| {
+            check_write_count(fc::WRITE_MULTIPLE_REGISTERS, nb, &mut g.diag())?;
+            // SAFETY: `src` is non-NULL and holds `nb` (checked) values.
+            Ok(Request::WriteRegisters { addr, values: slice::from_raw_parts(src, nb as usize) })
+        })
+    }
+}
+
+/// Sets a register to `(current & and_mask) | (or_mask & ~and_mask)` (FC 16),
+/// without waiting: `rc` is 1.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_mask_write_register_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    and_mask: u16,
+    or_mask: u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    let req = Request::MaskWriteRegister { addr, and_mask, or_mask };
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, Deliver::Count, |_| Ok(req)) }
+}
+
+/// Writes `write_nb` registers then reads `read_nb` (FC 17), without waiting: `rc`
+/// is the number read.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `src` valid for `write_nb` values, `dest`
+/// for `read_nb` values until the request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_write_and_read_registers_async(
+    ctx: *mut Modbus,
+    write_addr: c_int,
+    write_nb: c_int,
+    src: *const u16,
+    read_addr: c_int,
+    read_nb: c_int,
+    dest: *mut u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        submit(ctx, cb, user_data, Deliver::Registers { dest }, |g| {
+            crate::ffi::client::write_and_read_request(g, write_addr, write_nb, src, read_addr, read_nb, dest)
+        })
+    }
+}
+
+/// Asks the server for its id (FC 11), without waiting: at most `max_dest` bytes of
+/// the answer go to `dest`; `rc` is the byte count the server sent.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` NULL or valid for `max_dest` bytes
+/// until the request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_report_slave_id_async(
+    ctx: *mut Modbus,
+    max_dest: c_int,
+    dest: *mut u8,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if max_dest <= 0 || dest.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, Deliver::Bytes { dest, max: max_dest }, |_| Ok(Request::ReportSlaveId)) }
+}
+
+/// What to wait for: `pfd->fd` (-1 while not connected), `pfd->events` (`POLLIN`,
+/// `POLLOUT`, or 0), and in `*timeout_ms` (may be NULL) the milliseconds until
+/// `modbus_process` is due even without an event (-1: no deadline; 0: call it now).
+/// Returns the number of requests pending, or -1 with errno.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `pfd` NULL or writable; `timeout_ms` NULL or
+/// writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_pollfd(ctx: *mut Modbus, pfd: *mut libc::pollfd, timeout_ms: *mut c_int) -> c_int {
+    if pfd.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            let i = event::interest(g);
+            // SAFETY: `pfd` is non-NULL and writable (contract).
+            *pfd = libc::pollfd { fd: i.fd, events: i.events, revents: 0 };
+            if !timeout_ms.is_null() {
+                *timeout_ms = match i.until {
+                    None => -1,
+                    Some(t) => {
+                        let left = t.saturating_sub(crate::transport::now());
+                        // Rounded up: a wake-up before the deadline would find nothing due.
+                        let ms = left.as_nanos().div_ceil(1_000_000);
+                        ms.min(i32::MAX as u128) as c_int
+                    }
+                };
+            }
+            Ok(event::pending(g) as c_int)
+        })
+    }
+}
+
+/// Does the I/O that `revents` (from `poll`, for the descriptor of
+/// `modbus_get_pollfd`; 0 when the wait timed out) says is ready and what the clock
+/// says is due, without blocking, and calls the callbacks of the requests that
+/// completed. Returns how many completed, or -1 with errno.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_process(ctx: *mut Modbus, revents: c_short) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            event::process(g, revents)?;
+            Ok(fire(ctx, g))
+        })
+    }
+}
+
+/// The requests queued and in flight on `ctx`, or -1 with errno.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_pending(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| Ok(event::pending(g) as c_int)) }
+}
+
+/// Completes request `request_id` with ECANCELED (its callback runs before this
+/// returns); its answer, should it come, is dropped. Returns 0, or -1 with errno
+/// (EINVAL: no such request pending).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_cancel(ctx: *mut Modbus, request_id: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            event::cancel(g, request_id)?;
+            fire(ctx, g);
+            Ok(0)
+        })
+    }
+}
+
+/// How many requests may be on the wire at once on a TCP context (pipelining):
+/// 1..=256, default 1; a serial line always has one. Returns 0, or -1 with errno.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_max_in_flight(ctx: *mut Modbus, n: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| event::set_max_in_flight(g, n).map(|()| 0)) }
+}
+
+/// The close of a context with requests pending: each completes with ECANCELED, its
+/// callback run before the close returns (`modbus_close`, `modbus_free`). Nothing to
+/// do from a signal handler that interrupted a call on the context (the lock is that
+/// call's).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+pub unsafe fn cancel_pending(ctx: *mut Modbus) {
+    if ctx.is_null() {
+        return;
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        crate::handle::call(ctx, |g| {
+            if g.outstanding.is_some() {
+                event::cancel_all(g);
+                fire(ctx, g);
+            }
+            Ok::<(), Error>(())
+        })
+        .ok();
+    }
+}
+
+/// After a close: the callbacks of what it cancelled.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+pub unsafe fn fire_cancelled(ctx: *mut Modbus) {
+    if ctx.is_null() {
+        return;
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        crate::handle::call(ctx, |g| {
+            if g.outstanding.is_some() {
+                fire(ctx, g);
+            }
+            Ok::<(), Error>(())
+        })
+        .ok();
+    }
+}

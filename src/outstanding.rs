@@ -1,0 +1,90 @@
+//! What a context holds for its event-driven client: the requests it was given
+//! (`proto::session::pipeline`), the receive under way between two calls of
+//! `modbus_process`, and the requests that completed and wait for their callback.
+//! The driver is `crate::event`; the C side (`ffi/event.rs`) writes the values out
+//! and calls the callbacks. Nothing here is made until the first asynchronous call,
+//! so that a blocking context pays nothing for it.
+
+use std::collections::VecDeque;
+use std::ffi::{c_int, c_void};
+
+use crate::proto::frame::{Framing, MAX_ADU_LENGTH};
+use crate::proto::session::pipeline::Pipeline;
+use crate::proto::session::receive::{Receiver, Settings, Step};
+
+/// The application's callback as it is stored: `modbus_callback_t` with the context
+/// as an untyped pointer (the C layer stores and calls it with `modbus_t *`).
+pub type RawCallback = unsafe extern "C" fn(*mut c_void, c_int, c_int, c_int, *mut c_void);
+
+/// Where the values of an answer go; the pointers are the application's, written by
+/// the C layer only.
+#[derive(Clone, Copy, Debug)]
+pub enum Deliver {
+    /// `nb` bits, one byte each (FC 01, 02); the call returns `nb`.
+    Bits { dest: *mut u8, nb: c_int },
+    /// The registers the answer counts (FC 03, 04, 17); the call returns the count.
+    Registers { dest: *mut u16 },
+    /// Nothing to copy: the call returns the count the server confirmed (writes).
+    Count,
+    /// Up to `max` bytes of the answer's data (FC 11); the call returns its byte count.
+    Bytes { dest: *mut u8, max: c_int },
+}
+
+/// A request's payload in the pipeline: whom to tell, where its values go.
+#[derive(Clone, Copy, Debug)]
+pub struct Completion {
+    pub callback: Option<RawCallback>,
+    pub user_data: *mut c_void,
+    pub deliver: Deliver,
+}
+
+// SAFETY: the pointers are the application's; the library only writes the values
+// to them and passes them back, under the context's lock, on whichever thread runs
+// `modbus_process` (the application's contract, as for the blocking calls' buffers).
+unsafe impl Send for Completion {}
+
+/// A request that completed: its result, and the values to copy out.
+pub struct Done {
+    pub id: c_int,
+    pub completion: Completion,
+    /// What the blocking call returns (>= 0), or the errno it sets.
+    pub result: Result<c_int, i32>,
+    /// The answer's data (packed bits, big-endian registers, bytes).
+    pub data: Vec<u8>,
+}
+
+/// A receive under way between two calls of `modbus_process`.
+pub struct Receiving {
+    pub machine: Receiver,
+    /// The settings it runs with (the context's, with this receive's time limit).
+    pub settings: Settings,
+    pub step: Step,
+    pub msg: Box<[u8; MAX_ADU_LENGTH]>,
+}
+
+/// The event-driven client's state of one context.
+pub struct Outstanding {
+    pub pipeline: Pipeline<Completion>,
+    pub receiving: Option<Receiving>,
+    pub done: VecDeque<Done>,
+}
+
+impl Outstanding {
+    pub fn new(framing: Framing) -> Self {
+        Outstanding { pipeline: Pipeline::new(framing), receiving: None, done: VecDeque::new() }
+    }
+
+    /// Requests given and not completed yet (queued and in flight).
+    pub fn pending(&self) -> usize {
+        self.pipeline.pending()
+    }
+
+    /// Completes every request with `errno` (a close: ECANCELED; a lost line: its
+    /// error); their callbacks run when the C layer next fires the completed ones.
+    pub fn fail_all(&mut self, errno: i32) {
+        self.receiving = None;
+        for e in self.pipeline.drain() {
+            self.done.push_back(Done { id: e.id, completion: e.payload, result: Err(errno), data: Vec::new() });
+        }
+    }
+}
