@@ -46,6 +46,22 @@ pub fn connect(ctx: &mut Context) -> Result<()> {
     ctx.line.open(timeout, ctx.debug, &mut diag)
 }
 
+/// The event-driven client's connect: as [`connect`], but a TCP connect is only
+/// started (`Ok(false)`: under way, see `Line::connect_done`).
+pub fn connect_started(ctx: &mut Context) -> Result<bool> {
+    ctx.rx.clear();
+    let mut diag = ctx.diag();
+    let timeout = ctx.session.timeouts.response.duration();
+    ctx.line.open_started(timeout, ctx.debug, &mut diag)
+}
+
+/// The end of a connect [`connect_started`] left under way.
+pub fn connect_done(ctx: &mut Context, timed_out: bool) -> Result<()> {
+    let mut diag = ctx.diag();
+    let timeout = ctx.session.timeouts.response.duration();
+    ctx.line.connect_done(timed_out, timeout, ctx.debug, &mut diag)
+}
+
 /// `modbus_tcp_accept`: the client just accepted on `fd` becomes the context's (on
 /// a Modbus/TCP Security context once its handshake, bounded by the response
 /// timeout, is done).

@@ -122,6 +122,9 @@ pub fn interest(ctx: &Context) -> Interest {
         return Interest { fd, events: 0, until: None };
     }
     let now = transport::now();
+    if ctx.line.connecting() {
+        return Interest { fd, events: libc::POLLOUT, until: o.connect_until };
+    }
     // Bytes already read (a TLS session's plaintext, the read-ahead of the last
     // answer) that an expected answer may be made of.
     let expecting = o.receiving.is_some() || o.pipeline.awaits_answer();
@@ -157,13 +160,14 @@ pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
     let Some(mut o) = g.outstanding.take() else { return Ok(0) };
     let before = o.done.len();
     let mut readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
-    run(g, &mut o, &mut readable);
+    let writable = revents & (libc::POLLOUT | libc::POLLERR | libc::POLLHUP) != 0;
+    run(g, &mut o, &mut readable, writable);
     let completed = o.done.len() - before;
     g.outstanding = Some(o);
     Ok(completed)
 }
 
-fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) {
+fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bool) {
     for _ in 0..4 * MAX_PENDING {
         let now = transport::now();
         let mut progress = false;
@@ -191,10 +195,29 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) {
         }
         if g.fd() < 0 {
             // The first request of a context not connected yet, or the next after
-            // the line was lost.
+            // the line was lost: the connect starts, and goes on while the
+            // application waits for the socket to be writable.
             o.receiving = None;
-            g.rx.clear();
-            if let Err(e) = engine::connect(g) {
+            match engine::connect_started(g) {
+                Ok(true) => progress = true,
+                Ok(false) => {
+                    o.connect_until = Some(now + g.session.timeouts.response.duration());
+                    return;
+                }
+                Err(e) => {
+                    engine::error_print(g, e, Some("connect"));
+                    o.fail_all(e.errno());
+                    return;
+                }
+            }
+        }
+        if g.line.connecting() {
+            let timed_out = o.connect_until.is_some_and(|u| now >= u);
+            if !writable && !timed_out {
+                return;
+            }
+            o.connect_until = None;
+            if let Err(e) = engine::connect_done(g, timed_out) {
                 engine::error_print(g, e, Some("connect"));
                 o.fail_all(e.errno());
                 return;

@@ -67,11 +67,13 @@ pub struct Outstanding {
     pub pipeline: Pipeline<Completion>,
     pub receiving: Option<Receiving>,
     pub done: VecDeque<Done>,
+    /// When the connect under way gives up (the response timeout from its start).
+    pub connect_until: Option<std::time::Duration>,
 }
 
 impl Outstanding {
     pub fn new(framing: Framing) -> Self {
-        Outstanding { pipeline: Pipeline::new(framing), receiving: None, done: VecDeque::new() }
+        Outstanding { pipeline: Pipeline::new(framing), receiving: None, done: VecDeque::new(), connect_until: None }
     }
 
     /// Requests given and not completed yet (queued and in flight).
@@ -83,6 +85,7 @@ impl Outstanding {
     /// error); their callbacks run when the C layer next fires the completed ones.
     pub fn fail_all(&mut self, errno: i32) {
         self.receiving = None;
+        self.connect_until = None;
         for e in self.pipeline.drain() {
             self.done.push_back(Done { id: e.id, completion: e.payload, result: Err(errno), data: Vec::new() });
         }

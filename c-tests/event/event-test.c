@@ -401,6 +401,25 @@ static void own_servers(void)
     EXPECT(results[id].done == 1 && results[id].rc == -1 && results[id].error == ETIMEDOUT && t >= 0.19 && t < 1.5,
            "a server that never answers: ETIMEDOUT after %.3f s (response timeout 0.2 s)", t);
 
+    /* 1b. Nothing listens: the connect, started by modbus_process without waiting,
+     *     fails, and the request with it (ECONNREFUSED). */
+    {
+        int dead_port, dead = listen_any(&dead_port);
+        close(dead);
+        modbus_t *c2 = modbus_new_tcp("127.0.0.1", dead_port);
+        reset();
+        int id2 = modbus_read_registers_async(c2, 0, 1, v, on_done, NULL);
+        struct pollfd pfd;
+        int timeout = -2;
+        modbus_get_pollfd(c2, &pfd, &timeout);
+        EXPECT(pfd.fd == -1 && timeout == 0, "not connected: no descriptor, process at once (fd %d, timeout %d)", pfd.fd,
+               timeout);
+        drive(c2, 5);
+        EXPECT(results[id2].done == 1 && results[id2].rc == -1 && results[id2].error == ECONNREFUSED,
+               "nothing listens: the request fails with ECONNREFUSED (%s)", modbus_strerror(results[id2].error));
+        modbus_free(c2);
+    }
+
     /* 2. A callback that frees its context: the request behind it completes inside
      *    modbus_free (ECANCELED), and no callback runs after. */
     reset();

@@ -70,6 +70,8 @@ struct Held {
     client: Option<ClientSocket>,
     /// The TLS session on the socket.
     session: Option<Box<Session>>,
+    /// A connect under way (the event-driven client's): [`Line::connect_done`] ends it.
+    connecting: bool,
 }
 
 /// The end of a TLS handshake a line takes.
@@ -238,7 +240,7 @@ impl Line {
     pub fn adopt_own(&mut self, fd: i32) {
         let serial = self.kind == Kind::Serial;
         let client = (!serial).then(ClientSocket::default);
-        self.install(fd, Held { nonblocking: serial, client, session: None });
+        self.install(fd, Held { nonblocking: serial, client, ..Held::default() });
     }
 
     /// Gives up the descriptor without closing it (for the caller to close): -1 from
@@ -270,8 +272,8 @@ impl Line {
                 self.install(fd, Held { nonblocking: true, ..Held::default() });
                 return Ok(());
             }
-            Link::Tcp(link) => tcp::connect_ipv4(link, timeout, diag),
-            Link::TcpPi(link) => tcp::connect_pi(link, timeout, diag),
+            Link::Tcp(link) => tcp::connect_ipv4(link, Some(timeout), diag),
+            Link::TcpPi(link) => tcp::connect_pi(link, Some(timeout), diag),
         };
         match connected {
             Ok(c) => {
@@ -285,6 +287,59 @@ impl Line {
                 Err(e)
             }
         }
+    }
+
+    /// The event-driven client's open: a serial line opens as [`Line::open`] does; a
+    /// TCP connect is started and goes on without waiting (`Ok(false)`: writable
+    /// when it has ended, then [`Line::connect_done`]).
+    pub fn open_started(&mut self, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<bool> {
+        let started = match &mut self.settings {
+            Link::Rtu(_) => return self.open(timeout, debug, diag).map(|()| true),
+            Link::Tcp(link) => tcp::connect_ipv4(link, None, diag),
+            Link::TcpPi(link) => tcp::connect_pi(link, None, diag),
+        };
+        match started {
+            Ok(c) if c.in_progress => {
+                self.install(c.fd, Held { connecting: true, ..Held::default() });
+                Ok(false)
+            }
+            Ok(c) => {
+                let client = c.blocking.then(ClientSocket::default);
+                self.install(c.fd, Held { client, ..Held::default() });
+                if self.kind == Kind::Tls {
+                    self.handshake(Side::Client, timeout, debug, diag).map(|()| true)
+                } else {
+                    Ok(true)
+                }
+            }
+            Err(ConnectError::Before(e)) => Err(e),
+            Err(ConnectError::During(e)) => {
+                self.install(-1, Held::default());
+                Err(e)
+            }
+        }
+    }
+
+    /// A connect of [`Line::open_started`] is under way.
+    pub fn connecting(&self) -> bool {
+        self.held.connecting
+    }
+
+    /// The end of a connect under way, once its socket is writable (or its time is up:
+    /// `timed_out`). A failure closes the socket; on a Modbus/TCP Security context the
+    /// handshake follows, bounded by `timeout`.
+    pub fn connect_done(&mut self, timed_out: bool, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
+        let fd = self.fd;
+        let ended = if timed_out { Err(Error::TIMED_OUT) } else { tcp::connect_result(fd) };
+        if let Err(e) = ended {
+            let fd = self.abandon();
+            super::close(fd);
+            return Err(e);
+        }
+        let c = tcp::made_blocking(fd);
+        let client = c.blocking.then(ClientSocket::default);
+        self.held = Held { client, ..Held::default() };
+        if self.kind == Kind::Tls { self.handshake(Side::Client, timeout, debug, diag) } else { Ok(()) }
     }
 
     /// `modbus_tcp_accept`: `fd`, just accepted, becomes the line's socket; on a

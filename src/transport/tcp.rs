@@ -32,20 +32,32 @@ fn new_socket(family: i32, protocol: i32) -> Result<i32> {
     if fd == -1 { Err(last_error()) } else { Ok(fd) }
 }
 
-/// Connects a non-blocking socket, waiting at most `timeout` for the handshake.
-/// A timeout gives ETIMEDOUT (3.1.11+); any pending socket error gives ECONNREFUSED.
-fn connect_within(fd: i32, addr: *const libc::sockaddr, len: libc::socklen_t, timeout: Duration) -> Result<()> {
+/// How long a connect may wait for the handshake: `None`, not at all (the event-driven
+/// client's: the connect goes on while the application's loop waits).
+type ConnectWait = Option<Duration>;
+
+/// Connects a non-blocking socket, waiting at most `timeout` for the handshake; with
+/// no time to wait, `Ok(false)` when it is under way. A timeout gives ETIMEDOUT
+/// (3.1.11+); any pending socket error gives ECONNREFUSED.
+fn connect_within(fd: i32, addr: *const libc::sockaddr, len: libc::socklen_t, timeout: ConnectWait) -> Result<bool> {
     // SAFETY: `addr` points at a socket address of `len` bytes owned by the caller.
     let rc = unsafe { libc::connect(fd, addr, len) };
     if rc == 0 {
-        return Ok(());
+        return Ok(true);
     }
     if errno() != libc::EINPROGRESS {
         return Err(last_error());
     }
+    let Some(timeout) = timeout else { return Ok(false) };
     if !wait(fd, libc::POLLOUT, Some(timeout))? {
         return Err(Error::TIMED_OUT);
     }
+    connect_result(fd).map(|()| true)
+}
+
+/// The end of a connect under way (the socket was reported writable): its error,
+/// if any, as ECONNREFUSED.
+pub fn connect_result(fd: i32) -> Result<()> {
     let mut so_error: libc::c_int = 0;
     let mut optlen = size_of::<libc::c_int>() as libc::socklen_t;
     // SAFETY: `so_error` and `optlen` are live locals of the sizes getsockopt expects.
@@ -82,12 +94,16 @@ pub enum ConnectError {
 pub struct Connected {
     pub fd: i32,
     pub blocking: bool,
+    /// The connect goes on (no time to wait was given): [`connect_result`] when the
+    /// socket is writable, then [`made_blocking`].
+    pub in_progress: bool,
 }
 
-/// `modbus_connect` for a TCP (IPv4) context, the handshake bounded by `timeout`.
+/// `modbus_connect` for a TCP (IPv4) context, the handshake bounded by `timeout`
+/// (`None`: started only).
 pub fn connect_ipv4(
     link: &TcpLink,
-    timeout: Duration,
+    timeout: ConnectWait,
     diag: &mut dyn Diag,
 ) -> core::result::Result<Connected, ConnectError> {
     let (ip, port) = (&link.ip, link.port);
@@ -109,7 +125,8 @@ pub fn connect_ipv4(
     sa.sin_addr = in_addr;
     let len = size_of::<libc::sockaddr_in>() as libc::socklen_t;
     match connect_within(fd, (&sa as *const libc::sockaddr_in).cast(), len, timeout) {
-        Ok(()) => Ok(made_blocking(fd)),
+        Ok(true) => Ok(made_blocking(fd)),
+        Ok(false) => Ok(Connected { fd, blocking: false, in_progress: true }),
         Err(e) => {
             close(fd);
             Err(ConnectError::During(e))
@@ -158,10 +175,10 @@ pub fn gai_error(code: i32) -> String {
 }
 
 /// `modbus_connect` for a protocol-independent TCP context: the first address that
-/// connects wins.
+/// connects wins (`None`: the first whose connect starts).
 pub fn connect_pi(
     link: &TcpPiLink,
-    timeout: Duration,
+    timeout: ConnectWait,
     diag: &mut dyn Diag,
 ) -> core::result::Result<Connected, ConnectError> {
     let (node, service) = (&link.node, &link.service);
@@ -191,7 +208,8 @@ pub fn connect_pi(
         }
         diag.out(format_args!("Connecting to [{}]:{}\n", node.to_string_lossy(), service.to_string_lossy()));
         match connect_within(fd, ai.ai_addr, ai.ai_addrlen, timeout) {
-            Ok(()) => return Ok(made_blocking(fd)),
+            Ok(true) => return Ok(made_blocking(fd)),
+            Ok(false) => return Ok(Connected { fd, blocking: false, in_progress: true }),
             Err(e) => {
                 close(fd);
                 last = e;
@@ -202,11 +220,11 @@ pub fn connect_pi(
 }
 
 /// A freshly connected socket, switched to blocking when the kernel lets it.
-fn made_blocking(fd: i32) -> Connected {
+pub fn made_blocking(fd: i32) -> Connected {
     let mut nonblocking: libc::c_int = 0;
     // SAFETY: FIONBIO reads one live c_int.
     let rc = unsafe { libc::ioctl(fd, libc::FIONBIO, &mut nonblocking as *mut libc::c_int) };
-    Connected { fd, blocking: rc == 0 }
+    Connected { fd, blocking: rc == 0, in_progress: false }
 }
 
 /// Sets `SO_RCVTIMEO` (0 = none).
