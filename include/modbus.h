@@ -352,6 +352,8 @@ typedef struct _modbus_device_id_object {
  * the blocking call returns (rc), or -1 and the errno it sets (error). */
 struct pollfd;
 typedef void (*modbus_callback_t)(modbus_t *ctx, int request_id, int rc, int error, void *user_data);
+/* Many contexts behind one descriptor (modbus_multi_new(3)). */
+typedef struct _modbus_multi modbus_multi_t;
 
 /**
  * rsmodbus extension: the error recovery mode of `ctx`, as `modbus_set_error_recovery`
@@ -692,6 +694,66 @@ int modbus_read_device_identification(modbus_t *ctx,
                                       modbus_device_id_object_t *objects,
                                       int max_objects,
                                       int *conformity);
+
+/**
+ * Makes a multi handle; NULL with errno on failure.
+ */
+MODBUS_API modbus_multi_t *modbus_multi_new(void);
+
+/**
+ * Adds `ctx` to `m`; a context is in one multi handle at most (EBUSY).
+ *
+ * # Safety
+ * `m` NULL or a live multi handle; `ctx` NULL or a live context.
+ */
+MODBUS_API int modbus_multi_add(modbus_multi_t *m, modbus_t *ctx);
+
+/**
+ * Takes `ctx` out of `m` (EINVAL when it is not in it).
+ *
+ * # Safety
+ * `m` NULL or a live multi handle; `ctx` NULL or a live context.
+ */
+MODBUS_API int modbus_multi_remove(modbus_multi_t *m, modbus_t *ctx);
+
+/**
+ * The descriptor that is readable when a context of `m` has I/O ready (put it in
+ * the application's loop, then call `modbus_multi_perform(m, 0)`); -1 with EINVAL for
+ * NULL. Deadlines do not make it readable: wait at most `modbus_multi_timeout`.
+ *
+ * # Safety
+ * `m` NULL or a live multi handle.
+ */
+MODBUS_API int modbus_multi_get_fd(modbus_multi_t *m);
+
+/**
+ * Milliseconds until a context of `m` has something due without I/O (a timeout, a
+ * connect, a request to send): 0 at once, -1 none. Brings the registrations up to
+ * date.
+ *
+ * # Safety
+ * `m` NULL or a live multi handle.
+ */
+MODBUS_API int modbus_multi_timeout(modbus_multi_t *m);
+
+/**
+ * Waits up to `timeout_ms` (0: not at all; -1: until something is due) for I/O on
+ * the contexts of `m`, then processes each context with I/O ready or a deadline
+ * passed (as `modbus_process`, callbacks included). Returns the number of requests
+ * completed, or -1 with errno.
+ *
+ * # Safety
+ * `m` NULL or a live multi handle.
+ */
+MODBUS_API int modbus_multi_perform(modbus_multi_t *m, int timeout_ms);
+
+/**
+ * Frees `m`; its contexts leave it (they are not closed or freed).
+ *
+ * # Safety
+ * `m` NULL or a live multi handle, not used afterwards.
+ */
+MODBUS_API void modbus_multi_free(modbus_multi_t *m);
 
 /**
  * rsmodbus extension: a Modbus ASCII context on a serial line: frames are ':',

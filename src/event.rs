@@ -40,7 +40,8 @@ pub struct Interest {
     pub until: Option<Duration>,
 }
 
-fn state(ctx: &mut Context) -> &mut Outstanding {
+/// The context's event-driven state, made on first use.
+pub fn state(ctx: &mut Context) -> &mut Outstanding {
     let framing = ctx.framing();
     ctx.outstanding.get_or_insert_with(|| Box::new(Outstanding::new(framing)))
 }

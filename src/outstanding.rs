@@ -5,8 +5,9 @@
 //! and calls the callbacks. Nothing here is made until the first asynchronous call,
 //! so that a blocking context pays nothing for it.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::ffi::{c_int, c_void};
+use std::sync::{Arc, Mutex};
 
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH};
 use crate::proto::session::pipeline::Pipeline;
@@ -69,11 +70,51 @@ pub struct Outstanding {
     pub done: VecDeque<Done>,
     /// When the connect under way gives up (the response timeout from its start).
     pub connect_until: Option<std::time::Duration>,
+    /// The multi handle the context is in, if any.
+    pub multi: Option<Arc<Members>>,
+}
+
+/// The contexts of one multi handle (`modbus_multi_*`), shared by the handle and its
+/// contexts, so that a context leaves it wherever it goes (removed, or freed).
+pub struct Members {
+    /// The multi handle's epoll descriptor.
+    pub epfd: i32,
+    /// By handle address: what is registered for each.
+    pub list: Mutex<HashMap<usize, Member>>,
+}
+
+/// What a multi handle registered for one context.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Member {
+    /// The descriptor (-1: none registered) and which of the line's it was.
+    pub fd: i32,
+    pub generation: u32,
+    /// The poll(2) events registered (0: none).
+    pub events: i16,
+}
+
+impl Members {
+    /// Takes the context of handle address `key` out (its registration with it: a
+    /// descriptor still open stops reporting).
+    pub fn remove(&self, key: usize) {
+        let mut list = self.list.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(m) = list.remove(&key) {
+            if m.fd >= 0 && m.events != 0 {
+                let _ = crate::transport::epoll::control(self.epfd, libc::EPOLL_CTL_DEL, m.fd, 0, 0);
+            }
+        }
+    }
 }
 
 impl Outstanding {
     pub fn new(framing: Framing) -> Self {
-        Outstanding { pipeline: Pipeline::new(framing), receiving: None, done: VecDeque::new(), connect_until: None }
+        Outstanding {
+            pipeline: Pipeline::new(framing),
+            receiving: None,
+            done: VecDeque::new(),
+            connect_until: None,
+            multi: None,
+        }
     }
 
     /// Requests given and not completed yet (queued and in flight).

@@ -27,6 +27,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <time.h>
 #include <unistd.h>
@@ -325,7 +326,7 @@ static int listen_any(int *port)
     struct sockaddr_in a = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
     socklen_t len = sizeof(a);
     setsockopt(s, SOL_SOCKET, SO_REUSEADDR, &one_, sizeof(one_));
-    if (bind(s, (struct sockaddr *) &a, sizeof(a)) != 0 || listen(s, 8) != 0 ||
+    if (bind(s, (struct sockaddr *) &a, sizeof(a)) != 0 || listen(s, 512) != 0 ||
         getsockname(s, (struct sockaddr *) &a, &len) != 0) {
         return -1;
     }
@@ -381,6 +382,180 @@ static void *late_server_main(void *arg)
         close(c);
     }
     return NULL;
+}
+
+/* A server for many clients at once: each read of holding registers is answered at
+ * once with its transaction id as every value. Ends when `stop` is set. */
+struct many_server {
+    int listen_fd;
+    volatile int stop;
+    int served;
+};
+
+static void *many_server_main(void *arg)
+{
+    struct many_server *s = arg;
+    struct pollfd pfd[256];
+    int n = 1;
+    pfd[0].fd = s->listen_fd;
+    pfd[0].events = POLLIN;
+    while (!s->stop) {
+        if (poll(pfd, (nfds_t) n, 50) <= 0) {
+            continue;
+        }
+        while ((pfd[0].revents & POLLIN) && n < 256) {
+            int c = accept4(s->listen_fd, NULL, NULL, SOCK_NONBLOCK);
+            if (c < 0) {
+                break;
+            }
+            int off = 0;
+            ioctl(c, FIONBIO, &off);
+            pfd[n].fd = c;
+            pfd[n].events = POLLIN;
+            pfd[n].revents = 0;
+            n++;
+        }
+        for (int i = 1; i < n; i++) {
+            if (!(pfd[i].revents & (POLLIN | POLLHUP | POLLERR))) {
+                continue;
+            }
+            uint8_t req[12], rsp[9 + 2 * 125];
+            if (read_full(pfd[i].fd, req, 12) != 0) {
+                close(pfd[i].fd);
+                pfd[i--] = pfd[--n];
+                continue;
+            }
+            int nb = (req[10] << 8) | req[11];
+            if (nb < 1 || nb > 125) {
+                nb = 1;
+            }
+            memcpy(rsp, req, 4);
+            rsp[4] = 0;
+            rsp[5] = (uint8_t) (3 + 2 * nb);
+            rsp[6] = req[6];
+            rsp[7] = 3;
+            rsp[8] = (uint8_t) (2 * nb);
+            for (int k = 0; k < nb; k++) {
+                rsp[9 + 2 * k] = req[0];
+                rsp[10 + 2 * k] = req[1];
+            }
+            if (send(pfd[i].fd, rsp, (size_t) (9 + 2 * nb), MSG_NOSIGNAL) > 0) {
+                s->served++;
+            }
+        }
+    }
+    for (int i = 1; i < n; i++) {
+        close(pfd[i].fd);
+    }
+    return NULL;
+}
+
+/* The multi handle: many contexts, one descriptor. */
+#define MULTI_N 100
+static int multi_left;
+static void multi_done(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    struct result *r = user;
+    (void) ctx;
+    (void) id;
+    r->done++;
+    r->rc = rc;
+    r->error = error;
+    multi_left--;
+}
+
+static void multi_free_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    multi_done(ctx, id, rc, error, user);
+    modbus_free(ctx);
+}
+
+static void multi_case(void)
+{
+    static struct result res[MULTI_N][3];
+    static uint16_t vals[MULTI_N][3][4];
+    struct many_server s = {0};
+    int port, dead_port, on = 1;
+    s.listen_fd = listen_any(&port);
+    ioctl(s.listen_fd, FIONBIO, &on);
+    int dead = listen_any(&dead_port);
+    close(dead);
+    pthread_t th;
+    pthread_create(&th, NULL, many_server_main, &s);
+
+    modbus_multi_t *m = modbus_multi_new();
+    EXPECT(m != NULL, "modbus_multi_new");
+    modbus_t *ctx[MULTI_N];
+    memset(res, 0, sizeof(res));
+    multi_left = 0;
+    for (int i = 0; i < MULTI_N; i++) {
+        /* Device 7 has nothing listening; device 9's first callback frees it. */
+        ctx[i] = modbus_new_tcp("127.0.0.1", i == 7 ? dead_port : port);
+        modbus_set_response_timeout(ctx[i], 2, 0);
+        if (modbus_multi_add(m, ctx[i]) != 0) {
+            EXPECT(0, "modbus_multi_add %d: %s", i, modbus_strerror(errno));
+        }
+        for (int k = 0; k < 3; k++) {
+            modbus_callback_t cb = (i == 9 && k == 0) ? multi_free_cb : multi_done;
+            if (modbus_read_registers_async(ctx[i], 0, 4, vals[i][k], cb, &res[i][k]) >= 0) {
+                multi_left++;
+            }
+        }
+    }
+    EXPECT(modbus_multi_add(m, ctx[0]) == -1 && errno == EBUSY, "a context is in one multi handle at most (EBUSY)");
+    EXPECT(modbus_multi_get_fd(m) >= 0, "modbus_multi_get_fd: a descriptor");
+    double t0 = now_s();
+    int completed = 0, rounds = 0;
+    while (multi_left > 0 && now_s() - t0 < 20) {
+        int c = modbus_multi_perform(m, 1000);
+        if (c < 0) {
+            EXPECT(0, "modbus_multi_perform: %s", modbus_strerror(errno));
+            break;
+        }
+        completed += c;
+        rounds++;
+    }
+    double took = now_s() - t0;
+    int right = 0, refused = 0, freed_ok = 0;
+    for (int i = 0; i < MULTI_N; i++) {
+        for (int k = 0; k < 3; k++) {
+            struct result r = res[i][k];
+            if (i == 7) {
+                refused += r.done == 1 && r.rc == -1 && r.error == ECONNREFUSED;
+            } else if (i == 9) {
+                freed_ok += r.done == 1 && (k == 0 ? r.rc == 4 : r.error == ECANCELED);
+            } else {
+                /* Each context numbers its own transactions 1, 2, 3. */
+                right += r.done == 1 && r.rc == 4 && vals[i][k][0] == k + 1 && vals[i][k][3] == k + 1;
+            }
+        }
+    }
+    EXPECT(right == 3 * (MULTI_N - 2), "multi: %d contexts x 3 requests, each its own answer: %d of %d (%.3f s, %d rounds)",
+           MULTI_N - 2, right, 3 * (MULTI_N - 2), took, rounds);
+    EXPECT(refused == 3, "multi: the device with nothing listening: its 3 requests fail with ECONNREFUSED (%d)", refused);
+    EXPECT(freed_ok == 3, "multi: a callback freed its context: its others completed with ECANCELED, none after (%d)",
+           freed_ok);
+    EXPECT(multi_left == 0 && completed == 3 * MULTI_N - 2,
+           "multi: every callback ran once (left %d; perform counted %d: the 2 cancelled by the free run inside it)",
+           multi_left, completed);
+    /* Remove, then a request on a removed context is the application's to drive. */
+    EXPECT(modbus_multi_remove(m, ctx[0]) == 0, "modbus_multi_remove");
+    EXPECT(modbus_multi_remove(m, ctx[0]) == -1 && errno == EINVAL, "modbus_multi_remove again: EINVAL");
+    uint16_t v[4];
+    reset();
+    int id = modbus_read_registers_async(ctx[0], 0, 4, v, on_done, NULL);
+    EXPECT(modbus_multi_perform(m, 100) == 0 && results[id].done == 0, "a removed context is not processed");
+    drive(ctx[0], 5);
+    EXPECT(results[id].done == 1 && results[id].rc == 4, "it completes through its own modbus_process");
+    for (int i = 0; i < MULTI_N; i++) {
+        if (i != 9) {
+            modbus_free(ctx[i]);
+        }
+    }
+    modbus_multi_free(m);
+    s.stop = 1;
+    pthread_join(th, NULL);
+    close(s.listen_fd);
 }
 
 static void own_servers(void)
@@ -535,6 +710,7 @@ int main(int argc, char **argv)
     } else {
         chk_set_prefix("own servers: ");
         own_servers();
+        multi_case();
         chk_set_prefix("");
     }
     modbus_free(ctx);

@@ -478,8 +478,8 @@ pub unsafe extern "C" fn modbus_set_max_in_flight(ctx: *mut Modbus, n: c_int) ->
     unsafe { with_ctx(ctx, |g| event::set_max_in_flight(g, n).map(|()| 0)) }
 }
 
-/// The close of a context with requests pending: each completes with ECANCELED, its
-/// callback run before the close returns (`modbus_close`, `modbus_free`). Nothing to
+/// The free of a context of the event-driven client: it leaves its multi handle, and
+/// what is pending completes with ECANCELED, each callback run before the free returns. Nothing to
 /// do from a signal handler that interrupted a call on the context (the lock is that
 /// call's).
 ///
@@ -492,7 +492,10 @@ pub unsafe fn cancel_pending(ctx: *mut Modbus) {
     // SAFETY: forwarded caller contract.
     unsafe {
         crate::handle::call(ctx, |g| {
-            if g.outstanding.is_some() {
+            if let Some(o) = g.outstanding.as_deref_mut() {
+                if let Some(members) = o.multi.take() {
+                    members.remove(ctx as usize);
+                }
                 event::cancel_all(g);
                 fire(ctx, g);
             }

@@ -9,6 +9,7 @@ pub mod context;
 pub mod data;
 pub mod event;
 pub mod extensions;
+pub mod multi;
 pub mod rtu;
 pub mod server;
 pub mod tcp;

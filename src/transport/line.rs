@@ -103,13 +103,17 @@ pub struct Line {
     fd: i32,
     held: Held,
     stop: Arc<Stop>,
+    /// Counts the descriptors the line had: a poller that registered the line's
+    /// descriptor knows whether it is still the one it registered (a closed number
+    /// may come back for another socket).
+    generation: u32,
 }
 
 impl Line {
     /// A line of these settings, not open.
     pub fn new(settings: Link, stop: Arc<Stop>) -> Line {
         let kind = if matches!(settings, Link::Rtu(_)) { Kind::Serial } else { Kind::Socket };
-        Line { settings, security: None, kind, fd: -1, held: Held::default(), stop }
+        Line { settings, security: None, kind, fd: -1, held: Held::default(), stop, generation: 0 }
     }
 
     /// Makes the line one of Modbus/TCP Security (a new context's).
@@ -212,7 +216,13 @@ impl Line {
             }
         }
         self.fd = fd;
+        self.generation = self.generation.wrapping_add(1);
         self.stop.set_fd(fd);
+    }
+
+    /// How many descriptors the line had, this one included (see the field).
+    pub fn generation(&self) -> u32 {
+        self.generation
     }
 
     /// `modbus_set_socket`: `fd` (-1: none) as a descriptor the context did not open.
@@ -249,6 +259,7 @@ impl Line {
         let fd = self.fd;
         self.held = Held::default();
         self.fd = -1;
+        self.generation = self.generation.wrapping_add(1);
         self.stop.set_fd(-1);
         fd
     }

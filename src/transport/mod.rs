@@ -3,6 +3,7 @@
 //! Waiting uses `ppoll` (microsecond timeouts like libmodbus's `select`, but without
 //! the 1024-descriptor limit of `fd_set`).
 
+pub mod epoll;
 pub mod line;
 pub mod link;
 pub mod listen;

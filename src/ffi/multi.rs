@@ -1,0 +1,263 @@
+//! modbus.h extensions: the multi handle of the event-driven client. Thousands of
+//! contexts behind one descriptor (an epoll instance): the application puts
+//! `modbus_multi_get_fd` in its own loop, or lets `modbus_multi_perform` wait, and
+//! every context with work is processed as `modbus_process` would (callbacks
+//! included). Before each wait the handle asks each context what it waits for and
+//! brings the epoll registrations up to date; a context leaves the handle when it is
+//! removed or freed, wherever that happens (a callback may do it).
+
+use std::collections::HashSet;
+use std::ffi::c_int;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use crate::error::{Error, Result};
+use crate::event;
+use crate::ffi::{Modbus, fail, status};
+use crate::outstanding::{Member, Members};
+use crate::transport::{self, epoll};
+
+/// The opaque `modbus_multi_t`.
+pub struct Multi {
+    members: Arc<Members>,
+}
+
+/// Makes a multi handle; NULL with errno on failure.
+#[unsafe(no_mangle)]
+pub extern "C" fn modbus_multi_new() -> *mut Multi {
+    match epoll::create() {
+        Ok(epfd) => {
+            Box::into_raw(Box::new(Multi { members: Arc::new(Members { epfd, list: Mutex::new(Default::default()) }) }))
+        }
+        Err(e) => {
+            fail(e);
+            std::ptr::null_mut()
+        }
+    }
+}
+
+/// Adds `ctx` to `m`; a context is in one multi handle at most (EBUSY).
+///
+/// # Safety
+/// `m` NULL or a live multi handle; `ctx` NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_add(m: *mut Multi, ctx: *mut Modbus) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
+    let members = Arc::clone(&m.members);
+    // SAFETY: forwarded caller contract.
+    status(unsafe {
+        crate::handle::call(ctx, |g| {
+            let o = event::state(g);
+            if o.multi.is_some() {
+                return Err(Error(libc::EBUSY));
+            }
+            members
+                .list
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .insert(ctx as usize, Member { fd: -1, ..Member::default() });
+            o.multi = Some(members);
+            Ok(0)
+        })
+    })
+}
+
+/// Takes `ctx` out of `m` (EINVAL when it is not in it).
+///
+/// # Safety
+/// `m` NULL or a live multi handle; `ctx` NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_remove(m: *mut Multi, ctx: *mut Modbus) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
+    // SAFETY: forwarded caller contract.
+    status(unsafe {
+        crate::handle::call(ctx, |g| {
+            let o = g.outstanding.as_deref_mut().ok_or(Error::INVALID)?;
+            match &o.multi {
+                Some(own) if Arc::ptr_eq(own, &m.members) => {
+                    o.multi = None;
+                    m.members.remove(ctx as usize);
+                    Ok(0)
+                }
+                _ => Err(Error::INVALID),
+            }
+        })
+    })
+}
+
+/// The descriptor that is readable when a context of `m` has I/O ready (put it in
+/// the application's loop, then call `modbus_multi_perform(m, 0)`); -1 with EINVAL for
+/// NULL. Deadlines do not make it readable: wait at most `modbus_multi_timeout`.
+///
+/// # Safety
+/// `m` NULL or a live multi handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_get_fd(m: *mut Multi) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    match unsafe { m.as_ref() } {
+        Some(m) => m.members.epfd,
+        None => fail(Error::INVALID),
+    }
+}
+
+/// Milliseconds until a context of `m` has something due without I/O (a timeout, a
+/// connect, a request to send): 0 at once, -1 none. Brings the registrations up to
+/// date.
+///
+/// # Safety
+/// `m` NULL or a live multi handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_timeout(m: *mut Multi) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
+    // SAFETY: the members are live contexts (a context leaves the list as it is freed).
+    match unsafe { sync(m) } {
+        Ok((earliest, _)) => ms_until(earliest),
+        Err(e) => fail(e),
+    }
+}
+
+/// Waits up to `timeout_ms` (0: not at all; -1: until something is due) for I/O on
+/// the contexts of `m`, then processes each context with I/O ready or a deadline
+/// passed (as `modbus_process`, callbacks included). Returns the number of requests
+/// completed, or -1 with errno.
+///
+/// # Safety
+/// `m` NULL or a live multi handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
+    // SAFETY: as in `modbus_multi_timeout`.
+    let (earliest, due) = match unsafe { sync(m) } {
+        Ok(s) => s,
+        Err(e) => return fail(e),
+    };
+    let until_due = ms_until(earliest);
+    let wait = match (timeout_ms, until_due) {
+        (0, _) => 0,
+        (t, -1) => t.max(-1),
+        (t, d) if t < 0 => d,
+        (t, d) => t.min(d),
+    };
+    let mut events = [libc::epoll_event { events: 0, u64: 0 }; 256];
+    let n = match epoll::wait(m.members.epfd, &mut events, wait) {
+        Ok(n) => n,
+        Err(e) => return fail(e),
+    };
+    let mut completed = 0;
+    let mut processed = HashSet::with_capacity(n);
+    for ev in &events[..n] {
+        let key = ev.u64 as usize;
+        // (`ev` is a copy: the packed field is read by value.)
+        let revents = { ev.events } as u16 as i16;
+        if processed.insert(key) && is_member(m, key) {
+            // SAFETY: a member is a live context.
+            completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, revents) }.max(0);
+        }
+    }
+    let now = transport::now();
+    for (key, until) in due {
+        if until.is_some_and(|u| u <= now) && !processed.contains(&key) && is_member(m, key) {
+            processed.insert(key);
+            // SAFETY: a member is a live context.
+            completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, 0) }.max(0);
+        }
+    }
+    completed
+}
+
+/// Frees `m`; its contexts leave it (they are not closed or freed).
+///
+/// # Safety
+/// `m` NULL or a live multi handle, not used afterwards.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
+    if m.is_null() {
+        return;
+    }
+    // SAFETY: the caller hands back a handle made by `modbus_multi_new`.
+    let m = unsafe { Box::from_raw(m) };
+    let keys: Vec<usize> = m.members.list.lock().unwrap_or_else(PoisonError::into_inner).keys().copied().collect();
+    for key in keys {
+        // SAFETY: a member is a live context.
+        let _ = unsafe {
+            crate::handle::call(key as *mut Modbus, |g| {
+                if let Some(o) = g.outstanding.as_deref_mut() {
+                    o.multi = None;
+                }
+                Ok::<(), Error>(())
+            })
+        };
+        m.members.remove(key);
+    }
+    transport::close(m.members.epfd);
+}
+
+fn is_member(m: &Multi, key: usize) -> bool {
+    m.members.list.lock().unwrap_or_else(PoisonError::into_inner).contains_key(&key)
+}
+
+/// Milliseconds until `t`, rounded up; -1 for none.
+fn ms_until(t: Option<Duration>) -> c_int {
+    match t {
+        None => -1,
+        Some(t) => t.saturating_sub(transport::now()).as_nanos().div_ceil(1_000_000).min(i32::MAX as u128) as c_int,
+    }
+}
+
+/// Each member's deadline, by handle address.
+type Due = Vec<(usize, Option<Duration>)>;
+
+/// Asks each context what it waits for and brings its epoll registration up to
+/// date. Returns the earliest deadline and each context's.
+///
+/// # Safety
+/// The members of `m` are live contexts.
+unsafe fn sync(m: &Multi) -> Result<(Option<Duration>, Due)> {
+    let keys: Vec<usize> = m.members.list.lock().unwrap_or_else(PoisonError::into_inner).keys().copied().collect();
+    let mut earliest: Option<Duration> = None;
+    let mut due = Vec::with_capacity(keys.len());
+    for key in keys {
+        // SAFETY: guaranteed by the caller.
+        let asked =
+            unsafe { crate::handle::call(key as *mut Modbus, |g| Ok((event::interest(g), g.line.generation()))) };
+        let Ok((interest, generation)) = asked else { continue };
+        if let Some(u) = interest.until {
+            earliest = Some(earliest.map_or(u, |e| e.min(u)));
+        }
+        due.push((key, interest.until));
+        let mut list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
+        let Some(member) = list.get_mut(&key) else { continue };
+        let epfd = m.members.epfd;
+        let active = interest.fd >= 0 && interest.events != 0;
+        // What is registered is still this descriptor (a closed one left the epoll
+        // set by itself; its number may be another context's now: left alone).
+        let registered = member.events != 0 && member.fd == interest.fd && member.generation == generation;
+        match (registered, active) {
+            (true, true) if member.events == interest.events => continue,
+            (true, true) => epoll::control(epfd, libc::EPOLL_CTL_MOD, interest.fd, interest.events, key as u64)?,
+            (true, false) => {
+                let _ = epoll::control(epfd, libc::EPOLL_CTL_DEL, member.fd, 0, 0);
+            }
+            (false, true) => {
+                match epoll::control(epfd, libc::EPOLL_CTL_ADD, interest.fd, interest.events, key as u64) {
+                    Err(e) if e.0 == libc::EEXIST => {
+                        epoll::control(epfd, libc::EPOLL_CTL_MOD, interest.fd, interest.events, key as u64)?
+                    }
+                    r => r?,
+                }
+            }
+            (false, false) => {}
+        }
+        let want = if active {
+            Member { fd: interest.fd, generation, events: interest.events }
+        } else {
+            Member { fd: -1, generation, events: 0 }
+        };
+        *member = want;
+    }
+    Ok((earliest, due))
+}
