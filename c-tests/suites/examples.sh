@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# examples.sh: compiles the four programs of examples/ against the built
+# examples.sh: compiles the programs of examples/ (the TLS ones: tls.sh) against the built
 # library (through target/release/libmodbus-uninstalled.pc, -Wall -Wextra -Werror)
 # and runs each against a peer, checking what they print and their exit codes:
 #   - tcp-client against tcp-server on loopback, then three clients at once against
 #     one server (its poll() loop), then a client built on Debian's libmodbus 3.1.6
 #     against our server and ours against a server built on Debian's;
+#   - poll-many (12 devices from one thread, 3 cycles) against tcp-server;
 #   - rtu-client against rtu-server over a pty pair (socat), and a client asking the
 #     wrong slave id (it must time out);
 #   - tcp-client linked statically with libmodbus.a (pkg-config --static), and
@@ -34,7 +35,7 @@ export PKG_CONFIG_PATH=$LIB
 PC=libmodbus-uninstalled
 
 # --- build --------------------------------------------------------------------
-for prog in tcp-client tcp-server rtu-client rtu-server; do
+for prog in tcp-client tcp-server rtu-client rtu-server poll-many; do
     # shellcheck disable=SC2046
     check "compile $prog against the build tree" \
         "$CC" "${CFLAGS_W[@]}" "examples/$prog.c" -o "$WORK/$prog" \
@@ -111,6 +112,22 @@ if wait_ready multi-server "serving on" 10; then
 else
     bad "3 clients at once: server starts" "$(cat "$WORK/multi-server.log")"
     stop multi-server
+fi
+
+# Many devices from one thread (poll-many: the event-driven client and a multi
+# handle): 12 connections to the server's poll loop, 3 cycles of one read each.
+port=$(free_port)
+start many-server "$WORK/tcp-server" "$port" 36
+if wait_ready many-server "serving on" 10; then
+    start poll-many "$WORK/poll-many" 127.0.0.1 "$port" 12 3
+    wait_exit poll-many 30
+    [ "$rc" -eq 0 ] && ok "poll-many: exits 0" || bad "poll-many: exits 0" "exit $rc" "$(tail -n 5 "$WORK/poll-many.log")"
+    expect_line "poll-many: 12 devices x 3 cycles, all read" "$WORK/poll-many.log" "36 reads: 36 ok, 0 failed"
+    wait_exit many-server 10
+    expect_line "poll-many: the server answered 36 requests" "$WORK/many-server.log" "server done after 36 requests"
+else
+    bad "poll-many: server starts" "$(cat "$WORK/many-server.log")"
+    stop many-server
 fi
 
 if [ "$have_debian" = 1 ]; then
