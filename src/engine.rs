@@ -55,11 +55,17 @@ pub fn connect_started(ctx: &mut Context) -> Result<bool> {
     ctx.line.open_started(timeout, ctx.debug, &mut diag)
 }
 
-/// The end of a connect [`connect_started`] left under way.
+/// The end of a connect [`connect_started`] left under way (on a Modbus/TCP Security
+/// context, the handshake starts: [`handshake_step`]).
 pub fn connect_done(ctx: &mut Context, timed_out: bool) -> Result<()> {
+    ctx.line.connect_done(timed_out)
+}
+
+/// The TLS handshake of a connect without waiting, as far as it goes (see
+/// `Line::handshake_step`).
+pub fn handshake_step(ctx: &mut Context, timed_out: bool) -> Result<Option<i16>> {
     let mut diag = ctx.diag();
-    let timeout = ctx.session.timeouts.response.duration();
-    ctx.line.connect_done(timed_out, timeout, ctx.debug, &mut diag)
+    ctx.line.handshake_step(timed_out, ctx.debug, &mut diag)
 }
 
 /// `modbus_tcp_accept`: the client just accepted on `fd` becomes the context's (on

@@ -126,6 +126,9 @@ pub fn interest(ctx: &Context) -> Interest {
     if ctx.line.connecting() {
         return Interest { fd, events: libc::POLLOUT, until: o.connect_until };
     }
+    if ctx.line.handshaking() {
+        return Interest { fd, events: o.handshake_wants, until: o.connect_until };
+    }
     // Bytes already read (a TLS session's plaintext, the read-ahead of the last
     // answer) that an expected answer may be made of.
     let expecting = o.receiving.is_some() || o.pipeline.awaits_answer();
@@ -224,6 +227,24 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
                 return;
             }
             progress = true;
+        }
+        if g.line.handshaking() {
+            // Modbus/TCP Security: the handshake, as far as it goes without waiting.
+            let until = *o.connect_until.get_or_insert(now + g.session.timeouts.response.duration());
+            match engine::handshake_step(g, now >= until) {
+                Ok(Some(events)) => {
+                    o.handshake_wants = events;
+                    return;
+                }
+                Ok(None) => {
+                    o.connect_until = None;
+                    progress = true;
+                }
+                Err(e) => {
+                    o.fail_all(e.errno());
+                    return;
+                }
+            }
         }
         if write(g, o, now) {
             progress = true;

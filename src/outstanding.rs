@@ -68,8 +68,11 @@ pub struct Outstanding {
     pub pipeline: Pipeline<Completion>,
     pub receiving: Option<Receiving>,
     pub done: VecDeque<Done>,
-    /// When the connect under way gives up (the response timeout from its start).
+    /// When the connect under way gives up (the response timeout from its start;
+    /// again for a TLS handshake that follows).
     pub connect_until: Option<std::time::Duration>,
+    /// What a TLS handshake under way waits for (poll(2) events).
+    pub handshake_wants: i16,
     /// The multi handle the context is in, if any.
     pub multi: Option<Arc<Members>>,
 }
@@ -113,6 +116,7 @@ impl Outstanding {
             receiving: None,
             done: VecDeque::new(),
             connect_until: None,
+            handshake_wants: 0,
             multi: None,
         }
     }

@@ -8,6 +8,9 @@
  *   event-test tcp PORT       mb-server on 127.0.0.1:PORT, then the in-process cases
  *   event-test rtu DEVICE     mb-server rtu on the other end of a pty pair (slave 1,
  *                             115200 8N1)
+ *   event-test tls PORT       mb-server tls (Modbus/TCP Security; certificates from
+ *                             MB_TLS_CA, MB_TLS_CERT, MB_TLS_KEY), then a peer that
+ *                             stalls its handshake
  *
  * Every asynchronous result is compared with the blocking call's on the same context
  * and server: rc, errno and the values. One line per check (c-tests/common/check.h);
@@ -35,6 +38,7 @@
 #include <modbus.h>
 
 #include "../common/check.h"
+#include "../common/mbt-connect.h"
 
 int mbt_is_rsmodbus(void); /* c-tests/common/libinfo.c, which prints LIBINFO first */
 static void chain_cb(modbus_t *ctx, int id, int rc, int error, void *user);
@@ -669,10 +673,41 @@ static void free_cb(modbus_t *ctx, int id, int rc, int error, void *user)
     freed_flag = 1;
 }
 
+/* A TLS peer that accepts and never speaks: the handshake, under way without
+ * waiting, times out after the response timeout; no modbus_process call waits. */
+static void stalled_handshake(void)
+{
+    int port, lf = listen_any(&port);
+    modbus_t *ctx = mbt_new_tls("event-test", port);
+    uint16_t v[1];
+    modbus_set_response_timeout(ctx, 0, 300000);
+    reset();
+    int id = modbus_read_registers_async(ctx, 0, 1, v, on_done, NULL);
+    double t0 = now_s(), longest = 0;
+    while (modbus_pending(ctx) > 0 && now_s() - t0 < 5) {
+        struct pollfd pfd;
+        int timeout;
+        modbus_get_pollfd(ctx, &pfd, &timeout);
+        int n = poll(&pfd, pfd.fd >= 0 ? 1 : 0, timeout < 0 ? 100 : timeout);
+        double c0 = now_s();
+        modbus_process(ctx, n > 0 ? pfd.revents : 0);
+        if (now_s() - c0 > longest) {
+            longest = now_s() - c0;
+        }
+    }
+    double t = now_s() - t0;
+    EXPECT(results[id].done == 1 && results[id].error == ETIMEDOUT && t >= 0.29 && t < 2.0 && longest < 0.1,
+           "a TLS peer that stalls its handshake: ETIMEDOUT after %.3f s (timeout 0.3 s), the longest "
+           "modbus_process %.1f ms",
+           t, longest * 1e3);
+    modbus_free(ctx);
+    close(lf);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
-        fprintf(stderr, "usage: %s tcp PORT | rtu DEVICE\n", argv[0]);
+        fprintf(stderr, "usage: %s tcp PORT | rtu DEVICE | tls PORT\n", argv[0]);
         return 2;
     }
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -680,15 +715,36 @@ int main(int argc, char **argv)
         fprintf(stderr, "the event-driven client is rsmodbus': this is not it\n");
         return 97;
     }
-    int serial = strcmp(argv[1], "rtu") == 0;
-    modbus_t *ctx = serial ? modbus_new_rtu(argv[2], 115200, 'N', 8, 1) : modbus_new_tcp("127.0.0.1", atoi(argv[2]));
+    int serial = strcmp(argv[1], "rtu") == 0, tls = strcmp(argv[1], "tls") == 0;
+    modbus_t *ctx = serial ? modbus_new_rtu(argv[2], 115200, 'N', 8, 1)
+                    : tls  ? mbt_new_tls("event-test", atoi(argv[2]))
+                           : modbus_new_tcp("127.0.0.1", atoi(argv[2]));
     if (ctx == NULL || (serial && modbus_set_slave(ctx, 1) != 0) || modbus_connect(ctx) != 0) {
         EXPECT(0, "connect to the server: %s", modbus_strerror(errno));
         return chk_summary();
     }
     modbus_set_response_timeout(ctx, 2, 0);
-    chk_set_prefix(serial ? "rtu: " : "tcp: ");
+    chk_set_prefix(serial ? "rtu: " : tls ? "tls: " : "tcp: ");
     compare_calls(ctx, serial);
+    if (tls) {
+        /* The same calls, the handshake too without waiting: a new context, not
+         * connected, whose first request connects. */
+        modbus_free(ctx);
+        ctx = mbt_new_tls("event-test", atoi(argv[2]));
+        uint16_t v[4] = {0};
+        reset();
+        int id = modbus_read_registers_async(ctx, 0, 4, v, on_done, NULL);
+        drive(ctx, 10);
+        EXPECT(results[id].done == 1 && results[id].rc == 4,
+               "a request on a context not connected: connect and handshake without waiting, then the answer "
+               "(rc %d, %s)",
+               results[id].rc, results[id].rc == -1 ? modbus_strerror(results[id].error) : "ok");
+        stalled_handshake();
+        modbus_close(ctx);
+        modbus_free(ctx);
+        chk_set_prefix("");
+        return chk_summary();
+    }
     if (serial) {
         /* A broadcast: completes without an answer, after the turnaround, rc as a write's. */
         reset();

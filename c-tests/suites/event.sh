@@ -4,7 +4,8 @@
 # wrote: benches/mb-server.c, a plain libmodbus server, on Debian's libmodbus and on
 # ours, over TCP (then servers of the test's own: one that never answers, one that
 # answers late) and RTU on a pty pair. Every asynchronous result is compared with the
-# blocking call's on the same context. Once more under valgrind memcheck.
+# blocking call's on the same context. Modbus/TCP Security against our server (the
+# handshake without waiting, and a peer that stalls it). Once more under valgrind.
 #
 # Usage: c-tests/suites/event.sh [--no-cargo] [--no-valgrind] [--only REGEX]
 # Logs: target/event-tests/<case>/. Last line "N passed, M failed".
@@ -34,6 +35,11 @@ run_case() {
     WORK=$OUT/$name
     mkdir -p "$WORK"
     if [ "$lib" = ours ]; then srv_env=(LD_LIBRARY_PATH="$LIBDIR"); fi
+    local cli_env=()
+    if [ "$t" = tls ]; then
+        srv_env+=(MB_TLS_CA="$CERTS/ca.pem" MB_TLS_CERT="$CERTS/server.pem" MB_TLS_KEY="$CERTS/server.key")
+        cli_env=(MB_TLS_CA="$CERTS/ca.pem" MB_TLS_CERT="$CERTS/operator.pem" MB_TLS_KEY="$CERTS/operator.key")
+    fi
     if [ "$t" = rtu ]; then
         if ! pty_pair pty "$WORK/server" "$WORK/client"; then
             result "$name: pty pair" FAIL "see $WORK/pty.log"
@@ -42,7 +48,7 @@ run_case() {
         start server env "${srv_env[@]}" "$BIN/mb-server" rtu "$WORK/server"
         where=$WORK/client
     else
-        start server env "${srv_env[@]}" "$BIN/mb-server" tcp 0
+        start server env "${srv_env[@]}" "$BIN/mb-server" "$t" 0
     fi
     if ! wait_ready server READY 10; then
         result "$name: mb-server ready" FAIL "$(tail -n 3 "$WORK/server.log")"
@@ -50,7 +56,7 @@ run_case() {
         stop pty
         return
     fi
-    [ "$t" = tcp ] && where=$(sed -n 's/^READY //p' "$WORK/server.log" | head -n 1)
+    [ "$t" != rtu ] && where=$(sed -n 's/^READY //p' "$WORK/server.log" | head -n 1)
     # The server's library is the one asked for.
     local mapped
     mapped=$(sed -n 's/^LIBINFO: pid [0-9]* libmodbus.so.5 = \([^ ]*\) .*/\1/p' "$WORK/server.log" | head -n 1)
@@ -65,7 +71,7 @@ run_case() {
             --show-leak-kinds=definite --log-file="$WORK/valgrind.%p.log")
     fi
     start_bg "$WORK/out.log" "$WORK/err.log" \
-        env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 300 "${pre[@]}" "$BIN/event-test" "$t" "$where"
+        env LD_LIBRARY_PATH="$LIBDIR" "${cli_env[@]}" timeout -k 5 300 "${pre[@]}" "$BIN/event-test" "$t" "$where"
     wait_pid "$LAST_PID"
     rc=$?
     stop server
@@ -75,12 +81,16 @@ run_case() {
     if [ "$vg" = valgrind ]; then valgrind_clean "$name" "$WORK"; fi
 }
 
+CERTS=$OUT/certs
+check "make the test certificates (c-tests/tls/make-certs.sh)" c-tests/tls/make-certs.sh "$CERTS"
+
 section "against Debian's libmodbus server"
 run_case debian-tcp debian tcp
 run_case debian-rtu debian rtu
 section "against our server"
 run_case ours-tcp ours tcp
 run_case ours-rtu ours rtu
+run_case ours-tls ours tls
 if [ "$VALGRIND" = 1 ] && command -v valgrind >/dev/null; then
     section "under valgrind memcheck"
     run_case valgrind-tcp debian tcp valgrind

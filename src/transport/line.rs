@@ -72,6 +72,14 @@ struct Held {
     session: Option<Box<Session>>,
     /// A connect under way (the event-driven client's): [`Line::connect_done`] ends it.
     connecting: bool,
+    /// A TLS client handshake under way without waiting ([`Line::handshake_step`]).
+    handshake: Option<Box<Handshake>>,
+}
+
+/// A TLS handshake: the connection, and a server's record cut.
+struct Handshake {
+    conn: rustls::Connection,
+    cut: Option<tls::RecordCut>,
 }
 
 /// The end of a TLS handshake a line takes.
@@ -317,11 +325,7 @@ impl Line {
             Ok(c) => {
                 let client = c.blocking.then(ClientSocket::default);
                 self.install(c.fd, Held { client, ..Held::default() });
-                if self.kind == Kind::Tls {
-                    self.handshake(Side::Client, timeout, debug, diag).map(|()| true)
-                } else {
-                    Ok(true)
-                }
+                self.begin_client_handshake().map(|()| true)
             }
             Err(ConnectError::Before(e)) => Err(e),
             Err(ConnectError::During(e)) => {
@@ -338,8 +342,8 @@ impl Line {
 
     /// The end of a connect under way, once its socket is writable (or its time is up:
     /// `timed_out`). A failure closes the socket; on a Modbus/TCP Security context the
-    /// handshake follows, bounded by `timeout`.
-    pub fn connect_done(&mut self, timed_out: bool, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
+    /// handshake starts ([`Line::handshake_step`]).
+    pub fn connect_done(&mut self, timed_out: bool) -> Result<()> {
         let fd = self.fd;
         let ended = if timed_out { Err(Error::TIMED_OUT) } else { tcp::connect_result(fd) };
         if let Err(e) = ended {
@@ -350,7 +354,7 @@ impl Line {
         let c = tcp::made_blocking(fd);
         let client = c.blocking.then(ClientSocket::default);
         self.held = Held { client, ..Held::default() };
-        if self.kind == Kind::Tls { self.handshake(Side::Client, timeout, debug, diag) } else { Ok(()) }
+        self.begin_client_handshake()
     }
 
     /// `modbus_tcp_accept`: `fd`, just accepted, becomes the line's socket; on a
@@ -376,27 +380,40 @@ impl Line {
     fn handshake(&mut self, side: Side, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
         let fd = self.fd;
         let deadline = Some(super::now() + timeout);
+        let stop = Arc::clone(&self.stop);
+        let done = self.begin_handshake(side).and_then(|mut h| {
+            tls::handshake(fd, &mut h.conn, h.cut.as_mut(), deadline, &|| stop.stopping())?;
+            Ok(h)
+        });
+        self.end_handshake(done, debug, diag)
+    }
+
+    /// A connection of the context's TLS settings on the line's socket, about to
+    /// shake hands.
+    fn begin_handshake(&mut self, side: Side) -> Result<Handshake> {
         let host = match &self.settings {
             Link::Tcp(l) => l.ip.to_string_lossy().into_owned(),
             Link::TcpPi(l) => l.node.to_string_lossy().into_owned(),
             Link::Rtu(_) => return Err(Error::INVALID),
         };
         let Some(security) = self.security.as_deref_mut() else { return Err(Error::INVALID) };
-        let started = match side {
+        let conn = match side {
             Side::Client => security.settings.connect(&host),
             Side::Server => security.settings.accept(),
-        };
+        }?;
         // A server reads record by record (see `tls::RecordCut`); the handshake's
         // flights go out at once.
-        let _ = super::set_option(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1 as libc::c_int);
-        let mut cut = (side == Side::Server).then(tls::RecordCut::default);
-        let stop = &self.stop;
-        let done = started.and_then(|mut conn| {
-            tls::handshake(fd, &mut conn, cut.as_mut(), deadline, &|| stop.stopping())?;
-            Ok(conn)
-        });
+        let _ = super::set_option(self.fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1 as libc::c_int);
+        let cut = (side == Side::Server).then(tls::RecordCut::default);
+        Ok(Handshake { conn, cut })
+    }
+
+    /// The end of a handshake: its session kept with the socket, or the socket
+    /// closed.
+    fn end_handshake(&mut self, done: Result<Handshake>, debug: bool, diag: &mut dyn Diag) -> Result<()> {
+        let fd = self.fd;
         match done {
-            Ok(conn) => {
+            Ok(Handshake { conn, cut }) => {
                 let described = debug.then(|| tls::describe_session(&conn));
                 let session = Box::new(Session::new(conn, cut, socket_cookie(fd)));
                 if let Some(described) = described {
@@ -416,6 +433,47 @@ impl Line {
                 }
                 Err(e)
             }
+        }
+    }
+
+    /// On a Modbus/TCP Security line just connected without waiting: the client
+    /// handshake starts ([`Line::handshake_step`] carries it on).
+    fn begin_client_handshake(&mut self) -> Result<()> {
+        if self.kind != Kind::Tls {
+            return Ok(());
+        }
+        match self.begin_handshake(Side::Client) {
+            Ok(h) => {
+                self.held.handshake = Some(Box::new(h));
+                Ok(())
+            }
+            Err(e) => {
+                let fd = self.abandon();
+                tcp::close_socket(fd);
+                Err(e)
+            }
+        }
+    }
+
+    /// A client handshake is under way without waiting (the event-driven client's).
+    pub fn handshaking(&self) -> bool {
+        self.held.handshake.is_some()
+    }
+
+    /// The handshake under way, as far as it goes without waiting: `Ok(None)` when it
+    /// is done (the session is the line's), `Ok(Some(events))` when it goes on once
+    /// the socket is ready for `events`. A failure, or `timed_out`, closes the socket.
+    pub fn handshake_step(&mut self, timed_out: bool, debug: bool, diag: &mut dyn Diag) -> Result<Option<i16>> {
+        let Some(mut h) = self.held.handshake.take() else { return Ok(None) };
+        let step =
+            if timed_out { Err(Error::TIMED_OUT) } else { tls::handshake_step(self.fd, &mut h.conn, h.cut.as_mut()) };
+        match step {
+            Ok(tls::Progress::Wants(events)) => {
+                self.held.handshake = Some(h);
+                Ok(Some(events))
+            }
+            Ok(tls::Progress::Done) => self.end_handshake(Ok(*h), debug, diag).map(|()| None),
+            Err(e) => self.end_handshake(Err(e), debug, diag).map(|()| None),
         }
     }
 

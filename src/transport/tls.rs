@@ -422,19 +422,53 @@ fn handshake_steps(
 ) -> Result<()> {
     let mut cut = cut;
     loop {
-        write_pending(fd, conn, deadline, stopping)?;
-        if !conn.is_handshaking() {
-            return Ok(());
+        match handshake_step(fd, conn, cut.as_deref_mut())? {
+            Progress::Done => return Ok(()),
+            Progress::Wants(events) => wait_until(fd, events, deadline, stopping)?,
         }
-        wait_until(fd, libc::POLLIN, deadline, stopping)?;
+    }
+}
+
+/// Where a handshake stands after [`handshake_step`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    Done,
+    /// It goes on once the socket is ready for these poll(2) events.
+    Wants(libc::c_short),
+}
+
+/// The handshake of `conn` on `fd` as far as it goes without waiting: what it has
+/// to send is sent, what has arrived is read. A refusal sends its alert before it is
+/// reported. The blocking handshake ([`handshake`]) waits between these steps; the
+/// event-driven client returns to the application's loop.
+pub fn handshake_step(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut>) -> Result<Progress> {
+    let mut cut = cut;
+    loop {
+        while conn.wants_write() {
+            match conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
+                Ok(_) => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(Progress::Wants(libc::POLLOUT)),
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(io_error(e)),
+            }
+        }
+        if !conn.is_handshaking() {
+            return Ok(Progress::Done);
+        }
         match conn.read_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: cut.as_deref_mut() }) {
             Ok(0) => return Err(Error::CONN_RESET),
             Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock || e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(Progress::Wants(libc::POLLIN)),
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(io_error(e)),
         }
         if let Err(e) = conn.process_new_packets() {
-            let _ = write_pending(fd, conn, deadline, stopping);
+            // The alert goes out if it can without waiting.
+            while conn.wants_write() {
+                if conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }).is_err() {
+                    break;
+                }
+            }
             return Err(error_of(&e));
         }
     }
