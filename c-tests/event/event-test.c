@@ -454,6 +454,142 @@ static void *many_server_main(void *arg)
     return NULL;
 }
 
+/* A scripted server for the faults of a pipeline: it reads `batch` requests (reads
+ * of holding registers), then, by `mode`:
+ *   REVERSE  answers them in reverse order (value: the transaction id)
+ *   RESET    closes the connection with a reset, unanswered
+ *   GARBAGE  sends 7 bytes that are no answer, then closes
+ * and answers every request in order from then on, and on the next connections. */
+enum script_mode { REVERSE, RESET, GARBAGE };
+struct script_server {
+    int listen_fd;
+    enum script_mode mode;
+    int batch;
+    int connections; /* to serve */
+};
+
+static void answer_tid(int c, const uint8_t *req)
+{
+    uint8_t rsp[11];
+    memcpy(rsp, req, 4);
+    rsp[4] = 0;
+    rsp[5] = 5;
+    rsp[6] = req[6];
+    rsp[7] = 3;
+    rsp[8] = 2;
+    rsp[9] = req[0];
+    rsp[10] = req[1];
+    (void) !send(c, rsp, sizeof(rsp), MSG_NOSIGNAL);
+}
+
+static void *script_server_main(void *arg)
+{
+    struct script_server *s = arg;
+    for (int k = 0; k < s->connections; k++) {
+        int c = accept(s->listen_fd, NULL, NULL);
+        if (c < 0) {
+            return NULL;
+        }
+        uint8_t req[64][12];
+        int got = 0;
+        while (k == 0 && got < s->batch && read_full(c, req[got], 12) == 0) {
+            got++;
+        }
+        if (s->mode == REVERSE || k > 0) {
+            for (int i = got - 1; i >= 0; i--) {
+                answer_tid(c, req[i]);
+            }
+            uint8_t r[12];
+            while (read_full(c, r, 12) == 0) {
+                answer_tid(c, r);
+            }
+        } else if (s->mode == RESET) {
+            struct linger lg = {1, 0};
+            setsockopt(c, SOL_SOCKET, SO_LINGER, &lg, sizeof(lg));
+        } else {
+            (void) !send(c, "\x00\x01garbage", 9, MSG_NOSIGNAL);
+        }
+        close(c);
+    }
+    return NULL;
+}
+
+static void pipeline_faults(void)
+{
+    int port;
+    uint16_t v[8][1];
+    pthread_t th;
+
+    /* Answers in reverse order: each request still gets its own answer. */
+    struct script_server s = {.mode = REVERSE, .batch = 8, .connections = 1};
+    s.listen_fd = listen_any(&port);
+    pthread_create(&th, NULL, script_server_main, &s);
+    modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_max_in_flight(ctx, 8);
+    reset();
+    int first = -1;
+    for (int i = 0; i < 8; i++) {
+        int id = modbus_read_registers_async(ctx, 0, 1, v[i], on_done, NULL);
+        first = first < 0 ? id : first;
+    }
+    drive(ctx, 5);
+    int right = 0;
+    for (int i = 0; i < 8; i++) {
+        right += results[first + i].rc == 1 && v[i][0] == i + 1;
+    }
+    EXPECT(right == 8, "8 answers in reverse order: each request its own (%d of 8)", right);
+    modbus_close(ctx);
+    modbus_free(ctx);
+    pthread_join(th, NULL);
+    close(s.listen_fd);
+
+    /* A reset with 4 requests in flight and 2 queued: all 6 fail with the reset; the
+     * next request connects again. */
+    struct script_server r = {.mode = RESET, .batch = 4, .connections = 2};
+    r.listen_fd = listen_any(&port);
+    pthread_create(&th, NULL, script_server_main, &r);
+    ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_max_in_flight(ctx, 4);
+    reset();
+    first = -1;
+    for (int i = 0; i < 6; i++) {
+        int id = modbus_read_registers_async(ctx, 0, 1, v[i], on_done, NULL);
+        first = first < 0 ? id : first;
+    }
+    drive(ctx, 5);
+    int reset_seen = 0;
+    for (int i = 0; i < 6; i++) {
+        reset_seen += results[first + i].done == 1 && results[first + i].rc == -1 &&
+                      (results[first + i].error == ECONNRESET || results[first + i].error == EPIPE);
+    }
+    EXPECT(reset_seen == 6, "a reset with 4 requests in flight and 2 queued: all 6 fail with ECONNRESET (%d, first: %s)",
+           reset_seen, modbus_strerror(results[first].error));
+    int again = modbus_read_registers_async(ctx, 0, 1, v[0], on_done, NULL);
+    drive(ctx, 5);
+    EXPECT(results[again].done == 1 && results[again].rc == 1 && v[0][0] == 7,
+           "the next request connects again and gets its own answer (rc %d, tid %u of 7)", results[again].rc, v[0][0]);
+    modbus_close(ctx);
+    modbus_free(ctx);
+    pthread_join(th, NULL);
+    close(r.listen_fd);
+
+    /* Garbage instead of an answer: the request fails, nothing is taken for another. */
+    struct script_server gsrv = {.mode = GARBAGE, .batch = 1, .connections = 1};
+    gsrv.listen_fd = listen_any(&port);
+    pthread_create(&th, NULL, script_server_main, &gsrv);
+    ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_response_timeout(ctx, 0, 300000);
+    reset();
+    int g = modbus_read_registers_async(ctx, 0, 1, v[0], on_done, NULL);
+    drive(ctx, 5);
+    EXPECT(results[g].done == 1 && results[g].rc == -1, "garbage then a close: the request fails (%s)",
+           modbus_strerror(results[g].error));
+    modbus_close(ctx);
+    modbus_free(ctx);
+    pthread_join(th, NULL);
+    close(gsrv.listen_fd);
+}
+
 /* The multi handle: many contexts, one descriptor. */
 #define MULTI_N 100
 static int multi_left;
@@ -766,6 +902,7 @@ int main(int argc, char **argv)
     } else {
         chk_set_prefix("own servers: ");
         own_servers();
+        pipeline_faults();
         multi_case();
         chk_set_prefix("");
     }
