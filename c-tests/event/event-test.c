@@ -8,6 +8,8 @@
  *   event-test tcp PORT       mb-server on 127.0.0.1:PORT, then the in-process cases
  *   event-test rtu DEVICE     mb-server rtu on the other end of a pty pair (slave 1,
  *                             115200 8N1)
+ *   event-test many PORT N    N devices of c-tests/event/sim-devices.c (every 10th
+ *                             dead), one multi handle, two cycles
  *   event-test tls PORT       mb-server tls (Modbus/TCP Security; certificates from
  *                             MB_TLS_CA, MB_TLS_CERT, MB_TLS_KEY), then a peer that
  *                             stalls its handshake
@@ -840,6 +842,90 @@ static void stalled_handshake(void)
     close(lf);
 }
 
+/* `event-test many PORT N`: N devices of sim-devices (every 10th dead: it never
+ * answers), one multi handle, one thread, two cycles of one read each. The live
+ * devices' cycle does not wait for the dead ones' timeouts. */
+static int many_left, many_live_left;
+static double many_t0, many_live_done;
+struct many_dev {
+    modbus_t *ctx;
+    uint16_t regs[10];
+    int number, dead, rc, error;
+};
+
+static void many_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    struct many_dev *d = user;
+    (void) ctx;
+    (void) id;
+    d->rc = rc;
+    d->error = error;
+    many_left--;
+    if (!d->dead && --many_live_left == 0) {
+        many_live_done = now_s() - many_t0;
+    }
+}
+
+static int many_devices(int port, int n)
+{
+    struct many_dev *dev = calloc((size_t) n, sizeof(*dev));
+    modbus_multi_t *m = modbus_multi_new();
+    if (dev == NULL || m == NULL) {
+        return 1;
+    }
+    chk_set_prefix("many: ");
+    /* Connect one at a time so that device i is sim-devices' connection i. */
+    for (int i = 0; i < n; i++) {
+        dev[i].ctx = modbus_new_tcp("127.0.0.1", port);
+        dev[i].dead = i % 10 == 9;
+        modbus_set_response_timeout(dev[i].ctx, 1, 0);
+        if (modbus_connect(dev[i].ctx) != 0 || modbus_multi_add(m, dev[i].ctx) != 0) {
+            EXPECT(0, "device %d: %s", i, modbus_strerror(errno));
+            return chk_summary();
+        }
+        usleep(200);
+    }
+    int dead = n / 10;
+    for (int cycle = 1; cycle <= 2; cycle++) {
+        many_left = n;
+        many_live_left = n - dead;
+        many_t0 = now_s();
+        for (int i = 0; i < n; i++) {
+            dev[i].rc = -2;
+            if (modbus_read_registers_async(dev[i].ctx, 0, 10, dev[i].regs, many_cb, &dev[i]) < 0) {
+                many_left--;
+            }
+        }
+        while (many_left > 0 && now_s() - many_t0 < 30) {
+            modbus_multi_perform(m, -1);
+        }
+        double all = now_s() - many_t0;
+        int live_ok = 0, dead_to = 0;
+        for (int i = 0; i < n; i++) {
+            if (dev[i].dead) {
+                dead_to += dev[i].rc == -1 && dev[i].error == ETIMEDOUT;
+            } else {
+                live_ok += dev[i].rc == 10 && dev[i].regs[0] == i && dev[i].regs[9] == i;
+            }
+        }
+        EXPECT(live_ok == n - dead && dead_to == dead,
+               "cycle %d: %d live devices answered with their own values (%d), %d dead timed out (%d)", cycle,
+               n - dead, live_ok, dead, dead_to);
+        EXPECT(many_live_done < 0.5 && all >= 0.99,
+               "cycle %d: the live devices done in %.1f ms (each answers after 5 ms), the dead ones' timeouts "
+               "after %.0f ms",
+               cycle, many_live_done * 1e3, all * 1e3);
+    }
+    for (int i = 0; i < n; i++) {
+        modbus_close(dev[i].ctx);
+        modbus_free(dev[i].ctx);
+    }
+    modbus_multi_free(m);
+    free(dev);
+    chk_set_prefix("");
+    return chk_summary();
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
@@ -847,6 +933,9 @@ int main(int argc, char **argv)
         return 2;
     }
     setvbuf(stdout, NULL, _IOLBF, 0);
+    if (strcmp(argv[1], "many") == 0) {
+        return many_devices(atoi(argv[2]), argc > 3 ? atoi(argv[3]) : 1000);
+    }
     if (!mbt_is_rsmodbus()) {
         fprintf(stderr, "the event-driven client is rsmodbus': this is not it\n");
         return 97;

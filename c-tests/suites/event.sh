@@ -91,6 +91,25 @@ section "against our server"
 run_case ours-tcp ours tcp
 run_case ours-rtu ours rtu
 run_case ours-tls ours tls
+section "1,000 devices from one thread, every 10th dead (c-tests/event/sim-devices.c)"
+if selected many; then
+    WORK=$OUT/many
+    mkdir -p "$WORK"
+    start sim "$BIN/sim-devices" 0 5 10
+    if wait_ready sim READY 10; then
+        port=$(sed -n 's/^READY //p' "$WORK/sim.log" | head -n 1)
+        start_bg "$WORK/out.log" "$WORK/err.log" env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 \
+            "$BIN/event-test" many "$port" 1000
+        wait_pid "$LAST_PID"
+        rc=$?
+        libinfo_ours many "$WORK/out.log"
+        program_checks many "$WORK/out.log" "$rc" || tail -n 5 "$WORK/err.log" | sed 's/^/    | /'
+    else
+        result "many: sim-devices ready" FAIL "$(tail -n 3 "$WORK/sim.log")"
+    fi
+    stop sim
+fi
+
 if [ "$VALGRIND" = 1 ] && command -v valgrind >/dev/null; then
     section "under valgrind memcheck"
     run_case valgrind-tcp debian tcp valgrind
