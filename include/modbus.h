@@ -696,6 +696,117 @@ int modbus_read_device_identification(modbus_t *ctx,
                                       int *conformity);
 
 /**
+ * `modbus_read_exception_status` without waiting (FC 07): `*status` is written
+ * before the callback, which gets `rc` 1.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `status` NULL or writable until the request
+ * completes.
+ */
+MODBUS_API
+int modbus_read_exception_status_async(modbus_t *ctx,
+                                       uint8_t *status,
+                                       modbus_callback_t cb,
+                                       void *user_data);
+
+/**
+ * `modbus_diagnostics` without waiting (FC 08): `rc` is the number of data words
+ * the answer has (at most `max_dest` go to `dest`); Force Listen Only Mode (04)
+ * completes once sent, with 0.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `data` valid for `nb` values; `dest` for
+ * `max_dest` values until the request completes.
+ */
+MODBUS_API
+int modbus_diagnostics_async(modbus_t *ctx,
+                             int sub_function,
+                             const uint16_t *data,
+                             int nb,
+                             uint16_t *dest,
+                             int max_dest,
+                             modbus_callback_t cb,
+                             void *user_data);
+
+/**
+ * `modbus_get_comm_event_counter` without waiting (FC 0B): `rc` 1.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; the pointers NULL or writable until the
+ * request completes.
+ */
+MODBUS_API
+int modbus_get_comm_event_counter_async(modbus_t *ctx,
+                                        uint16_t *status,
+                                        uint16_t *event_count,
+                                        modbus_callback_t cb,
+                                        void *user_data);
+
+/**
+ * `modbus_get_comm_event_log` without waiting (FC 0C): `rc` is the number of
+ * events the device sent.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; the counter pointers NULL or writable,
+ * `events` valid for `max_events` bytes, until the request completes.
+ */
+MODBUS_API
+int modbus_get_comm_event_log_async(modbus_t *ctx,
+                                    uint16_t *status,
+                                    uint16_t *event_count,
+                                    uint16_t *message_count,
+                                    uint8_t *events,
+                                    int max_events,
+                                    modbus_callback_t cb,
+                                    void *user_data);
+
+/**
+ * `modbus_read_file_record` without waiting (FC 14): `rc` is `nb`.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` valid for `nb` values until the
+ * request completes.
+ */
+MODBUS_API
+int modbus_read_file_record_async(modbus_t *ctx,
+                                  int file,
+                                  int record,
+                                  int nb,
+                                  uint16_t *dest,
+                                  modbus_callback_t cb,
+                                  void *user_data);
+
+/**
+ * `modbus_write_file_record` without waiting (FC 15; the values are copied at
+ * once): `rc` is `nb`.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `src` valid for `nb` values.
+ */
+MODBUS_API
+int modbus_write_file_record_async(modbus_t *ctx,
+                                   int file,
+                                   int record,
+                                   int nb,
+                                   const uint16_t *src,
+                                   modbus_callback_t cb,
+                                   void *user_data);
+
+/**
+ * `modbus_read_fifo_queue` without waiting (FC 18): `rc` is the number of values.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `dest` valid for 31 values until the request
+ * completes.
+ */
+MODBUS_API
+int modbus_read_fifo_queue_async(modbus_t *ctx,
+                                 int addr,
+                                 uint16_t *dest,
+                                 modbus_callback_t cb,
+                                 void *user_data);
+
+/**
  * Makes a multi handle; NULL with errno on failure.
  */
 MODBUS_API modbus_multi_t *modbus_multi_new(void);

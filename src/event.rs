@@ -67,6 +67,12 @@ pub fn set_max_in_flight(ctx: &mut Context, n: i32) -> Result<()> {
 /// Queues `req`; returns its id. `EINVAL` without a slave (serial), `EAGAIN` when the
 /// queue is full.
 pub fn submit(ctx: &mut Context, req: &Request<'_>, completion: Completion) -> Result<i32> {
+    submit_expecting(ctx, req, completion, true)
+}
+
+/// [`submit`]; `answered`: false for a request no device answers (Force Listen Only
+/// Mode), which completes once it is out, as a broadcast does.
+pub fn submit_expecting(ctx: &mut Context, req: &Request<'_>, completion: Completion, answered: bool) -> Result<i32> {
     if ctx.session.slave < 0 {
         ctx.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
@@ -85,7 +91,7 @@ pub fn submit(ctx: &mut Context, req: &Request<'_>, completion: Completion) -> R
     } else {
         &[]
     };
-    let broadcast = framing != Framing::Tcp && ctx.session.slave == 0;
+    let broadcast = (framing != Framing::Tcp && ctx.session.slave == 0) || !answered;
     let tid = ctx.t_id;
     let id = state(ctx).pipeline.submit(&buf[..len], wire, tid, broadcast, completion);
     id.ok_or(Error(libc::EAGAIN))
@@ -314,7 +320,12 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
         s.line = g.line.caps(MsgKind::Confirmation, s.timeouts.response);
         // Never a blocking read under a kernel timeout: readiness decides.
         s.line.timed_reads = false;
-        s.expecting = None;
+        // A diagnostics answer on a serial framing is as long as its request.
+        s.expecting = o.pipeline.first_awaiting().map(|e| e.adu()).and_then(|adu| {
+            let serial = s.framing != Framing::Tcp;
+            (serial && adu.get(1) == Some(&crate::proto::fc::DIAGNOSTICS))
+                .then(|| adu.len() - s.framing.checksum_length())
+        });
         s.read_ahead = true;
         let left = deadline.saturating_sub(now).max(Duration::from_micros(1));
         s.timeouts.response = Timeout::new(left.as_secs() as u32, left.subsec_micros().max(1));
@@ -364,11 +375,13 @@ fn complete_broadcast(o: &mut Outstanding, e: Entry<Completion>) {
 }
 
 /// What a write returns for a request that gets no answer: the count it writes (1
-/// for a single coil or register, the quantity of a multiple write).
+/// for a single coil or register, the quantity of a multiple write; 0 for
+/// Diagnostics, as `modbus_diagnostics` returns for Force Listen Only Mode).
 fn broadcast_count(adu: &[u8]) -> i32 {
     use crate::proto::fc;
     let pdu = &adu[1..];
     match pdu[0] {
+        fc::DIAGNOSTICS => 0,
         fc::WRITE_MULTIPLE_COILS | fc::WRITE_MULTIPLE_REGISTERS if pdu.len() >= 5 => {
             i32::from(u16::from_be_bytes([pdu[3], pdu[4]]))
         }
@@ -387,6 +400,8 @@ fn values(framing: Framing, deliver: Deliver, rsp: &[u8], count: i32) -> (i32, V
             let n = (count.max(0) as usize).min(max.max(0) as usize);
             (count, counted_data(&rsp[h..], n).to_vec())
         }
+        // The decoder reads the PDU (without the checksum).
+        Deliver::Decode { .. } => (count, rsp[h..rsp.len() - framing.checksum_length()].to_vec()),
     }
 }
 

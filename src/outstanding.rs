@@ -29,7 +29,20 @@ pub enum Deliver {
     Count,
     /// Up to `max` bytes of the answer's data (FC 11); the call returns its byte count.
     Bytes { dest: *mut u8, max: c_int },
+    /// The answer's PDU handed to `decode` with the check's count and the call's
+    /// arguments (the extensions' calls); it writes the values out and returns what
+    /// the call returns.
+    Decode { decode: DecodeFn, args: DecodeArgs },
 }
+
+/// A decoder of [`Deliver::Decode`]: `(pdu, count, args) -> rc`.
+///
+/// The C layer's: it writes to the pointers among `args`, valid per the call's
+/// contract until the request completes.
+pub type DecodeFn = unsafe fn(&[u8], c_int, &DecodeArgs) -> c_int;
+
+/// A call's arguments kept for its decoder: pointers and counts, as integers.
+pub type DecodeArgs = [usize; 6];
 
 /// A request's payload in the pipeline: whom to tell, where its values go.
 #[derive(Clone, Copy, Debug)]

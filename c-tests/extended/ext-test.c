@@ -506,6 +506,90 @@ static void test_function_codes(modbus_t *ctx)
     check_rc(rc, errno, -1, EMBXILADD, "18 unknown FIFO pointer: ILLEGAL DATA ADDRESS");
 }
 
+/* The _async forms of the extensions' calls (the event-driven client): the same
+ * answers as the blocking calls above, through modbus_process. */
+struct ares {
+    int done, rc, error;
+};
+
+static void ares_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    struct ares *r = user;
+    (void) ctx;
+    (void) id;
+    r->done++;
+    r->rc = rc;
+    r->error = error;
+}
+
+static struct ares await_one(modbus_t *ctx, int id, struct ares *r)
+{
+    if (id < 0) {
+        struct ares bad = {1, -1, errno};
+        return bad;
+    }
+    for (int i = 0; i < 200 && modbus_pending(ctx) > 0; i++) {
+        struct pollfd pfd;
+        int timeout;
+        modbus_get_pollfd(ctx, &pfd, &timeout);
+        int n = poll(&pfd, pfd.fd >= 0 ? 1 : 0, timeout < 0 || timeout > 100 ? 100 : timeout);
+        modbus_process(ctx, n > 0 ? pfd.revents : 0);
+    }
+    return *r;
+}
+
+static void test_async_extensions(modbus_t *ctx)
+{
+    struct ares r;
+    uint8_t status = 0, events[64];
+    uint16_t v[40], st = 0xFFFF, ev = 0, msgs = 0;
+
+    printf("# the _async forms: 07, 08/00, 0B, 0C, 14, 15, 18\n");
+    memset(&r, 0, sizeof(r));
+    r = await_one(ctx, modbus_read_exception_status_async(ctx, &status, ares_cb, &r), &r);
+    EXPECT(r.done == 1 && r.rc == 1 && status == 0x6D, "07 async: rc=%d status 0x%02X", r.rc, status);
+    {
+        uint16_t q[3] = {0xA537, 0x0001, 0xFFFF}, echo[3] = {0, 0, 0};
+        int nb = (transport == T_TCP || transport == T_ASCII) ? 3 : 1;
+        memset(&r, 0, sizeof(r));
+        r = await_one(ctx, modbus_diagnostics_async(ctx, 0, q, nb, echo, 3, ares_cb, &r), &r);
+        EXPECT(r.done == 1 && r.rc == nb && memcmp(q, echo, sizeof(uint16_t) * (size_t) nb) == 0,
+               "08/00 async, %d word(s): rc=%d %s", nb, r.rc, r.rc == -1 ? modbus_strerror(r.error) : "");
+    }
+    memset(&r, 0, sizeof(r));
+    r = await_one(ctx, modbus_get_comm_event_counter_async(ctx, &st, &ev, ares_cb, &r), &r);
+    EXPECT(r.done == 1 && r.rc == 1 && st == 0, "0B async: rc=%d status 0x%04X", r.rc, st);
+    memset(&r, 0, sizeof(r));
+    memset(events, 0, sizeof(events));
+    r = await_one(ctx, modbus_get_comm_event_log_async(ctx, &st, &ev, &msgs, events, 64, ares_cb, &r), &r);
+    EXPECT(r.done == 1 && r.rc >= 2 && st == 0 && events[0] == 0x80, "0C async: rc=%d, newest event 0x%02X", r.rc,
+           events[0]);
+    memset(&r, 0, sizeof(r));
+    memset(v, 0, sizeof(v));
+    r = await_one(ctx, modbus_read_file_record_async(ctx, 4, 1, 2, v, ares_cb, &r), &r);
+    EXPECT(r.done == 1 && r.rc == 2 && v[0] == 0x0DFE && v[1] == 0x0020, "14 async: rc=%d 0x%04X 0x%04X", r.rc, v[0],
+           v[1]);
+    {
+        static const uint16_t w[2] = {0x1234, 0x5678};
+        memset(&r, 0, sizeof(r));
+        r = await_one(ctx, modbus_write_file_record_async(ctx, 4, 12, 2, w, ares_cb, &r), &r);
+        int rc = modbus_read_file_record(ctx, 4, 12, 2, v);
+        EXPECT(r.done == 1 && r.rc == 2 && rc == 2 && v[0] == 0x1234 && v[1] == 0x5678,
+               "15 async: rc=%d, read back 0x%04X 0x%04X", r.rc, v[0], v[1]);
+    }
+    memset(&r, 0, sizeof(r));
+    memset(v, 0, sizeof(v));
+    r = await_one(ctx, modbus_read_fifo_queue_async(ctx, 0x04DE, v, ares_cb, &r), &r);
+    EXPECT(r.done == 1 && r.rc == 2 && v[0] == 0x01B8 && v[1] == 0x1204, "18 async FIFO 0x04DE: rc=%d", r.rc);
+    memset(&r, 0, sizeof(r));
+    r = await_one(ctx, modbus_read_fifo_queue_async(ctx, 0x0200, v, ares_cb, &r), &r);
+    EXPECT(r.done == 1 && r.rc == -1 && r.error == EMBXILVAL, "18 async FIFO of 32 values: -1 %s",
+           modbus_strerror(r.error));
+    errno = 0;
+    EXPECT(modbus_read_file_record_async(ctx, 0, 1, 2, v, ares_cb, &r) == -1 && errno == EINVAL,
+           "14 async with file 0: -1 EINVAL at once");
+}
+
 static void test_device_identification(modbus_t *ctx)
 {
     modbus_device_id_object_t obj[16];
@@ -986,6 +1070,7 @@ int main(int argc, char **argv)
                        st.lom == 0,
                    "power-up state: counters 0, empty log, register 0x%04X, delimiter 0x%02X", st.reg, st.delim);
             test_function_codes(ctx);
+            test_async_extensions(ctx);
             test_device_identification(ctx);
             test_diagnostics(ctx);
             test_counters(ctx);

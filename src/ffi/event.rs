@@ -84,6 +84,10 @@ unsafe fn deliver(done: &Done) -> (c_int, c_int) {
                     let dest = unsafe { slice::from_raw_parts_mut(dest, done.data.len()) };
                     dest.copy_from_slice(&done.data);
                 }
+                Deliver::Decode { decode, args } => {
+                    // SAFETY: the decoder writes to the call's pointers, valid until now.
+                    return (unsafe { decode(&done.data, rc, &args) }, 0);
+                }
                 _ => {}
             }
             (rc, 0)
@@ -95,11 +99,28 @@ unsafe fn deliver(done: &Done) -> (c_int, c_int) {
 ///
 /// # Safety
 /// `ctx` NULL or live; the request's destination valid until its callback.
-unsafe fn submit<'a>(
+pub(crate) unsafe fn submit<'a>(
     ctx: *mut Modbus,
     cb: Callback,
     user_data: *mut c_void,
     deliver: Deliver,
+    req: impl FnOnce(&mut Guard<'_>) -> Result<Request<'a>>,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { submit_expecting(ctx, cb, user_data, deliver, true, req) }
+}
+
+/// [`submit`]; `answered` false: a request no device answers (see
+/// `event::submit_expecting`).
+///
+/// # Safety
+/// As [`submit`].
+pub(crate) unsafe fn submit_expecting<'a>(
+    ctx: *mut Modbus,
+    cb: Callback,
+    user_data: *mut c_void,
+    deliver: Deliver,
+    answered: bool,
     req: impl FnOnce(&mut Guard<'_>) -> Result<Request<'a>>,
 ) -> c_int {
     let c = completion(cb, user_data, deliver);
@@ -107,7 +128,7 @@ unsafe fn submit<'a>(
     unsafe {
         with_ctx(ctx, |g| {
             let r = req(g)?;
-            event::submit(g, &r, c)
+            event::submit_expecting(g, &r, c, answered)
         })
     }
 }

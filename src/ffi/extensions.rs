@@ -8,6 +8,7 @@ use std::slice;
 use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail, with_ctx};
+use crate::outstanding::{DecodeArgs, DecodeFn};
 use crate::proto::decode;
 use crate::proto::frame::MAX_ADU_LENGTH;
 use crate::proto::request::{
@@ -32,6 +33,107 @@ unsafe fn copy_words(values: impl Iterator<Item = u16>, dest: *mut u16) {
     }
 }
 
+/// A blocking call: `req`'s checked answer through `decode` (the decoder the call's
+/// `_async` form runs when its answer comes).
+///
+/// # Safety
+/// The pointers among `args` are valid for what `decode` writes.
+unsafe fn blocking(g: &mut Guard<'_>, req: &Request<'_>, decode: DecodeFn, args: &DecodeArgs) -> Result<c_int> {
+    let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+    let (pdu, count) = exchange(g, req, &mut rsp)?;
+    // SAFETY: forwarded caller contract.
+    Ok(unsafe { decode(pdu, count, args) })
+}
+
+/// FC 07: `args[0]` the status byte. Returns 1.
+///
+/// # Safety
+/// `args[0]` is a writable `uint8_t *`.
+unsafe fn dec_exception_status(pdu: &[u8], _: c_int, args: &DecodeArgs) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    unsafe { *(args[0] as *mut u8) = decode::exception_status(pdu) };
+    1
+}
+
+/// FC 08: up to `args[1]` data words to `args[0]`. Returns the words the answer has.
+///
+/// # Safety
+/// `args[0]` is valid for `args[1]` values.
+unsafe fn dec_diagnostics(pdu: &[u8], words: c_int, args: &DecodeArgs) -> c_int {
+    let n = (words.max(0) as usize).min(args[1]);
+    // SAFETY: guaranteed by the caller.
+    unsafe { copy_words(decode::diagnostics_data(pdu, n), args[0] as *mut u16) };
+    words
+}
+
+/// FC 0B: status and event counter to `args[0]`, `args[1]` (each may be NULL).
+/// Returns 1.
+///
+/// # Safety
+/// `args[0]`, `args[1]` are NULL or writable `uint16_t *`.
+unsafe fn dec_comm_event_counter(pdu: &[u8], _: c_int, args: &DecodeArgs) -> c_int {
+    let counter = decode::CommEventCounter::decode(pdu);
+    for (p, v) in [(args[0], counter.status), (args[1], counter.event_count)] {
+        // SAFETY: guaranteed by the caller.
+        if let Some(p) = unsafe { (p as *mut u16).as_mut() } {
+            *p = v;
+        }
+    }
+    1
+}
+
+/// The arguments of FC 0C's decoder.
+fn event_log_args(
+    status: *mut u16,
+    event_count: *mut u16,
+    message_count: *mut u16,
+    events: *mut u8,
+    max_events: c_int,
+) -> DecodeArgs {
+    [status as usize, event_count as usize, message_count as usize, events as usize, max_events as usize, 0]
+}
+
+/// FC 0C: the three counters (each may be NULL) and up to `args[4]` events to
+/// `args[3]`. Returns the number of events the device sent.
+///
+/// # Safety
+/// The counter pointers NULL or writable; `args[3]` valid for `args[4]` bytes.
+unsafe fn dec_comm_event_log(pdu: &[u8], n: c_int, args: &DecodeArgs) -> c_int {
+    let log = decode::CommEventLog::decode(pdu, n as usize);
+    for (p, v) in [(args[0], log.status), (args[1], log.event_count), (args[2], log.message_count)] {
+        // SAFETY: guaranteed by the caller.
+        if let Some(p) = unsafe { (p as *mut u16).as_mut() } {
+            *p = v;
+        }
+    }
+    let copy = (n.max(0) as usize).min(args[4]);
+    if copy > 0 {
+        // SAFETY: guaranteed by the caller.
+        unsafe { slice::from_raw_parts_mut(args[3] as *mut u8, copy) }.copy_from_slice(&log.events[..copy]);
+    }
+    n
+}
+
+/// FC 14: the registers read to `args[0]`. Returns their number.
+///
+/// # Safety
+/// `args[0]` is valid for the `nb` values requested (the check holds the count to it).
+unsafe fn dec_file_record(pdu: &[u8], n: c_int, args: &DecodeArgs) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    unsafe { copy_words(decode::file_record_data(pdu, n as usize), args[0] as *mut u16) };
+    n
+}
+
+/// FC 18: the queue's values to `args[0]`. Returns their number.
+///
+/// # Safety
+/// `args[0]` is valid for 31 values (the check holds the count to at most that).
+unsafe fn dec_fifo(pdu: &[u8], n: c_int, args: &DecodeArgs) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    unsafe { copy_words(decode::fifo_data(pdu, (n as usize).min(MAX_FIFO_COUNT)), args[0] as *mut u16) };
+    n
+}
+
 /// Reads the eight exception status outputs of a serial device (FC 07) into
 /// `*status`. Returns 1.
 ///
@@ -45,10 +147,7 @@ pub unsafe extern "C" fn modbus_read_exception_status(ctx: *mut Modbus, status: 
     // SAFETY: forwarded caller contract; `status` is non-NULL.
     unsafe {
         with_ctx(ctx, |g| {
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (pdu, _) = exchange(g, &Request::ReadExceptionStatus, &mut rsp)?;
-            *status = decode::exception_status(pdu);
-            Ok(1)
+            blocking(g, &Request::ReadExceptionStatus, dec_exception_status, &[status as usize, 0, 0, 0, 0, 0])
         })
     }
 }
@@ -90,11 +189,7 @@ pub unsafe extern "C" fn modbus_diagnostics(
                 engine::send_msg(g, &mut out, n)?;
                 return Ok(0);
             }
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (pdu, words) = exchange(g, &req, &mut rsp)?;
-            // `dest` has room for `max_dest` values.
-            copy_words(decode::diagnostics_data(pdu, words.min(max_dest) as usize), dest);
-            Ok(words)
+            blocking(g, &req, dec_diagnostics, &[dest as usize, max_dest as usize, 0, 0, 0, 0])
         })
     }
 }
@@ -113,16 +208,8 @@ pub unsafe extern "C" fn modbus_get_comm_event_counter(
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (pdu, _) = exchange(g, &Request::GetCommEventCounter, &mut rsp)?;
-            let counter = decode::CommEventCounter::decode(pdu);
-            if let Some(s) = status.as_mut() {
-                *s = counter.status;
-            }
-            if let Some(c) = event_count.as_mut() {
-                *c = counter.event_count;
-            }
-            Ok(1)
+            let args = [status as usize, event_count as usize, 0, 0, 0, 0];
+            blocking(g, &Request::GetCommEventCounter, dec_comm_event_counter, &args)
         })
     }
 }
@@ -150,21 +237,8 @@ pub unsafe extern "C" fn modbus_get_comm_event_log(
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (pdu, n) = exchange(g, &Request::GetCommEventLog, &mut rsp)?;
-            let log = decode::CommEventLog::decode(pdu, n as usize);
-            for (ptr, value) in
-                [(status, log.status), (event_count, log.event_count), (message_count, log.message_count)]
-            {
-                if let Some(p) = ptr.as_mut() {
-                    *p = value;
-                }
-            }
-            let copy = n.min(max_events) as usize;
-            if copy > 0 {
-                slice::from_raw_parts_mut(events, copy).copy_from_slice(&log.events[..copy]);
-            }
-            Ok(n)
+            let args = event_log_args(status, event_count, message_count, events, max_events);
+            blocking(g, &Request::GetCommEventLog, dec_comm_event_log, &args)
         })
     }
 }
@@ -197,11 +271,7 @@ pub unsafe extern "C" fn modbus_read_file_record(
         with_ctx(ctx, |g| {
             check_file_args(file, record, nb, MAX_FILE_READ_REGISTERS)?;
             let req = Request::ReadFileRecord { file: file as u16, record: record as u16, nb: nb as u16 };
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (pdu, n) = exchange(g, &req, &mut rsp)?;
-            // The check holds `n` to the `nb` requested, for which `dest` has room.
-            copy_words(decode::file_record_data(pdu, n as usize), dest);
-            Ok(n)
+            blocking(g, &req, dec_file_record, &[dest as usize, 0, 0, 0, 0, 0])
         })
     }
 }
@@ -247,11 +317,7 @@ pub unsafe extern "C" fn modbus_read_fifo_queue(ctx: *mut Modbus, addr: c_int, d
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
-            let (pdu, n) = exchange(g, &Request::ReadFifoQueue { addr: addr as u16 }, &mut rsp)?;
-            // `dest` has room for 31 values; the check holds `n` to at most that.
-            copy_words(decode::fifo_data(pdu, (n as usize).min(MAX_FIFO_COUNT)), dest);
-            Ok(n)
+            blocking(g, &Request::ReadFifoQueue { addr: addr as u16 }, dec_fifo, &[dest as usize, 0, 0, 0, 0, 0])
         })
     }
 }
@@ -342,4 +408,192 @@ fn read_device_id(
         }
     }
     Ok(stored as c_int)
+}
+
+// ---------------------------------------------------------------- the _async forms
+// The requests above queued for the event-driven client (see modbus_process(3)):
+// the same argument checks, the same decoders when the answer comes; `rc` of the
+// callback is what the blocking call returns.
+
+use crate::ffi::event::{Callback, submit, submit_expecting};
+use crate::outstanding::Deliver;
+use std::ffi::c_void;
+
+/// `modbus_read_exception_status` without waiting (FC 07): `*status` is written
+/// before the callback, which gets `rc` 1.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `status` NULL or writable until the request
+/// completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_exception_status_async(
+    ctx: *mut Modbus,
+    status: *mut u8,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if status.is_null() {
+        return fail(Error::INVALID);
+    }
+    let deliver = Deliver::Decode { decode: dec_exception_status, args: [status as usize, 0, 0, 0, 0, 0] };
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, deliver, |_| Ok(Request::ReadExceptionStatus)) }
+}
+
+/// `modbus_diagnostics` without waiting (FC 08): `rc` is the number of data words
+/// the answer has (at most `max_dest` go to `dest`); Force Listen Only Mode (04)
+/// completes once sent, with 0.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `data` valid for `nb` values; `dest` for
+/// `max_dest` values until the request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_diagnostics_async(
+    ctx: *mut Modbus,
+    sub_function: c_int,
+    data: *const u16,
+    nb: c_int,
+    dest: *mut u16,
+    max_dest: c_int,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if !(0..=0xFFFF).contains(&sub_function)
+        || !(0..=MAX_DIAGNOSTICS_WORDS).contains(&nb)
+        || (nb > 0 && data.is_null())
+        || max_dest < 0
+        || (max_dest > 0 && dest.is_null())
+    {
+        return fail(Error::INVALID);
+    }
+    let deliver = Deliver::Decode { decode: dec_diagnostics, args: [dest as usize, max_dest as usize, 0, 0, 0, 0] };
+    // SAFETY: forwarded caller contract; `data` holds `nb` values (checked non-NULL).
+    unsafe {
+        let data = if nb > 0 { slice::from_raw_parts(data, nb as usize) } else { &[] };
+        submit_expecting(ctx, cb, user_data, deliver, sub_function != 4, |_| {
+            Ok(Request::Diagnostics { sub_function: sub_function as u16, data })
+        })
+    }
+}
+
+/// `modbus_get_comm_event_counter` without waiting (FC 0B): `rc` 1.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; the pointers NULL or writable until the
+/// request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_comm_event_counter_async(
+    ctx: *mut Modbus,
+    status: *mut u16,
+    event_count: *mut u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    let args = [status as usize, event_count as usize, 0, 0, 0, 0];
+    let deliver = Deliver::Decode { decode: dec_comm_event_counter, args };
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, deliver, |_| Ok(Request::GetCommEventCounter)) }
+}
+
+/// `modbus_get_comm_event_log` without waiting (FC 0C): `rc` is the number of
+/// events the device sent.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; the counter pointers NULL or writable,
+/// `events` valid for `max_events` bytes, until the request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_comm_event_log_async(
+    ctx: *mut Modbus,
+    status: *mut u16,
+    event_count: *mut u16,
+    message_count: *mut u16,
+    events: *mut u8,
+    max_events: c_int,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if max_events < 0 || (max_events > 0 && events.is_null()) {
+        return fail(Error::INVALID);
+    }
+    let args = event_log_args(status, event_count, message_count, events, max_events);
+    let deliver = Deliver::Decode { decode: dec_comm_event_log, args };
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, deliver, |_| Ok(Request::GetCommEventLog)) }
+}
+
+/// `modbus_read_file_record` without waiting (FC 14): `rc` is `nb`.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` valid for `nb` values until the
+/// request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_file_record_async(
+    ctx: *mut Modbus,
+    file: c_int,
+    record: c_int,
+    nb: c_int,
+    dest: *mut u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if dest.is_null() {
+        return fail(Error::INVALID);
+    }
+    let deliver = Deliver::Decode { decode: dec_file_record, args: [dest as usize, 0, 0, 0, 0, 0] };
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        submit(ctx, cb, user_data, deliver, |_| {
+            check_file_args(file, record, nb, MAX_FILE_READ_REGISTERS)?;
+            Ok(Request::ReadFileRecord { file: file as u16, record: record as u16, nb: nb as u16 })
+        })
+    }
+}
+
+/// `modbus_write_file_record` without waiting (FC 15; the values are copied at
+/// once): `rc` is `nb`.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `src` valid for `nb` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_write_file_record_async(
+    ctx: *mut Modbus,
+    file: c_int,
+    record: c_int,
+    nb: c_int,
+    src: *const u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if src.is_null() {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract; `src` holds `nb` (checked) values.
+    unsafe {
+        submit(ctx, cb, user_data, Deliver::Count, |_| {
+            check_file_args(file, record, nb, MAX_FILE_WRITE_REGISTERS)?;
+            let values = slice::from_raw_parts(src, nb as usize);
+            Ok(Request::WriteFileRecord { file: file as u16, record: record as u16, values })
+        })
+    }
+}
+
+/// `modbus_read_fifo_queue` without waiting (FC 18): `rc` is the number of values.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `dest` valid for 31 values until the request
+/// completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_fifo_queue_async(
+    ctx: *mut Modbus,
+    addr: c_int,
+    dest: *mut u16,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if dest.is_null() || !(0..=0xFFFF).contains(&addr) {
+        return fail(Error::INVALID);
+    }
+    let deliver = Deliver::Decode { decode: dec_fifo, args: [dest as usize, 0, 0, 0, 0, 0] };
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, deliver, |_| Ok(Request::ReadFifoQueue { addr: addr as u16 })) }
 }

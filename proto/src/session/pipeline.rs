@@ -194,6 +194,11 @@ impl<T> Pipeline<T> {
         self.in_flight.iter().filter(|e| !e.broadcast).filter_map(|e| e.deadline).min()
     }
 
+    /// The oldest request in flight that expects an answer.
+    pub fn first_awaiting(&self) -> Option<&Entry<T>> {
+        self.in_flight.iter().find(|e| !e.broadcast)
+    }
+
     /// Expects an answer: a request in flight that is not a broadcast.
     pub fn awaits_answer(&self) -> bool {
         self.in_flight.iter().any(|e| !e.broadcast)
