@@ -500,7 +500,10 @@ pub unsafe extern "C" fn modbus_set_max_in_flight(ctx: *mut Modbus, n: c_int) ->
 }
 
 /// The free of a context of the event-driven client: it leaves its multi handle, and
-/// what is pending completes with ECANCELED, each callback run before the free returns. Nothing to
+/// what is pending completes with ECANCELED, each callback run before the free returns.
+/// Nothing waits: when a call holds the context (another thread's blocking call, which
+/// cannot run with requests pending; a call a signal handler interrupted), there is
+/// nothing to do here. Nothing to
 /// do from a signal handler that interrupted a call on the context (the lock is that
 /// call's).
 ///
@@ -512,7 +515,7 @@ pub unsafe fn cancel_pending(ctx: *mut Modbus) {
     }
     // SAFETY: forwarded caller contract.
     unsafe {
-        crate::handle::call(ctx, |g| {
+        crate::handle::try_call(ctx, |g| {
             if let Some(o) = g.outstanding.as_deref_mut() {
                 if let Some(members) = o.multi.take() {
                     members.remove(ctx as usize);
@@ -520,9 +523,7 @@ pub unsafe fn cancel_pending(ctx: *mut Modbus) {
                 event::cancel_all(g);
                 fire(ctx, g);
             }
-            Ok::<(), Error>(())
-        })
-        .ok();
+        });
     }
 }
 
@@ -536,12 +537,10 @@ pub unsafe fn fire_cancelled(ctx: *mut Modbus) {
     }
     // SAFETY: forwarded caller contract.
     unsafe {
-        crate::handle::call(ctx, |g| {
+        crate::handle::try_call(ctx, |g| {
             if g.outstanding.is_some() {
                 fire(ctx, g);
             }
-            Ok::<(), Error>(())
-        })
-        .ok();
+        });
     }
 }

@@ -221,6 +221,29 @@ where
     }
 }
 
+/// Runs `f` on the value behind `ptr` when its lock is free now; `None` (and `f` not
+/// run) when a call holds it: another thread's, or the one a signal handler of this
+/// thread interrupted. Nothing is waited for (`modbus_close` and `modbus_free` use it
+/// for what they do besides the close, which never waits either).
+///
+/// # Safety
+/// `ptr` must be NULL or a live handle.
+pub unsafe fn try_call<T: Closable, R>(ptr: *mut Handle<T>, f: impl FnOnce(&mut OwnerGuard<'_, T>) -> R) -> Option<R> {
+    // SAFETY: guaranteed by the caller.
+    let handle = unsafe { ptr.as_ref() }?;
+    let deferred = cancel::defer_rare(false);
+    let r = handle.value.try_lock().map(|mut g| {
+        let r = f(&mut g);
+        // SAFETY: `g` is the lock of `ptr`; the handle is not used after this.
+        unsafe { release_slow(ptr, g) };
+        r
+    });
+    if deferred {
+        cancel::resume();
+    }
+    r
+}
+
 /// What a wait without the lock may look at (see [`wait_unlocked`]).
 pub struct Waiting<'a> {
     stop: &'a Stop,
