@@ -25,7 +25,7 @@ use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::request::Request;
 use crate::proto::session::pipeline::{Answer, End, Entry, MAX_PENDING};
 use crate::proto::session::receive::{Dest, Finished, Outcome, ReadHow, Receiver, Step};
-use crate::proto::session::{Recovery, Timeout};
+use crate::proto::session::{self, Recovery, Timeout};
 use crate::proto::{Diag, ascii};
 use crate::transport;
 
@@ -156,7 +156,10 @@ pub fn interest(ctx: &Context) -> Interest {
             }
         }
     }
-    if o.pipeline.in_flight() < o.pipeline.max_in_flight() && o.pipeline.pending() > o.pipeline.in_flight() {
+    if let Some(quiet) = o.quiet_until {
+        // After a serial timeout: the next request waits for the quiet time's end.
+        until = Some(until.map_or(quiet, |u| u.min(quiet)));
+    } else if o.pipeline.in_flight() < o.pipeline.max_in_flight() && o.pipeline.pending() > o.pipeline.in_flight() {
         // Room on the wire for a queued request: go now.
         until = Some(now);
     }
@@ -195,6 +198,13 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
                     engine::error_print(g, Error::TIMED_OUT, Some("select"));
                 }
                 push(o, e, result, Vec::new());
+                // A serial line has no transaction id: the recovery after a wait
+                // that timed out (LINK: sleep and flush) keeps the line quiet for a
+                // response timeout, then flushes it.
+                let serial = g.framing() != Framing::Tcp;
+                if serial && session::after_wait(g.session.recovery, Error::TIMED_OUT) == Recovery::SleepFlush {
+                    o.quiet_until = Some(now + g.session.timeouts.response.duration());
+                }
             }
         }
         if o.pipeline.in_flight() == 0 {
@@ -273,6 +283,14 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
 
 /// Moves requests to the wire and writes what is waiting; true when bytes went out.
 fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
+    if let Some(quiet) = o.quiet_until {
+        if now < quiet {
+            return false;
+        }
+        o.quiet_until = None;
+        g.rx.clear();
+        g.line.purge();
+    }
     let response = g.session.timeouts.response.duration();
     o.pipeline.fill(now, response);
     let out = o.pipeline.output();

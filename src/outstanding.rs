@@ -86,6 +86,10 @@ pub struct Outstanding {
     pub connect_until: Option<std::time::Duration>,
     /// What a TLS handshake under way waits for (poll(2) events).
     pub handshake_wants: i16,
+    /// A serial request timed out under LINK recovery: no request goes out before
+    /// this time, then the line is flushed (the blocking calls sleep a response
+    /// timeout and flush), so that a late answer is not taken for the next.
+    pub quiet_until: Option<std::time::Duration>,
     /// The multi handle the context is in, if any.
     pub multi: Option<Arc<Members>>,
 }
@@ -130,6 +134,7 @@ impl Outstanding {
             done: VecDeque::new(),
             connect_until: None,
             handshake_wants: 0,
+            quiet_until: None,
             multi: None,
         }
     }
@@ -144,6 +149,7 @@ impl Outstanding {
     pub fn fail_all(&mut self, errno: i32) {
         self.receiving = None;
         self.connect_until = None;
+        self.quiet_until = None;
         for e in self.pipeline.drain() {
             self.done.push_back(Done { id: e.id, completion: e.payload, result: Err(errno), data: Vec::new() });
         }

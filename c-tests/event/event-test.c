@@ -8,6 +8,8 @@
  *   event-test tcp PORT       mb-server on 127.0.0.1:PORT, then the in-process cases
  *   event-test rtu DEVICE     mb-server rtu on the other end of a pty pair (slave 1,
  *                             115200 8N1)
+ *   event-test rtu-late A B   a late device of its own on end A of a pty pair, the
+ *                             client on B: the serial late-answer rule
  *   event-test many PORT N    N devices of c-tests/event/sim-devices.c (every 10th
  *                             dead), one multi handle, two cycles
  *   event-test tls PORT       mb-server tls (Modbus/TCP Security; certificates from
@@ -842,6 +844,88 @@ static void stalled_handshake(void)
     close(lf);
 }
 
+/* `event-test rtu-late DEVICE_END CLIENT_END`: a device (a server context of this
+ * library, in a thread) that answers its first request 700 ms late; the client's
+ * response timeout is 500 ms. With LINK recovery (libmodbus sleeps a response
+ * timeout and flushes after a timeout) the next request waits a response timeout,
+ * the line is flushed, and it gets its own answer; without it, the
+ * late answer (same function, same length) is taken for the next request's. */
+struct late_device {
+    const char *device;
+    volatile int stop;
+};
+
+static void *late_device_main(void *arg)
+{
+    struct late_device *d = arg;
+    modbus_t *srv = modbus_new_rtu(d->device, 115200, 'N', 8, 1);
+    modbus_mapping_t *map = modbus_mapping_new(0, 0, 4, 0);
+    uint8_t req[MODBUS_RTU_MAX_ADU_LENGTH];
+    modbus_set_slave(srv, 1);
+    modbus_set_indication_timeout(srv, 0, 100000);
+    map->tab_registers[0] = 111;
+    map->tab_registers[1] = 222;
+    map->tab_registers[2] = 333;
+    modbus_connect(srv);
+    for (int n = 0; !d->stop;) {
+        int rc = modbus_receive(srv, req);
+        if (rc <= 0) {
+            continue;
+        }
+        if (n++ == 0) {
+            usleep(700000);
+        }
+        modbus_reply(srv, req, rc, map);
+    }
+    modbus_close(srv);
+    modbus_free(srv);
+    modbus_mapping_free(map);
+    return NULL;
+}
+
+static int rtu_late(const char *device_end, const char *client_end)
+{
+    chk_set_prefix("rtu late: ");
+    for (int recovery = 1; recovery >= 0; recovery--) {
+        struct late_device d = {.device = device_end};
+        pthread_t th;
+        pthread_create(&th, NULL, late_device_main, &d);
+        usleep(100000);
+        modbus_t *ctx = modbus_new_rtu(client_end, 115200, 'N', 8, 1);
+        modbus_set_slave(ctx, 1);
+        modbus_set_response_timeout(ctx, 0, 500000);
+        modbus_set_error_recovery(ctx, recovery ? MODBUS_ERROR_RECOVERY_LINK : MODBUS_ERROR_RECOVERY_NONE);
+        modbus_connect(ctx);
+        uint16_t v1[1] = {0}, v2[1] = {0};
+        reset();
+        int r1 = modbus_read_registers_async(ctx, 0, 1, v1, on_done, NULL);
+        int r2 = modbus_read_registers_async(ctx, 1, 1, v2, on_done, NULL);
+        double t0 = now_s();
+        drive(ctx, 10);
+        double t = now_s() - t0;
+        EXPECT(results[r1].error == ETIMEDOUT, "%s: the first request times out (%s)",
+               recovery ? "LINK recovery" : "no recovery", modbus_strerror(results[r1].error));
+        if (recovery) {
+            EXPECT(results[r2].rc == 1 && v2[0] == 222 && t >= 0.99,
+                   "LINK recovery (libmodbus: sleep and flush after a timeout): the line stays quiet a response timeout and is flushed; the next request "
+                   "gets its own answer (%u, want 222) after %.3f s",
+                   v2[0], t);
+        } else {
+            EXPECT(results[r2].rc == 1 && v2[0] == 111,
+                   "no recovery: the late answer is taken for the next request (%u: the first one's 111), as "
+                   "with libmodbus' blocking calls (RTU has no transaction id)",
+                   v2[0]);
+        }
+        d.stop = 1;
+        pthread_join(th, NULL);
+        modbus_close(ctx);
+        modbus_free(ctx);
+        usleep(100000);
+    }
+    chk_set_prefix("");
+    return chk_summary();
+}
+
 /* `event-test many PORT N`: N devices of sim-devices (every 10th dead: it never
  * answers), one multi handle, one thread, two cycles of one read each. The live
  * devices' cycle does not wait for the dead ones' timeouts. */
@@ -933,6 +1017,9 @@ int main(int argc, char **argv)
         return 2;
     }
     setvbuf(stdout, NULL, _IOLBF, 0);
+    if (strcmp(argv[1], "rtu-late") == 0 && argc > 3) {
+        return rtu_late(argv[2], argv[3]);
+    }
     if (strcmp(argv[1], "many") == 0) {
         return many_devices(atoi(argv[2]), argc > 3 ? atoi(argv[3]) : 1000);
     }

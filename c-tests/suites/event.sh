@@ -91,6 +91,23 @@ section "against our server"
 run_case ours-tcp ours tcp
 run_case ours-rtu ours rtu
 run_case ours-tls ours tls
+section "a serial device that answers late (the error-recovery mode decides)"
+if selected rtu-late; then
+    WORK=$OUT/rtu-late
+    mkdir -p "$WORK"
+    if pty_pair pty "$WORK/dev" "$WORK/client"; then
+        start_bg "$WORK/out.log" "$WORK/err.log" env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 60 \
+            "$BIN/event-test" rtu-late "$WORK/dev" "$WORK/client"
+        wait_pid "$LAST_PID"
+        rc=$?
+        libinfo_ours rtu-late "$WORK/out.log"
+        program_checks rtu-late "$WORK/out.log" "$rc" || tail -n 5 "$WORK/err.log" | sed 's/^/    | /'
+    else
+        result "rtu-late: pty pair" FAIL "see $WORK/pty.log"
+    fi
+    stop pty
+fi
+
 section "1,000 devices from one thread, every 10th dead (c-tests/event/sim-devices.c)"
 if selected many; then
     WORK=$OUT/many

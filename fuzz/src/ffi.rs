@@ -5,7 +5,6 @@
 
 use std::ffi::c_int;
 
-use modbus::proto::frame::{Framing, MAX_ADU_LENGTH};
 use modbus::ffi::Modbus;
 use modbus::ffi::client::*;
 use modbus::ffi::context::*;
@@ -13,6 +12,7 @@ use modbus::ffi::extensions::*;
 use modbus::ffi::rtu::{modbus_new_ascii, modbus_new_rtu};
 use modbus::ffi::server::*;
 use modbus::ffi::tcp::modbus_new_tcp;
+use modbus::proto::frame::{Framing, MAX_ADU_LENGTH};
 use modbus::transport::errno;
 
 use crate::{ClientCall, Cursor, correct_response, mutate, size_of, slave_of, start_of, wire};
@@ -692,4 +692,151 @@ pub fn authorization(data: &[u8]) {
     free_context(tls);
     free_context(plain);
     drop((tls_pair, plain_pair));
+}
+
+// ---------------------------------------------------------------- the event-driven client
+
+/// What the callback of one asynchronous request saw.
+#[derive(Default)]
+struct Seen {
+    calls: u32,
+    rc: c_int,
+    error: c_int,
+}
+
+unsafe extern "C" fn seen_cb(_ctx: *mut Modbus, _id: c_int, rc: c_int, error: c_int, user: *mut std::ffi::c_void) {
+    // SAFETY: `user` is the `Seen` of this request, alive until the target ends.
+    let s = unsafe { &mut *user.cast::<Seen>() };
+    s.calls += 1;
+    s.rc = rc;
+    s.error = error;
+}
+
+/// The event-driven client (`modbus_*_async`, `modbus_process`). Input:
+/// `[framing + depth][selector][addr 2][nb 2][value 2][unit][requests][chunking]`,
+/// then response bytes (mode bit 2 clear) or edit operations on the correct
+/// responses to the requests, concatenated (bit 2 set). Bits 0-1: TCP, RTU, ASCII;
+/// bit 3: timeouts of 1 µs (everything may time out); bits 4-7: the pipelining depth.
+/// The bytes arrive in chunks (sizes from the chunking byte), each followed by a
+/// `modbus_process`; then the peer's end of stream. Every request's callback runs
+/// exactly once, with what the blocking call could return; no buffer is written
+/// past its end; nothing stays pending.
+pub fn ffi_async(data: &[u8]) {
+    use modbus::ffi::event::*;
+    let mut c = Cursor::new(data);
+    let mode = c.u8();
+    let framing = framing_of(mode);
+    let call = ClientCall::from(&mut c, true);
+    let unit = c.u8();
+    let requests = 1 + (c.u8() % 8) as usize;
+    let chunking = 1 + c.u8() as usize;
+    let stream = if mode & 4 != 0 {
+        let req = call.request();
+        let mut all = Vec::new();
+        for tid in 1..=requests as u16 {
+            let mut buf = [0u8; MAX_ADU_LENGTH];
+            let n = req.encode(framing, unit, tid, &mut buf);
+            let n = framing.seal(&mut buf, n);
+            all.extend(wire(framing, &correct_response(framing, &buf[..n])));
+        }
+        mutate(framing, &mut all, c.rest());
+        all
+    } else {
+        c.rest().to_vec()
+    };
+    let pair = Pair::with_bytes(&[]);
+    let ctx = context(framing, pair.ours);
+    let nb = call.nb.max(1) as usize;
+    // SAFETY: live context; every buffer outlives its request (freed at the end).
+    unsafe {
+        modbus_set_slave(ctx, unit as c_int);
+        modbus_set_max_in_flight(ctx, 1 + (mode >> 4) as c_int);
+        if mode & 8 == 0 {
+            assert_eq!(modbus_set_response_timeout(ctx, 5, 0), 0);
+            assert_eq!(modbus_set_byte_timeout(ctx, 5, 0), 0);
+        }
+    }
+    let mut seen: Vec<Box<Seen>> = (0..requests).map(|_| Box::default()).collect();
+    let mut bits: Vec<Guarded<u8>> = (0..requests).map(|_| Guarded::new(nb, 0xEE, CANARY)).collect();
+    let mut regs: Vec<Guarded<u16>> = (0..requests).map(|_| Guarded::new(nb, 0xEEEE, 0xA5A5)).collect();
+    let mut submitted = 0;
+    for i in 0..requests {
+        let user = (&mut *seen[i] as *mut Seen).cast();
+        // SAFETY: the buffers hold `nb` items and live until the end.
+        let id = unsafe {
+            match call.function {
+                0x01 => modbus_read_bits_async(ctx, call.addr, call.nb, bits[i].ptr(), Some(seen_cb), user),
+                0x02 => modbus_read_input_bits_async(ctx, call.addr, call.nb, bits[i].ptr(), Some(seen_cb), user),
+                0x04 => modbus_read_input_registers_async(ctx, call.addr, call.nb, regs[i].ptr(), Some(seen_cb), user),
+                0x05 => modbus_write_bit_async(ctx, call.addr, (call.value & 1) as c_int, Some(seen_cb), user),
+                0x06 => modbus_write_register_async(ctx, call.addr, call.value, Some(seen_cb), user),
+                0x0F => modbus_write_bits_async(ctx, call.addr, call.nb, call.bits.as_ptr(), Some(seen_cb), user),
+                0x10 => modbus_write_registers_async(ctx, call.addr, call.nb, call.regs.as_ptr(), Some(seen_cb), user),
+                _ => modbus_read_registers_async(
+                    ctx,
+                    call.addr,
+                    call.nb.clamp(1, 125),
+                    regs[i].ptr(),
+                    Some(seen_cb),
+                    user,
+                ),
+            }
+        };
+        if id >= 0 {
+            submitted += 1;
+        } else {
+            seen[i].calls = u32::MAX; // refused at once: no callback may run
+        }
+    }
+    let _ = submitted;
+    // The answers arrive in chunks, each followed by a process call.
+    let mut off = 0;
+    let mut k = 0usize;
+    while off < stream.len() {
+        let size = 1 + (chunking * (k + 1) * 7) % 64;
+        let end = (off + size).min(stream.len());
+        // SAFETY: writing from a live slice into our own socket.
+        unsafe {
+            libc::send(pair.peer, stream[off..end].as_ptr().cast(), end - off, libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL)
+        };
+        off = end;
+        k += 1;
+        // SAFETY: live context.
+        let rc = unsafe { modbus_process(ctx, libc::POLLIN) };
+        assert!(rc >= 0, "modbus_process failed: {}", errno());
+    }
+    // SAFETY: our own socket.
+    unsafe { libc::shutdown(pair.peer, libc::SHUT_WR) };
+    for _ in 0..4 * requests + 8 {
+        // SAFETY: live context.
+        if unsafe { modbus_pending(ctx) } == 0 {
+            break;
+        }
+        // SAFETY: live context.
+        unsafe { modbus_process(ctx, libc::POLLIN) };
+        if mode & 8 != 0 {
+            std::thread::sleep(std::time::Duration::from_micros(2));
+        }
+    }
+    // SAFETY: live context.
+    let left = unsafe { modbus_pending(ctx) };
+    free_context(ctx);
+    for (i, s) in seen.iter().enumerate() {
+        bits[i].check("async read bits");
+        regs[i].check("async read registers");
+        if s.calls == u32::MAX {
+            continue;
+        }
+        assert_eq!(s.calls, 1, "request {i}: its callback ran {} times ({left} left pending)", s.calls);
+        if s.rc < 0 {
+            assert!(
+                client_errno_ok(s.error)
+                    || s.error == libc::ECANCELED
+                    || s.error == libc::EPIPE
+                    || s.error == libc::EBADF,
+                "request {i} failed with errno {}",
+                s.error
+            );
+        }
+    }
 }

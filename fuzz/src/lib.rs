@@ -11,6 +11,7 @@
 //! | `client_tcp` | the same with MBAP framing                                            |
 //! | `ffi_server` | the C ABI: `modbus_receive` + `modbus_reply` over a socket pair, mapping with start offsets |
 //! | `ffi_client` | the C ABI: every client call against pre-written response bytes      |
+//! | `ffi_async`  | the event-driven client: requests pipelined, answers in chunks       |
 //! | `server_ascii`, `client_ascii` | the same paths with Modbus ASCII: characters -> `ascii::Decoder` -> LRC -> ... |
 //! | `security`   | Modbus/TCP Security: TLS record boundaries of a server's reads, the role of a certificate, what a request asks the authorization callback |
 //!
@@ -21,17 +22,17 @@
 
 use std::fmt;
 
+use modbus::error::{Error, MODBUS_ENOBASE};
 use modbus::proto::confirm::{self, Rejection};
 use modbus::proto::crc::crc16;
 use modbus::proto::frame::{Assembler, Framing, MAX_ADU_LENGTH, MsgKind, Progress, RtuIntegrity, rtu_integrity};
 use modbus::proto::reply::{Outcome, QUIRK_REPLY_TO_BROADCAST, Server, Table, Tables, request_extent};
 use modbus::proto::request::Request;
 use modbus::proto::{Diag, ascii};
-use modbus::error::{Error, MODBUS_ENOBASE};
 
 pub mod ffi;
 
-pub use ffi::{authorization, ffi_client, ffi_server};
+pub use ffi::{authorization, ffi_async, ffi_client, ffi_server};
 
 /// A debug sink that really formats every message (so formatting code runs too) and
 /// keeps memory bounded.
@@ -915,7 +916,7 @@ pub fn security(data: &[u8]) {
 pub type Target = fn(&[u8]);
 
 /// Every target by name, for the replay tool.
-pub const TARGETS: [(&str, Target); 10] = [
+pub const TARGETS: [(&str, Target); 11] = [
     ("server_rtu", server_rtu),
     ("server_tcp", server_tcp),
     ("server_ascii", server_ascii),
@@ -924,6 +925,7 @@ pub const TARGETS: [(&str, Target); 10] = [
     ("client_ascii", client_ascii),
     ("ffi_server", ffi_server),
     ("ffi_client", ffi_client),
+    ("ffi_async", ffi_async),
     ("security", security),
     ("authorization", authorization),
 ];
