@@ -41,6 +41,9 @@
 #                           LOG; its FAIL lines shown) and one check "NAME: exit 0";
 #                           no summary line is one failure
 #   valgrind_clean NAME DIR  one check: no valgrind.*.log of DIR has a line
+#   pymodbus_venv VENV REQS LOGDIR INSTALL  PY=VENV/bin/python, a venv of Debian's
+#                           python3 holding the pinned versions of REQS (pip install
+#                           when INSTALL is 1); returns non-zero, saying why, if not
 #
 # Building the C programs: c-tests/Makefile, the one build of them all (run-*.sh; ROOT set)
 #   c_build_dir [SAN]       where the Makefile puts a variant's programs: $CTEST_BUILD
@@ -265,6 +268,36 @@ valgrind_clean() {
     else
         result "$1: valgrind memcheck clean" PASS
     fi
+}
+
+pymodbus_venv() {
+    local venv=$1 reqs=$2 logs=$3 install=$4
+    PY=$venv/bin/python
+    if [ ! -x "$PY" ]; then
+        # Debian's interpreter (python3-venv), not whatever python3 comes first on PATH.
+        /usr/bin/python3 -m venv "$venv" >"$logs/venv.log" 2>&1 ||
+            { cat "$logs/venv.log"; echo "python3 -m venv failed (apt-get install python3-venv)"; return 1; }
+    fi
+    _want_versions() {
+        "$PY" - "$reqs" 2>/dev/null <<'EOF'
+import sys
+from importlib.metadata import version
+for line in open(sys.argv[1]):
+    line = line.split("#")[0].strip()
+    if line:
+        name, want = line.split("==")
+        if version(name) != want:
+            sys.exit(1)
+EOF
+    }
+    _want_versions && return 0
+    if [ "$install" -eq 0 ]; then
+        echo "$venv lacks the versions of $reqs (run without --no-install)"
+        return 1
+    fi
+    "$PY" -m pip install -q --disable-pip-version-check -r "$reqs" >"$logs/pip.log" 2>&1 ||
+        { cat "$logs/pip.log"; echo "pip install failed"; return 1; }
+    _want_versions || { echo "pip installed other versions than $reqs"; return 1; }
 }
 
 # ------------------------------------------------------------ C programs

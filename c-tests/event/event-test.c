@@ -264,8 +264,11 @@ static void compare_calls(modbus_t *ctx, int serial)
 
     /* Many requests queued at once: each gets its own answer, in order of their ids. */
     reset();
+    /* EVENT_DEPTH: the pipelining depth (pymodbus 3.16.1 answers only the first of
+     * the requests one read brings it: 1 there). */
+    int depth = getenv("EVENT_DEPTH") != NULL ? atoi(getenv("EVENT_DEPTH")) : 16;
     if (!serial) {
-        EXPECT(modbus_set_max_in_flight(ctx, 16) == 0, "modbus_set_max_in_flight(16)");
+        EXPECT(modbus_set_max_in_flight(ctx, depth) == 0, "modbus_set_max_in_flight(%d)", depth);
     }
     EXPECT(modbus_set_max_in_flight(ctx, 0) == -1 && errno == EINVAL, "modbus_set_max_in_flight(0): EINVAL");
     EXPECT(modbus_set_max_in_flight(ctx, 257) == -1 && errno == EINVAL, "modbus_set_max_in_flight(257): EINVAL");
@@ -288,8 +291,8 @@ static void compare_calls(modbus_t *ctx, int serial)
     for (int i = 0; i < n; i++) {
         right += many[i][0] == ref[i % 22];
     }
-    EXPECT(ok == n && right == n && completed == n, "%d requests%s: %d completed once with rc 1, %d right values (%.3f s)",
-           n, serial ? "" : " 16 deep", ok, right, took);
+    EXPECT(ok == n && right == n && completed == n, "%d requests, %d deep: %d completed once with rc 1, %d right values (%.3f s)",
+           n, serial ? 1 : depth, ok, right, took);
     modbus_set_max_in_flight(ctx, 1);
 
     /* A callback that submits the next request. */
@@ -1031,7 +1034,9 @@ int main(int argc, char **argv)
     modbus_t *ctx = serial ? modbus_new_rtu(argv[2], 115200, 'N', 8, 1)
                     : tls  ? mbt_new_tls("event-test", atoi(argv[2]))
                            : modbus_new_tcp("127.0.0.1", atoi(argv[2]));
-    if (ctx == NULL || (serial && modbus_set_slave(ctx, 1) != 0) || modbus_connect(ctx) != 0) {
+    /* EVENT_SLAVE: the unit id of a server that answers only its own (pymodbus). */
+    int slave = getenv("EVENT_SLAVE") != NULL ? atoi(getenv("EVENT_SLAVE")) : (serial ? 1 : -1);
+    if (ctx == NULL || (slave >= 0 && modbus_set_slave(ctx, slave) != 0) || modbus_connect(ctx) != 0) {
         EXPECT(0, "connect to the server: %s", modbus_strerror(errno));
         return chk_summary();
     }

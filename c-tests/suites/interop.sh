@@ -68,32 +68,7 @@ parse_flags --only -- "$@"
 prepare_run gcc make socat python3
 OURS_REAL=$(readlink -f "$OURS/libmodbus.so.5")
 
-PY=$VENV/bin/python
-want_versions() {
-    "$PY" - "$SRC/requirements.txt" 2>/dev/null <<'EOF'
-import sys
-from importlib.metadata import version
-for line in open(sys.argv[1]):
-    line = line.split("#")[0].strip()
-    if line:
-        name, want = line.split("==")
-        if version(name) != want:
-            sys.exit(1)
-EOF
-}
-if [ ! -x "$PY" ]; then
-    # Debian's interpreter (python3-venv), not whatever python3 comes first on PATH.
-    /usr/bin/python3 -m venv "$VENV" >"$LOGS/venv.log" 2>&1 || { cat "$LOGS/venv.log"; echo "python3 -m venv failed (apt-get install python3-venv)"; exit 2; }
-fi
-if ! want_versions; then
-    if [ "$INSTALL" -eq 0 ]; then
-        echo "target/interop/venv lacks the versions of $SRC/requirements.txt (run without --no-install)"
-        exit 2
-    fi
-    "$PY" -m pip install -q --disable-pip-version-check -r "$SRC/requirements.txt" >"$LOGS/pip.log" 2>&1 ||
-        { cat "$LOGS/pip.log"; echo "pip install failed"; exit 2; }
-    want_versions || { echo "pip installed other versions than $SRC/requirements.txt"; exit 2; }
-fi
+pymodbus_venv "$VENV" "$SRC/requirements.txt" "$LOGS" "$INSTALL" || exit 2
 echo "pymodbus $("$PY" -c 'import pymodbus; print(pymodbus.__version__)') in $VENV"
 
 # our_client, our_server: c-tests/Makefile (group INTEROP; our headers, target/release)
