@@ -848,7 +848,8 @@ MODBUS_API int modbus_multi_get_fd(modbus_multi_t *m);
 MODBUS_API int modbus_multi_timeout(modbus_multi_t *m);
 
 /**
- * Waits up to `timeout_ms` (0: not at all; -1: until something is due) for I/O on
+ * Waits up to `timeout_ms` (0: not at all; -1: until something is due, not at all
+ * when no request is pending) for I/O on
  * the contexts of `m`, then processes each context with I/O ready or a deadline
  * passed (as `modbus_process`, callbacks included). Returns the number of requests
  * completed, or -1 with errno.

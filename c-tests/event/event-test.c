@@ -692,6 +692,11 @@ static void multi_case(void)
     reset();
     int id = modbus_read_registers_async(ctx[0], 0, 4, v, on_done, NULL);
     EXPECT(modbus_multi_perform(m, 100) == 0 && results[id].done == 0, "a removed context is not processed");
+    {
+        double p0 = now_s();
+        int c = modbus_multi_perform(m, -1);
+        EXPECT(c == 0 && now_s() - p0 < 0.5, "modbus_multi_perform(-1) with nothing pending returns 0 at once (%d)", c);
+    }
     drive(ctx[0], 5);
     EXPECT(results[id].done == 1 && results[id].rc == 4, "it completes through its own modbus_process");
     for (int i = 0; i < MULTI_N; i++) {

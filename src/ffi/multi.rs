@@ -119,7 +119,8 @@ pub unsafe extern "C" fn modbus_multi_timeout(m: *mut Multi) -> c_int {
     }
 }
 
-/// Waits up to `timeout_ms` (0: not at all; -1: until something is due) for I/O on
+/// Waits up to `timeout_ms` (0: not at all; -1: until something is due, not at all
+/// when no request is pending) for I/O on
 /// the contexts of `m`, then processes each context with I/O ready or a deadline
 /// passed (as `modbus_process`, callbacks included). Returns the number of requests
 /// completed, or -1 with errno.
@@ -136,6 +137,10 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
         Err(e) => return fail(e),
     };
     let until_due = ms_until(earliest);
+    if timeout_ms < 0 && until_due < 0 && !any_pending(m) {
+        // Nothing pending anywhere: nothing would ever end a wait without end.
+        return 0;
+    }
     let wait = match (timeout_ms, until_due) {
         (0, _) => 0,
         (t, -1) => t.max(-1),
@@ -194,6 +199,13 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
         m.members.remove(key);
     }
     transport::close(m.members.epfd);
+}
+
+/// Some member has requests pending.
+fn any_pending(m: &Multi) -> bool {
+    let keys: Vec<usize> = m.members.list.lock().unwrap_or_else(PoisonError::into_inner).keys().copied().collect();
+    // SAFETY: a member is a live context.
+    keys.into_iter().any(|key| unsafe { crate::ffi::event::modbus_pending(key as *mut Modbus) } > 0)
 }
 
 fn is_member(m: &Multi, key: usize) -> bool {
