@@ -10,9 +10,10 @@ use crate::lock::OwnerGuard;
 use crate::proto::confirm::{self, Rejection};
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::request::{Request, next_tid};
-use crate::proto::session::receive::{self, Dest, Finished, Outcome, Receiver, Step};
+use crate::proto::session::receive::{self, Dest, Finished, Outcome, ReadAhead, ReadHow, Receiver, Step};
 use crate::proto::session::{self, Recovery};
 use crate::proto::{Diag, ascii};
+use crate::transport::line::Line;
 use crate::transport::{self, Ready};
 
 /// A locked context. Functions that may call back into the application (the custom
@@ -380,41 +381,36 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
             Step::Frame(len) if !ctx.debug => return Ok(Received::Frame(len)),
             Step::Frame(len) => return finish(ctx, buf, Finished::frame(len)),
             Step::Done(finished) => return finish(ctx, buf, finished),
-            Step::Peek { block } => {
-                let peeked = ctx.line.peek(&mut ctx.rx.buf, block);
-                // A whole message queued: taken at once, exactly (never a byte past it).
-                let whole = match (&machine, peeked) {
-                    (None, Ok(n)) => receive::whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
-                    (Some(m), Ok(n)) => m.whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
-                    _ => None,
+            _ => {
+                let Some(r) = execute(&mut ctx.line, &mut ctx.rx, buf, step, ctx.debug, &mut Waiting::Block) else {
+                    unreachable!("a blocking step always ends")
                 };
-                if let Some(len) = whole {
-                    let read = ctx.line.take(&mut buf[..len]);
-                    if !ctx.stopping() {
-                        step = match &mut machine {
-                            None if matches!(read, Ok(n) if n == len) => receive::end(&ctx.session, buf, len),
-                            m => {
-                                let m = match m {
-                                    Some(m) => m,
-                                    None => m.insert(Receiver::after_first(&ctx.session, &step, transport::now())),
-                                };
-                                m.took(&ctx.session, len, read, buf, &mut ctx.rx, transport::now)
-                            }
-                        };
-                        continue;
-                    }
-                }
-                peeked
+                r
             }
-            Step::Read { dest, how } => {
-                let room = match dest {
-                    Dest::Message { from, to } => &mut buf[from..to],
-                    Dest::ReadAhead => &mut ctx.rx.buf[..],
-                };
-                ctx.line.read(room, how, ctx.debug)
-            }
-            Step::Wait { until } => ctx.line.wait(until, ctx.debug).map(|()| 0),
         };
+        if let (Step::Peek { .. }, Ok(n)) = (step, result) {
+            // A whole message queued: taken at once, exactly (never a byte past it).
+            let whole = match &machine {
+                None => receive::whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
+                Some(m) => m.whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
+            };
+            if let Some(len) = whole {
+                let read = ctx.line.take(&mut buf[..len]);
+                if !ctx.stopping() {
+                    step = match &mut machine {
+                        None if matches!(read, Ok(n) if n == len) => receive::end(&ctx.session, buf, len),
+                        m => {
+                            let m = match m {
+                                Some(m) => m,
+                                None => m.insert(Receiver::after_first(&ctx.session, &step, transport::now())),
+                            };
+                            m.took(&ctx.session, len, read, buf, &mut ctx.rx, transport::now)
+                        }
+                    };
+                    continue;
+                }
+            }
+        }
         let m = match &mut machine {
             Some(m) => m,
             None => {
@@ -429,6 +425,59 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
             step = m.next(&ctx.session, result, buf, &mut ctx.rx, transport::now);
         }
     }
+}
+
+/// How a Wait step of the receive machine is carried out.
+pub enum Waiting<'a> {
+    /// In `ppoll`, until the line is readable or the deadline passes (the blocking
+    /// calls).
+    Block,
+    /// Not at all (the event-driven client): the line is readable when the
+    /// application's poll said so (`true`, taken once) or bytes are already read
+    /// (a TLS session's plaintext); at the deadline the wait has timed out; else the
+    /// step waits for the application's loop. Reads never wait either.
+    Ready(&'a mut bool),
+}
+
+/// Executes one step of the receive machine (`Peek`, `Read` or `Wait`) on `line`:
+/// the one executor of the machine's steps, for both drivers (`receive_msg` here,
+/// `event::receive`). `msg` is the message's buffer, `rx` the read-ahead. Returns the
+/// step's result for the machine, or `None` when, under [`Waiting::Ready`], the step
+/// must wait for the application's loop.
+#[inline(always)]
+pub fn execute(
+    line: &mut Line,
+    rx: &mut ReadAhead,
+    msg: &mut [u8],
+    step: Step,
+    debug: bool,
+    waiting: &mut Waiting<'_>,
+) -> Option<Result<usize>> {
+    let blocking = matches!(waiting, Waiting::Block);
+    Some(match step {
+        Step::Peek { block } => line.peek(&mut rx.buf, block && blocking),
+        Step::Read { dest, how } => {
+            let room = match dest {
+                Dest::Message { from, to } => &mut msg[from..to],
+                Dest::ReadAhead => &mut rx.buf[..],
+            };
+            line.read(room, if blocking { how } else { ReadHow::Queued }, debug)
+        }
+        Step::Wait { until } => match waiting {
+            Waiting::Block => line.wait(until, debug).map(|()| 0),
+            Waiting::Ready(readable) => {
+                if **readable || line.pending() > 0 {
+                    **readable = false;
+                    Ok(0)
+                } else if until.is_some_and(|u| transport::now() >= u) {
+                    Err(Error::TIMED_OUT)
+                } else {
+                    return None;
+                }
+            }
+        },
+        Step::Frame(_) | Step::Done(_) => unreachable!("the end of a receive is no step to execute"),
+    })
 }
 
 /// The end of a receive: the debug trace of the message (libmodbus prints its bytes

@@ -24,7 +24,7 @@ use crate::proto::decode::counted_data;
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::request::Request;
 use crate::proto::session::pipeline::{Answer, End, Entry, MAX_PENDING};
-use crate::proto::session::receive::{Dest, Finished, Outcome, ReadHow, Receiver, Step};
+use crate::proto::session::receive::{Finished, Outcome, Receiver, Step};
 use crate::proto::session::{self, Recovery, Timeout};
 use crate::proto::{Diag, ascii};
 use crate::transport;
@@ -354,30 +354,17 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
     }
     let r = o.receiving.as_mut().expect("made above");
     let ctx: &mut Context = g;
+    let mut waiting = engine::Waiting::Ready(readable);
     loop {
-        let result = match r.step {
+        match r.step {
             Step::Frame(len) => return Some(Finished::frame(len)),
             Step::Done(f) => return Some(f),
-            Step::Wait { until } => {
-                if *readable || ctx.line.pending() > 0 {
-                    *readable = false;
-                    Ok(0)
-                } else if until.is_some_and(|u| transport::now() >= u) {
-                    Err(Error::TIMED_OUT)
-                } else {
-                    return None;
-                }
+            step => {
+                let result =
+                    engine::execute(&mut ctx.line, &mut ctx.rx, &mut r.msg[..], step, ctx.debug, &mut waiting)?;
+                r.step = r.machine.next(&r.settings, result, &mut r.msg[..], &mut ctx.rx, transport::now);
             }
-            Step::Read { dest, how: _ } => {
-                let room = match dest {
-                    Dest::Message { from, to } => &mut r.msg[from..to],
-                    Dest::ReadAhead => &mut ctx.rx.buf[..],
-                };
-                ctx.line.read(room, ReadHow::Queued, ctx.debug)
-            }
-            Step::Peek { .. } => ctx.line.peek(&mut ctx.rx.buf, false),
-        };
-        r.step = r.machine.next(&r.settings, result, &mut r.msg[..], &mut ctx.rx, transport::now);
+        }
     }
 }
 
