@@ -3,6 +3,8 @@
 #
 #   scripts/bench.sh                 full mode (about 15 minutes)
 #   BENCH_QUICK=1 scripts/bench.sh   short mode (about 1-2 minutes)
+#   scripts/bench.sh --many          many devices from one thread (the event-driven
+#                                    client) against libmodbus' ways (benches/many.sh)
 #   scripts/bench.sh --repeat N [CASE ...]
 #                                    the throughput of CASE (default wr121, TCP) in N
 #                                    runs with new processes each: how far a ratio
@@ -22,6 +24,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 program=(benches/bench.py)
+if [ "${1:-}" = --many ]; then
+    # Many devices from one thread: benches/many.sh (about 10 s).
+    scripts/install-deps.sh >/dev/null
+    exec benches/many.sh
+fi
 if [ "${1:-}" = --repeat ]; then
     [ $# -ge 2 ] || { echo "usage: $0 --repeat N [CASE ...]" >&2; exit 2; }
     shift

@@ -93,13 +93,23 @@ pub fn submit_expecting(ctx: &mut Context, req: &Request<'_>, completion: Comple
     };
     let broadcast = (framing != Framing::Tcp && ctx.session.slave == 0) || !answered;
     let tid = ctx.t_id;
-    let id = state(ctx).pipeline.submit(&buf[..len], wire, tid, broadcast, completion);
+    let o = state(ctx);
+    let id = o.pipeline.submit(&buf[..len], wire, tid, broadcast, completion);
+    mark(o);
     id.ok_or(Error(libc::EAGAIN))
+}
+
+/// A context of a multi handle is to be asked again what it waits for.
+fn mark(o: &Outstanding) {
+    if let Some((members, key)) = &o.multi {
+        members.mark(*key);
+    }
 }
 
 /// `modbus_cancel`: completes request `id` with ECANCELED.
 pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
     let o = ctx.outstanding.as_deref_mut().ok_or(Error::INVALID)?;
+    mark(o);
     let e = o.pipeline.cancel(id).ok_or(Error::INVALID)?;
     if o.pipeline.in_flight() == 0 {
         // Nothing to receive for any more (a late answer is dropped by its id).
@@ -113,6 +123,7 @@ pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
 pub fn cancel_all(ctx: &mut Context) {
     if let Some(o) = ctx.outstanding.as_deref_mut() {
         o.fail_all(libc::ECANCELED);
+        mark(o);
     }
 }
 
@@ -176,6 +187,7 @@ pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
     let writable = revents & (libc::POLLOUT | libc::POLLERR | libc::POLLHUP) != 0;
     run(g, &mut o, &mut readable, writable);
     let completed = o.done.len() - before;
+    mark(&o);
     g.outstanding = Some(o);
     Ok(completed)
 }

@@ -90,8 +90,9 @@ pub struct Outstanding {
     /// this time, then the line is flushed (the blocking calls sleep a response
     /// timeout and flush), so that a late answer is not taken for the next.
     pub quiet_until: Option<std::time::Duration>,
-    /// The multi handle the context is in, if any.
-    pub multi: Option<Arc<Members>>,
+    /// The multi handle the context is in, if any, and the context's key in it (its
+    /// handle's address).
+    pub multi: Option<(Arc<Members>, usize)>,
 }
 
 /// The contexts of one multi handle (`modbus_multi_*`), shared by the handle and its
@@ -99,8 +100,11 @@ pub struct Outstanding {
 pub struct Members {
     /// The multi handle's epoll descriptor.
     pub epfd: i32,
-    /// By handle address: what is registered for each.
+    /// By handle address: what is registered for each, and what it waits for.
     pub list: Mutex<HashMap<usize, Member>>,
+    /// The contexts whose interest may have changed since the handle last asked
+    /// (a request given, processed, cancelled, a close): only these are asked again.
+    pub dirty: Mutex<Vec<usize>>,
 }
 
 /// What a multi handle registered for one context.
@@ -111,9 +115,18 @@ pub struct Member {
     pub generation: u32,
     /// The poll(2) events registered (0: none).
     pub events: i16,
+    /// When it is due without I/O, as last asked.
+    pub until: Option<std::time::Duration>,
+    /// It had requests pending, as last asked.
+    pub pending: bool,
 }
 
 impl Members {
+    /// The context `key` is to be asked again before the next wait.
+    pub fn mark(&self, key: usize) {
+        self.dirty.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(key);
+    }
+
     /// Takes the context of handle address `key` out (its registration with it: a
     /// descriptor still open stops reporting).
     pub fn remove(&self, key: usize) {

@@ -517,8 +517,8 @@ pub unsafe fn cancel_pending(ctx: *mut Modbus) {
     unsafe {
         crate::handle::try_call(ctx, |g| {
             if let Some(o) = g.outstanding.as_deref_mut() {
-                if let Some(members) = o.multi.take() {
-                    members.remove(ctx as usize);
+                if let Some((members, key)) = o.multi.take() {
+                    members.remove(key);
                 }
                 event::cancel_all(g);
                 fire(ctx, g);

@@ -27,7 +27,8 @@ pub struct Multi {
 pub extern "C" fn modbus_multi_new() -> *mut Multi {
     match epoll::create() {
         Ok(epfd) => {
-            Box::into_raw(Box::new(Multi { members: Arc::new(Members { epfd, list: Mutex::new(Default::default()) }) }))
+            let members = Members { epfd, list: Mutex::new(Default::default()), dirty: Mutex::default() };
+            Box::into_raw(Box::new(Multi { members: Arc::new(members) }))
         }
         Err(e) => {
             fail(e);
@@ -52,12 +53,14 @@ pub unsafe extern "C" fn modbus_multi_add(m: *mut Multi, ctx: *mut Modbus) -> c_
             if o.multi.is_some() {
                 return Err(Error(libc::EBUSY));
             }
+            let key = ctx as usize;
             members
                 .list
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
-                .insert(ctx as usize, Member { fd: -1, ..Member::default() });
-            o.multi = Some(members);
+                .insert(key, Member { fd: -1, ..Member::default() });
+            members.mark(key);
+            o.multi = Some((members, key));
             Ok(0)
         })
     })
@@ -76,9 +79,9 @@ pub unsafe extern "C" fn modbus_multi_remove(m: *mut Multi, ctx: *mut Modbus) ->
         crate::handle::call(ctx, |g| {
             let o = g.outstanding.as_deref_mut().ok_or(Error::INVALID)?;
             match &o.multi {
-                Some(own) if Arc::ptr_eq(own, &m.members) => {
+                Some((own, key)) if Arc::ptr_eq(own, &m.members) => {
+                    m.members.remove(*key);
                     o.multi = None;
-                    m.members.remove(ctx as usize);
                     Ok(0)
                 }
                 _ => Err(Error::INVALID),
@@ -147,21 +150,29 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
         (t, d) if t < 0 => d,
         (t, d) => t.min(d),
     };
-    let mut events = [libc::epoll_event { events: 0, u64: 0 }; 256];
-    let n = match epoll::wait(m.members.epfd, &mut events, wait) {
-        Ok(n) => n,
-        Err(e) => return fail(e),
-    };
+    let mut events = [libc::epoll_event { events: 0, u64: 0 }; 512];
     let mut completed = 0;
-    let mut processed = HashSet::with_capacity(n);
-    for ev in &events[..n] {
-        let key = ev.u64 as usize;
-        // (`ev` is a copy: the packed field is read by value.)
-        let revents = { ev.events } as u16 as i16;
-        if processed.insert(key) && is_member(m, key) {
-            // SAFETY: a member is a live context.
-            completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, revents) }.max(0);
+    let mut processed = HashSet::new();
+    let mut wait = wait;
+    loop {
+        let n = match epoll::wait(m.members.epfd, &mut events, wait) {
+            Ok(n) => n,
+            Err(e) => return fail(e),
+        };
+        for ev in &events[..n] {
+            let key = ev.u64 as usize;
+            // (`ev` is a copy: the packed field is read by value.)
+            let revents = { ev.events } as u16 as i16;
+            if processed.insert(key) && is_member(m, key) {
+                // SAFETY: a member is a live context.
+                completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, revents) }.max(0);
+            }
         }
+        // A full batch: more may be ready now; take them without waiting.
+        if n < events.len() {
+            break;
+        }
+        wait = 0;
     }
     let now = transport::now();
     for (key, until) in due {
@@ -201,11 +212,10 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
     transport::close(m.members.epfd);
 }
 
-/// Some member has requests pending.
+/// Some member had requests pending when last asked (`sync` asks every one whose
+/// interest may have changed).
 fn any_pending(m: &Multi) -> bool {
-    let keys: Vec<usize> = m.members.list.lock().unwrap_or_else(PoisonError::into_inner).keys().copied().collect();
-    // SAFETY: a member is a live context.
-    keys.into_iter().any(|key| unsafe { crate::ffi::event::modbus_pending(key as *mut Modbus) } > 0)
+    m.members.list.lock().unwrap_or_else(PoisonError::into_inner).values().any(|mb| mb.pending)
 }
 
 fn is_member(m: &Multi, key: usize) -> bool {
@@ -223,24 +233,27 @@ fn ms_until(t: Option<Duration>) -> c_int {
 /// Each member's deadline, by handle address.
 type Due = Vec<(usize, Option<Duration>)>;
 
-/// Asks each context what it waits for and brings its epoll registration up to
-/// date. Returns the earliest deadline and each context's.
+/// Asks each context whose interest may have changed (`Members::dirty`) what it waits
+/// for and brings its epoll registration up to date. Returns the earliest deadline of
+/// all members and the members that have one.
 ///
 /// # Safety
 /// The members of `m` are live contexts.
 unsafe fn sync(m: &Multi) -> Result<(Option<Duration>, Due)> {
-    let keys: Vec<usize> = m.members.list.lock().unwrap_or_else(PoisonError::into_inner).keys().copied().collect();
-    let mut earliest: Option<Duration> = None;
-    let mut due = Vec::with_capacity(keys.len());
-    for key in keys {
-        // SAFETY: guaranteed by the caller.
-        let asked =
-            unsafe { crate::handle::call(key as *mut Modbus, |g| Ok((event::interest(g), g.line.generation()))) };
-        let Ok((interest, generation)) = asked else { continue };
-        if let Some(u) = interest.until {
-            earliest = Some(earliest.map_or(u, |e| e.min(u)));
+    let mut dirty = std::mem::take(&mut *m.members.dirty.lock().unwrap_or_else(PoisonError::into_inner));
+    dirty.sort_unstable();
+    dirty.dedup();
+    for key in dirty {
+        if !is_member(m, key) {
+            continue;
         }
-        due.push((key, interest.until));
+        // SAFETY: guaranteed by the caller.
+        let asked = unsafe {
+            crate::handle::call(key as *mut Modbus, |g| {
+                Ok((event::interest(g), g.line.generation(), event::pending(g) > 0))
+            })
+        };
+        let Ok((interest, generation, pending)) = asked else { continue };
         let mut list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
         let Some(member) = list.get_mut(&key) else { continue };
         let epfd = m.members.epfd;
@@ -249,7 +262,7 @@ unsafe fn sync(m: &Multi) -> Result<(Option<Duration>, Due)> {
         // set by itself; its number may be another context's now: left alone).
         let registered = member.events != 0 && member.fd == interest.fd && member.generation == generation;
         match (registered, active) {
-            (true, true) if member.events == interest.events => continue,
+            (true, true) if member.events == interest.events => {}
             (true, true) => epoll::control(epfd, libc::EPOLL_CTL_MOD, interest.fd, interest.events, key as u64)?,
             (true, false) => {
                 let _ = epoll::control(epfd, libc::EPOLL_CTL_DEL, member.fd, 0, 0);
@@ -264,12 +277,14 @@ unsafe fn sync(m: &Multi) -> Result<(Option<Duration>, Due)> {
             }
             (false, false) => {}
         }
-        let want = if active {
-            Member { fd: interest.fd, generation, events: interest.events }
+        *member = if active {
+            Member { fd: interest.fd, generation, events: interest.events, until: interest.until, pending }
         } else {
-            Member { fd: -1, generation, events: 0 }
+            Member { fd: -1, generation, events: 0, until: interest.until, pending }
         };
-        *member = want;
     }
+    let list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
+    let due: Due = list.iter().filter(|(_, mb)| mb.until.is_some()).map(|(k, mb)| (*k, mb.until)).collect();
+    let earliest = due.iter().filter_map(|(_, u)| *u).min();
     Ok((earliest, due))
 }
