@@ -1,7 +1,5 @@
 # shellcheck shell=bash
-# Shared helpers of the test scripts: examples.sh, package.sh and
-# man.sh, and the suites client.sh, server.sh,
-# extended.sh, interop.sh and threads.sh.
+# Shared helpers of the test suites (c-tests/suites/*.sh, run by c-tests/run).
 # Source it; it defines:
 #
 # Counting: passed, failed, and FAILED (what failed, for a closing list)
