@@ -244,6 +244,23 @@ pub fn trace_sent(bytes: &[u8]) {
     crate::stdio::out(format_args!("{line}"));
 }
 
+/// The debug trace of a message received: each byte as `<XX>`, and a new line when
+/// its framing ended (nothing when there is neither).
+pub fn trace_received(bytes: &[u8], ended: bool) {
+    if bytes.is_empty() && !ended {
+        return;
+    }
+    use std::fmt::Write as _;
+    let mut trace = String::with_capacity(bytes.len() * 4 + 1);
+    for b in bytes {
+        let _ = write!(trace, "<{b:02X}>");
+    }
+    if ended {
+        trace.push('\n');
+    }
+    crate::stdio::out(format_args!("{trace}"));
+}
+
 /// A send whose first write did not take the whole frame: a short write is
 /// EMBBADDATA; an error is printed and, under LINK recovery, the line is reopened
 /// (or flushed) and the write tried again until it goes out. Returns `len`, the
@@ -494,16 +511,8 @@ fn finish(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
 /// [`finish`] with something to print or to recover from.
 #[inline(never)]
 fn finish_reporting(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
-    if ctx.debug && (f.traced > 0 || f.ended) {
-        use std::fmt::Write as _;
-        let mut trace = String::with_capacity(f.traced * 4 + 1);
-        for b in &buf[..f.traced] {
-            let _ = write!(trace, "<{b:02X}>");
-        }
-        if f.ended {
-            trace.push('\n');
-        }
-        crate::stdio::out(format_args!("{trace}"));
+    if ctx.debug {
+        trace_received(&buf[..f.traced], f.ended);
     }
     let mut diag = ctx.diag();
     let result = match f.outcome {

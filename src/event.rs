@@ -476,14 +476,8 @@ fn answered(g: &mut Guard<'_>, o: &mut Outstanding, rsp: &[u8]) {
 
 /// Writes the message of a receive that ended, and acts on its outcome.
 fn finish(g: &mut Guard<'_>, o: &mut Outstanding, f: Finished, msg: &[u8]) {
-    if g.debug && f.traced > 0 {
-        use std::fmt::Write as _;
-        let mut trace = String::with_capacity(f.traced * 4 + 1);
-        for b in &msg[..f.traced] {
-            let _ = write!(trace, "<{b:02X}>");
-        }
-        trace.push('\n');
-        crate::stdio::out(format_args!("{trace}"));
+    if g.debug {
+        engine::trace_received(&msg[..f.traced], f.ended);
     }
     match f.outcome {
         Outcome::Frame(len) => answered(g, o, &msg[..len]),

@@ -13,12 +13,52 @@ use crate::proto::frame::{MAX_ADU_LENGTH, MsgKind};
 use crate::proto::limits::{MAX_PDU_LENGTH, MAX_READ_BITS, MAX_READ_REGISTERS};
 use crate::proto::request::{Request, check_read_count, check_write_and_read_counts, check_write_count};
 
-/// Sends a read of bits and unpacks `nb` of them into `dest`, LSB first.
-fn read_bits(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut u8) -> Result<c_int> {
+/// The request of a read of bits (FC 01, 02), its count checked as libmodbus checks it:
+/// the blocking call's and its `_async` form's.
+pub fn read_bits_request(g: &Guard<'_>, function: u8, addr: c_int, nb: c_int) -> Result<Request<'static>> {
     let what = if function == fc::READ_COILS { "bits" } else { "discrete inputs" };
     check_read_count(nb, MAX_READ_BITS, what, &mut g.diag())?;
+    Ok(Request::ReadBits { function, addr, nb })
+}
+
+/// The request of a read of registers (FC 03, 04), its count checked (see
+/// [`read_bits_request`]).
+pub fn read_registers_request(g: &Guard<'_>, function: u8, addr: c_int, nb: c_int) -> Result<Request<'static>> {
+    let what = if function == fc::READ_HOLDING_REGISTERS { "registers" } else { "input registers" };
+    check_read_count(nb, MAX_READ_REGISTERS, what, &mut g.diag())?;
+    Ok(Request::ReadRegisters { function, addr, nb })
+}
+
+/// The request of a write of `nb` coils from `src` (FC 0F), its count checked.
+///
+/// # Safety
+/// `src` is non-NULL and valid for `nb` bytes for `'a` (when the count is valid).
+pub unsafe fn write_bits_request<'a>(g: &Guard<'_>, addr: c_int, nb: c_int, src: *const u8) -> Result<Request<'a>> {
+    check_write_count(fc::WRITE_MULTIPLE_COILS, nb, &mut g.diag())?;
+    // SAFETY: `src` holds `nb` (1..=1968, checked) bytes per the contract.
+    Ok(Request::WriteBits { addr, bits: unsafe { slice::from_raw_parts(src, nb as usize) } })
+}
+
+/// The request of a write of `nb` registers from `src` (FC 10), its count checked.
+///
+/// # Safety
+/// `src` is non-NULL and valid for `nb` values for `'a` (when the count is valid).
+pub unsafe fn write_registers_request<'a>(
+    g: &Guard<'_>,
+    addr: c_int,
+    nb: c_int,
+    src: *const u16,
+) -> Result<Request<'a>> {
+    check_write_count(fc::WRITE_MULTIPLE_REGISTERS, nb, &mut g.diag())?;
+    // SAFETY: `src` holds `nb` (1..=123, checked) values per the contract.
+    Ok(Request::WriteRegisters { addr, values: unsafe { slice::from_raw_parts(src, nb as usize) } })
+}
+
+/// Sends a read of bits and unpacks `nb` of them into `dest`, LSB first.
+fn read_bits(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut u8) -> Result<c_int> {
+    let req = read_bits_request(g, function, addr, nb)?;
     let mut rsp = g.spare.take();
-    let done = engine::exchange(g, &Request::ReadBits { function, addr, nb }, &mut rsp);
+    let done = engine::exchange(g, &req, &mut rsp);
     if let Ok(done) = &done {
         let h = g.framing().header_length();
         let packed = crate::proto::decode::counted_data(&rsp[h..], done.count as usize);
@@ -32,10 +72,9 @@ fn read_bits(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut
 
 /// Sends a read of registers and stores the values (host order) into `dest`.
 fn read_registers(g: &mut Guard<'_>, function: u8, addr: c_int, nb: c_int, dest: *mut u16) -> Result<c_int> {
-    let what = if function == fc::READ_HOLDING_REGISTERS { "registers" } else { "input registers" };
-    check_read_count(nb, MAX_READ_REGISTERS, what, &mut g.diag())?;
+    let req = read_registers_request(g, function, addr, nb)?;
     let mut rsp = g.spare.take();
-    let done = engine::exchange(g, &Request::ReadRegisters { function, addr, nb }, &mut rsp);
+    let done = engine::exchange(g, &req, &mut rsp);
     if let Ok(done) = &done {
         store_registers(g, &rsp, done.count, dest);
     }
@@ -152,10 +191,9 @@ pub unsafe extern "C" fn modbus_write_bits(ctx: *mut Modbus, addr: c_int, nb: c_
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            check_write_count(fc::WRITE_MULTIPLE_COILS, nb, &mut g.diag())?;
-            // SAFETY: `data` is non-NULL and holds `nb` (1..=1968) bytes per the contract.
-            let bits = slice::from_raw_parts(data, nb as usize);
-            exchange_count(g, &Request::WriteBits { addr, bits })
+            // SAFETY: `data` is non-NULL and holds `nb` bytes per the contract.
+            let req = write_bits_request(g, addr, nb, data)?;
+            exchange_count(g, &req)
         })
     }
 }
@@ -173,10 +211,9 @@ pub unsafe extern "C" fn modbus_write_registers(ctx: *mut Modbus, addr: c_int, n
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            check_write_count(fc::WRITE_MULTIPLE_REGISTERS, nb, &mut g.diag())?;
-            // SAFETY: `data` is non-NULL and holds `nb` (1..=123) values per the contract.
-            let values = slice::from_raw_parts(data, nb as usize);
-            exchange_count(g, &Request::WriteRegisters { addr, values })
+            // SAFETY: `data` is non-NULL and holds `nb` values per the contract.
+            let req = write_registers_request(g, addr, nb, data)?;
+            exchange_count(g, &req)
         })
     }
 }

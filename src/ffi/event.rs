@@ -12,12 +12,12 @@ use std::slice;
 use crate::engine::Guard;
 use crate::error::{Error, Result};
 use crate::event;
+use crate::ffi::client::{read_bits_request, read_registers_request, write_bits_request, write_registers_request};
 use crate::ffi::{Modbus, fail, with_ctx};
 use crate::outstanding::{Completion, Deliver, Done, RawCallback};
 use crate::proto::data::{registers_from_be, set_bits_from_bytes};
 use crate::proto::fc;
-use crate::proto::limits::{MAX_READ_BITS, MAX_READ_REGISTERS};
-use crate::proto::request::{Request, check_read_count, check_write_count};
+use crate::proto::request::Request;
 
 /// `modbus_callback_t`: called once per request, from `modbus_process` (or
 /// `modbus_cancel`, `modbus_close`, `modbus_free`) on the calling thread. `rc` is
@@ -185,14 +185,8 @@ unsafe fn read_bits(
     if dest.is_null() {
         return fail(Error::INVALID);
     }
-    let what = if function == fc::READ_COILS { "bits" } else { "discrete inputs" };
     // SAFETY: forwarded caller contract.
-    unsafe {
-        submit(ctx, cb, user_data, Deliver::Bits { dest, nb }, |g| {
-            check_read_count(nb, MAX_READ_BITS, what, &mut g.diag())?;
-            Ok(Request::ReadBits { function, addr, nb })
-        })
-    }
+    unsafe { submit(ctx, cb, user_data, Deliver::Bits { dest, nb }, |g| read_bits_request(g, function, addr, nb)) }
 }
 
 /// Reads `nb` holding registers (FC 03) into `dest`, without waiting: `rc` is the
@@ -245,13 +239,9 @@ unsafe fn read_registers(
     if dest.is_null() {
         return fail(Error::INVALID);
     }
-    let what = if function == fc::READ_HOLDING_REGISTERS { "registers" } else { "input registers" };
     // SAFETY: forwarded caller contract.
     unsafe {
-        submit(ctx, cb, user_data, Deliver::Registers { dest }, |g| {
-            check_read_count(nb, MAX_READ_REGISTERS, what, &mut g.diag())?;
-            Ok(Request::ReadRegisters { function, addr, nb })
-        })
+        submit(ctx, cb, user_data, Deliver::Registers { dest }, |g| read_registers_request(g, function, addr, nb))
     }
 }
 
@@ -306,11 +296,8 @@ pub unsafe extern "C" fn modbus_write_bits_async(
     }
     // SAFETY: forwarded caller contract.
     unsafe {
-        submit(ctx, cb, user_data, Deliver::Count, |g| {
-            check_write_count(fc::WRITE_MULTIPLE_COILS, nb, &mut g.diag())?;
-            // SAFETY: `src` is non-NULL and holds `nb` (checked) bytes.
-            Ok(Request::WriteBits { addr, bits: slice::from_raw_parts(src, nb as usize) })
-        })
+        // SAFETY: `src` is non-NULL and holds `nb` bytes (contract).
+        submit(ctx, cb, user_data, Deliver::Count, |g| write_bits_request(g, addr, nb, src))
     }
 }
 
@@ -333,11 +320,8 @@ pub unsafe extern "C" fn modbus_write_registers_async(
     }
     // SAFETY: forwarded caller contract.
     unsafe {
-        submit(ctx, cb, user_data, Deliver::Count, |g| {
-            check_write_count(fc::WRITE_MULTIPLE_REGISTERS, nb, &mut g.diag())?;
-            // SAFETY: `src` is non-NULL and holds `nb` (checked) values.
-            Ok(Request::WriteRegisters { addr, values: slice::from_raw_parts(src, nb as usize) })
-        })
+        // SAFETY: `src` is non-NULL and holds `nb` values (contract).
+        submit(ctx, cb, user_data, Deliver::Count, |g| write_registers_request(g, addr, nb, src))
     }
 }
 
@@ -499,48 +483,44 @@ pub unsafe extern "C" fn modbus_set_max_in_flight(ctx: *mut Modbus, n: c_int) ->
     unsafe { with_ctx(ctx, |g| event::set_max_in_flight(g, n).map(|()| 0)) }
 }
 
-/// The free of a context of the event-driven client: it leaves its multi handle, and
-/// what is pending completes with ECANCELED, each callback run before the free returns.
-/// Nothing waits: when a call holds the context (another thread's blocking call, which
-/// cannot run with requests pending; a call a signal handler interrupted), there is
-/// nothing to do here. Nothing to
-/// do from a signal handler that interrupted a call on the context (the lock is that
-/// call's).
+/// What a close or free leaves of the event-driven client's requests: each completes
+/// (ECANCELED), its callback run before the close or free returns; a free also takes
+/// the context out of its multi handle and cancels first. Nothing waits: when a call
+/// holds the context (another thread's blocking call, which cannot run with requests
+/// pending; a call a signal handler interrupted), there is nothing to do here.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
-pub unsafe fn cancel_pending(ctx: *mut Modbus) {
-    if ctx.is_null() {
-        return;
-    }
-    // SAFETY: forwarded caller contract.
+unsafe fn complete_on_close(ctx: *mut Modbus, freeing: bool) {
+    // SAFETY: forwarded caller contract (`try_call` takes NULL).
     unsafe {
         crate::handle::try_call(ctx, |g| {
-            if let Some(o) = g.outstanding.as_deref_mut() {
+            let Some(o) = g.outstanding.as_deref_mut() else { return };
+            if freeing {
                 if let Some((members, key)) = o.multi.take() {
                     members.remove(key);
                 }
                 event::cancel_all(g);
-                fire(ctx, g);
             }
+            fire(ctx, g);
         });
     }
 }
 
-/// After a close: the callbacks of what it cancelled.
+/// `modbus_free`: see [`complete_on_close`].
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+pub unsafe fn cancel_pending(ctx: *mut Modbus) {
+    // SAFETY: forwarded caller contract.
+    unsafe { complete_on_close(ctx, true) }
+}
+
+/// After `modbus_close` (whose close completed what was pending): the callbacks.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 pub unsafe fn fire_cancelled(ctx: *mut Modbus) {
-    if ctx.is_null() {
-        return;
-    }
     // SAFETY: forwarded caller contract.
-    unsafe {
-        crate::handle::try_call(ctx, |g| {
-            if g.outstanding.is_some() {
-                fire(ctx, g);
-            }
-        });
-    }
+    unsafe { complete_on_close(ctx, false) }
 }

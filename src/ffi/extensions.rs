@@ -55,6 +55,32 @@ unsafe fn dec_exception_status(pdu: &[u8], _: c_int, args: &DecodeArgs) -> c_int
     1
 }
 
+/// The request of `modbus_diagnostics[_async]`, or `None` (EINVAL) for a
+/// sub-function outside 16 bits, more than the data words a request holds, or a NULL
+/// buffer with a count.
+///
+/// # Safety
+/// `data` is valid for `nb` values for `'a` (when not NULL).
+unsafe fn diagnostics_request<'a>(
+    sub_function: c_int,
+    data: *const u16,
+    nb: c_int,
+    dest: *mut u16,
+    max_dest: c_int,
+) -> Option<Request<'a>> {
+    if !(0..=0xFFFF).contains(&sub_function)
+        || !(0..=MAX_DIAGNOSTICS_WORDS).contains(&nb)
+        || (nb > 0 && data.is_null())
+        || max_dest < 0
+        || (max_dest > 0 && dest.is_null())
+    {
+        return None;
+    }
+    // SAFETY: `data` is non-NULL and holds `nb` values when `nb` > 0 (contract).
+    let data = if nb > 0 { unsafe { slice::from_raw_parts(data, nb as usize) } } else { &[] };
+    Some(Request::Diagnostics { sub_function: sub_function as u16, data })
+}
+
 /// FC 08: up to `args[1]` data words to `args[0]`. Returns the words the answer has.
 ///
 /// # Safety
@@ -80,6 +106,16 @@ unsafe fn dec_comm_event_counter(pdu: &[u8], _: c_int, args: &DecodeArgs) -> c_i
         }
     }
     1
+}
+
+/// FC 0C's buffer: `max_events` >= 0, and a buffer when it is > 0.
+fn events_room_ok(events: *mut u8, max_events: c_int) -> bool {
+    max_events >= 0 && (max_events == 0 || !events.is_null())
+}
+
+/// FC 18's arguments: a pointer address of 16 bits and a buffer.
+fn fifo_args_ok(addr: c_int, dest: *mut u16) -> bool {
+    !dest.is_null() && (0..=0xFFFF).contains(&addr)
 }
 
 /// The arguments of FC 0C's decoder.
@@ -170,19 +206,13 @@ pub unsafe extern "C" fn modbus_diagnostics(
     dest: *mut u16,
     max_dest: c_int,
 ) -> c_int {
-    if !(0..=0xFFFF).contains(&sub_function)
-        || !(0..=MAX_DIAGNOSTICS_WORDS).contains(&nb)
-        || (nb > 0 && data.is_null())
-        || max_dest < 0
-        || (max_dest > 0 && dest.is_null())
-    {
+    // SAFETY: forwarded caller contract.
+    let Some(req) = (unsafe { diagnostics_request(sub_function, data, nb, dest, max_dest) }) else {
         return fail(Error::INVALID);
-    }
-    // SAFETY: forwarded caller contract, pointers checked against their counts.
+    };
+    // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let data = if nb > 0 { slice::from_raw_parts(data, nb as usize) } else { &[] };
-            let req = Request::Diagnostics { sub_function: sub_function as u16, data };
             if sub_function == 4 {
                 let mut out: AduBuf = [0; MAX_ADU_LENGTH];
                 let n = engine::build_request(g, &req, &mut out);
@@ -231,7 +261,7 @@ pub unsafe extern "C" fn modbus_get_comm_event_log(
     events: *mut u8,
     max_events: c_int,
 ) -> c_int {
-    if max_events < 0 || (max_events > 0 && events.is_null()) {
+    if !events_room_ok(events, max_events) {
         return fail(Error::INVALID);
     }
     // SAFETY: forwarded caller contract.
@@ -311,7 +341,7 @@ pub unsafe extern "C" fn modbus_write_file_record(
 /// `ctx` must be NULL or a live context; `dest` valid for 31 values.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_read_fifo_queue(ctx: *mut Modbus, addr: c_int, dest: *mut u16) -> c_int {
-    if dest.is_null() || !(0..=0xFFFF).contains(&addr) {
+    if !fifo_args_ok(addr, dest) {
         return fail(Error::INVALID);
     }
     // SAFETY: forwarded caller contract.
@@ -458,22 +488,13 @@ pub unsafe extern "C" fn modbus_diagnostics_async(
     cb: Callback,
     user_data: *mut c_void,
 ) -> c_int {
-    if !(0..=0xFFFF).contains(&sub_function)
-        || !(0..=MAX_DIAGNOSTICS_WORDS).contains(&nb)
-        || (nb > 0 && data.is_null())
-        || max_dest < 0
-        || (max_dest > 0 && dest.is_null())
-    {
+    // SAFETY: forwarded caller contract.
+    let Some(req) = (unsafe { diagnostics_request(sub_function, data, nb, dest, max_dest) }) else {
         return fail(Error::INVALID);
-    }
+    };
     let deliver = Deliver::Decode { decode: dec_diagnostics, args: [dest as usize, max_dest as usize, 0, 0, 0, 0] };
-    // SAFETY: forwarded caller contract; `data` holds `nb` values (checked non-NULL).
-    unsafe {
-        let data = if nb > 0 { slice::from_raw_parts(data, nb as usize) } else { &[] };
-        submit_expecting(ctx, cb, user_data, deliver, sub_function != 4, |_| {
-            Ok(Request::Diagnostics { sub_function: sub_function as u16, data })
-        })
-    }
+    // SAFETY: forwarded caller contract.
+    unsafe { submit_expecting(ctx, cb, user_data, deliver, sub_function != 4, |_| Ok(req)) }
 }
 
 /// `modbus_get_comm_event_counter` without waiting (FC 0B): `rc` 1.
@@ -512,7 +533,7 @@ pub unsafe extern "C" fn modbus_get_comm_event_log_async(
     cb: Callback,
     user_data: *mut c_void,
 ) -> c_int {
-    if max_events < 0 || (max_events > 0 && events.is_null()) {
+    if !events_room_ok(events, max_events) {
         return fail(Error::INVALID);
     }
     let args = event_log_args(status, event_count, message_count, events, max_events);
@@ -590,7 +611,7 @@ pub unsafe extern "C" fn modbus_read_fifo_queue_async(
     cb: Callback,
     user_data: *mut c_void,
 ) -> c_int {
-    if dest.is_null() || !(0..=0xFFFF).contains(&addr) {
+    if !fifo_args_ok(addr, dest) {
         return fail(Error::INVALID);
     }
     let deliver = Deliver::Decode { decode: dec_fifo, args: [dest as usize, 0, 0, 0, 0, 0] };

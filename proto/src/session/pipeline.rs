@@ -37,8 +37,8 @@ pub const TURNAROUND: Duration = Duration::from_millis(100);
 /// A request and its state.
 pub struct Entry<T> {
     pub id: i32,
-    /// The sealed ADU as it goes on the wire (ASCII: its characters); the response
-    /// checks compare the answer with [`Entry::adu`].
+    /// What goes on the wire when it is not the ADU itself (ASCII: its characters);
+    /// empty otherwise. The response checks compare the answer with [`Entry::adu`].
     wire: Vec<u8>,
     /// The sealed ADU (binary, for the response checks).
     adu: Vec<u8>,
@@ -54,6 +54,11 @@ impl<T> Entry<T> {
     /// The request's ADU (sealed, binary).
     pub fn adu(&self) -> &[u8] {
         &self.adu
+    }
+
+    /// The bytes that go on the wire.
+    fn wire(&self) -> &[u8] {
+        if self.wire.is_empty() { &self.adu } else { &self.wire }
     }
 }
 
@@ -146,8 +151,15 @@ impl<T> Pipeline<T> {
         }
         let id = self.next_id;
         self.next_id = if self.next_id == i32::MAX { 0 } else { self.next_id + 1 };
-        let wire = if wire.is_empty() { adu.to_vec() } else { wire.to_vec() };
-        self.queue.push_back(Entry { id, wire, adu: adu.to_vec(), tid, broadcast, deadline: None, payload });
+        self.queue.push_back(Entry {
+            id,
+            wire: wire.to_vec(),
+            adu: adu.to_vec(),
+            tid,
+            broadcast,
+            deadline: None,
+            payload,
+        });
         Some(id)
     }
 
@@ -159,7 +171,7 @@ impl<T> Pipeline<T> {
         let mut moved = 0;
         while self.in_flight.len() < self.max_in_flight() && !self.in_flight.iter().any(|e| e.broadcast) {
             let Some(mut e) = self.queue.pop_front() else { break };
-            self.out.extend_from_slice(&e.wire);
+            self.out.extend_from_slice(e.wire());
             e.deadline = Some(now + if e.broadcast { TURNAROUND } else { response });
             // A transaction id used again: its old request's late answer can no
             // longer be told apart; this request's answer wins.
