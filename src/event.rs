@@ -115,7 +115,7 @@ pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
         // Nothing to receive for any more (a late answer is dropped by its id).
         o.receiving = None;
     }
-    o.done.push_back(Done { id: e.id, completion: e.payload, result: Err(libc::ECANCELED), data: Vec::new() });
+    o.complete(Done { id: e.id, completion: e.payload, result: Err(libc::ECANCELED), data: Vec::new() });
     Ok(())
 }
 
@@ -343,6 +343,11 @@ fn lost(g: &mut Guard<'_>, o: &mut Outstanding, e: Error) {
 /// Drives the receive under way (or a new one) until it ends (`Some`) or must wait.
 fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Option<Finished> {
     if o.receiving.is_none() {
+        if !*readable && g.line.pending() == 0 && g.rx.available().is_empty() {
+            // Nothing of the answer yet: the receive starts when it comes (its
+            // deadline is the pipeline's meanwhile).
+            return None;
+        }
         let now = transport::now();
         let deadline = o.pipeline.answer_deadline().unwrap_or(now);
         let mut s = g.session;
@@ -359,10 +364,12 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
         s.read_ahead = true;
         let left = deadline.saturating_sub(now).max(Duration::from_micros(1));
         s.timeouts.response = Timeout::new(left.as_secs() as u32, left.subsec_micros().max(1));
-        let mut msg = Box::new([0u8; MAX_ADU_LENGTH]);
-        let mut machine = Receiver::new(&s, || now);
-        let step = machine.start(&s, &mut msg[..], &mut g.rx, || now);
-        o.receiving = Some(Receiving { machine, settings: s, step, msg });
+        let machine = Receiver::new(&s, || now);
+        let mut r =
+            Box::new(Receiving { machine, settings: s, step: Step::Wait { until: None }, msg: [0; MAX_ADU_LENGTH] });
+        let started = &mut *r;
+        started.step = started.machine.start(&s, &mut started.msg[..], &mut g.rx, || now);
+        o.receiving = Some(r);
     }
     let r = o.receiving.as_mut().expect("made above");
     let ctx: &mut Context = g;
@@ -382,7 +389,7 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
 
 /// Completes `e` with `result` and the answer's data.
 fn push(o: &mut Outstanding, e: Entry<Completion>, result: std::result::Result<i32, i32>, data: Vec<u8>) {
-    o.done.push_back(Done { id: e.id, completion: e.payload, result, data });
+    o.complete(Done { id: e.id, completion: e.payload, result, data });
 }
 
 /// A broadcast is out: it completes as its write would (the count it wrote).

@@ -73,13 +73,15 @@ pub struct Receiving {
     /// The settings it runs with (the context's, with this receive's time limit).
     pub settings: Settings,
     pub step: Step,
-    pub msg: Box<[u8; MAX_ADU_LENGTH]>,
+    pub msg: [u8; MAX_ADU_LENGTH],
 }
 
 /// The event-driven client's state of one context.
 pub struct Outstanding {
     pub pipeline: Pipeline<Completion>,
-    pub receiving: Option<Receiving>,
+    /// Made when the answer's first bytes are there, dropped when it ends: a context
+    /// waiting for its answer holds no receive buffer.
+    pub receiving: Option<Box<Receiving>>,
     pub done: VecDeque<Done>,
     /// When the connect under way gives up (the response timeout from its start;
     /// again for a TLS handshake that follows).
@@ -164,7 +166,17 @@ impl Outstanding {
         self.connect_until = None;
         self.quiet_until = None;
         for e in self.pipeline.drain() {
-            self.done.push_back(Done { id: e.id, completion: e.payload, result: Err(errno), data: Vec::new() });
+            self.complete(Done { id: e.id, completion: e.payload, result: Err(errno), data: Vec::new() });
         }
+    }
+
+    /// Queues a completed request for its callback. The queue grows one entry at a
+    /// time at first (a deque's first growth makes room for four): a context polled
+    /// with one request at a time holds room for one.
+    pub fn complete(&mut self, done: Done) {
+        if self.done.len() == self.done.capacity() && self.done.capacity() < 2 {
+            self.done.reserve_exact(1);
+        }
+        self.done.push_back(done);
     }
 }

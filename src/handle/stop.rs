@@ -9,10 +9,14 @@
 //!   every wait and every error path of a call ends with EBADF at once;
 //! - `closed_by_handler`: a signal handler closed the descriptor under an interrupted
 //!   call of its thread, which finishes the close when it unwinds;
-//! - a wake-up descriptor (an eventfd, made with the context and closed by
-//!   `modbus_free`) that the waits on a serial line, the sleeps and
+//! - a wake-up descriptor (an eventfd, made by the first wait that watches it and
+//!   closed by `modbus_free`) that the waits on a serial line, the sleeps and
 //!   `modbus_tcp_accept` poll beside their own descriptor: a socket is woken by
-//!   shutting it down, a serial line has no such thing;
+//!   shutting it down, a serial line has no such thing. Made on first use, so that a
+//!   context that never waits that way (a client of the event-driven API, a TCP
+//!   client without error recovery) holds one descriptor, not two; a stopper that
+//!   finds none made has no waiter to wake, since a waiter makes it before it
+//!   looks at the stop state;
 //! - a copy of the serial line's saved settings, for a handler to restore them.
 //!
 //! Everything a signal handler does here is async-signal-safe: atomics and system
@@ -22,6 +26,9 @@
 
 use std::cell::UnsafeCell;
 use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering::SeqCst};
+
+/// [`Stop::wake`] before a wait made it.
+const UNMADE: i32 = -2;
 
 /// The stop state of one context (see the module documentation).
 pub struct Stop {
@@ -60,8 +67,7 @@ impl Default for Stop {
             handled: AtomicI32::new(-1),
             closes: AtomicU32::new(0),
             accepting: AtomicU32::new(0),
-            // SAFETY: plain system call with integer arguments (-1 on failure).
-            wake: AtomicI32::new(unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) }),
+            wake: AtomicI32::new(UNMADE),
             // SAFETY: all-zero is a valid termios.
             line: UnsafeCell::new(unsafe { std::mem::zeroed() }),
             line_saved: AtomicBool::new(false),
@@ -111,11 +117,30 @@ impl Stop {
         self.line_saved.store(false, SeqCst);
     }
 
-    /// The wake-up descriptor (-1 if the kernel refused one at creation: the waits on
-    /// a serial line then notice a stop only when they end).
+    /// The wake-up descriptor, made now if no wait made it yet (-1 if the kernel
+    /// refused one: the waits on a serial line then notice a stop only when they
+    /// end). A waiter calls this before it looks at the stop state (see the module
+    /// documentation).
     #[inline]
     pub fn wake_fd(&self) -> i32 {
-        self.wake.load(SeqCst)
+        let fd = self.wake.load(SeqCst);
+        if fd != UNMADE {
+            return fd;
+        }
+        // SAFETY: plain system call with integer arguments (-1 on failure).
+        let fresh = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
+        if fresh < 0 {
+            return -1;
+        }
+        match self.wake.compare_exchange(UNMADE, fresh, SeqCst, SeqCst) {
+            Ok(_) => fresh,
+            Err(other) => {
+                // Another thread made one first.
+                // SAFETY: the descriptor made above, not shared.
+                unsafe { libc::close(fresh) };
+                other
+            }
+        }
     }
 
     /// Empties the wake-up descriptor after a wake that was not a stop.
@@ -201,6 +226,9 @@ impl Stop {
         self.stoppers.store(0, SeqCst);
         self.shutting.store(0, SeqCst);
         self.accepting.store(0, SeqCst);
+        if self.wake.load(SeqCst) == UNMADE {
+            return;
+        }
         // SAFETY: plain system calls with integer arguments.
         let fresh = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
         if fresh >= 0 {

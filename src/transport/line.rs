@@ -280,8 +280,8 @@ impl Line {
             Link::Rtu(link) => {
                 let fd = rtu::open(link, diag)?;
                 let configured = rtu::configure(fd, link, diag);
-                if let Some(saved) = link.saved_termios {
-                    self.stop.save_line(&saved);
+                if let Some(saved) = link.saved_termios.as_deref() {
+                    self.stop.save_line(saved);
                 }
                 if let Err(e) = configured {
                     super::close(fd);
@@ -488,7 +488,7 @@ impl Line {
         }
         if let Link::Rtu(link) = &self.settings {
             self.stop.forget_line();
-            let saved = link.saved_termios;
+            let saved = link.saved_termios.as_deref().copied();
             let fd = self.abandon();
             rtu::close_line(fd, saved);
         } else {

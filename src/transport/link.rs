@@ -23,8 +23,9 @@ pub struct RtuLink {
     pub parity: u8,
     pub data_bit: i32,
     pub stop_bit: i32,
-    /// Terminal settings found at connect, restored at close.
-    pub saved_termios: Option<libc::termios>,
+    /// Terminal settings found at connect, restored at close (boxed: a TCP context
+    /// does not carry their room).
+    pub saved_termios: Option<Box<libc::termios>>,
     pub serial_mode: i32,
     pub rts: i32,
     pub rts_delay: i32,

@@ -111,7 +111,7 @@ pub fn configure(fd: i32, link: &mut RtuLink, diag: &mut dyn Diag) -> Result<()>
     let mut saved: libc::termios = unsafe { zeroed() };
     // SAFETY: `saved` is a live termios.
     unsafe { libc::tcgetattr(fd, &mut saved) };
-    link.saved_termios = Some(saved);
+    link.saved_termios = Some(Box::new(saved));
     let speed = speed_for(link.baud).unwrap_or_else(|| {
         diag.err(format_args!("WARNING Unknown baud rate {} (B9600 used)\n", link.baud));
         libc::B9600

@@ -37,11 +37,11 @@ pub const TURNAROUND: Duration = Duration::from_millis(100);
 /// A request and its state.
 pub struct Entry<T> {
     pub id: i32,
-    /// What goes on the wire when it is not the ADU itself (ASCII: its characters);
-    /// empty otherwise. The response checks compare the answer with [`Entry::adu`].
-    wire: Vec<u8>,
-    /// The sealed ADU (binary, for the response checks).
-    adu: Vec<u8>,
+    /// The sealed ADU (binary, for the response checks), followed by what goes on
+    /// the wire when it is not the ADU itself (ASCII: its characters); one
+    /// allocation per request.
+    bytes: Box<[u8]>,
+    adu_len: u16,
     /// The transaction id (TCP).
     pub tid: u16,
     pub broadcast: bool,
@@ -53,12 +53,13 @@ pub struct Entry<T> {
 impl<T> Entry<T> {
     /// The request's ADU (sealed, binary).
     pub fn adu(&self) -> &[u8] {
-        &self.adu
+        &self.bytes[..usize::from(self.adu_len)]
     }
 
     /// The bytes that go on the wire.
     fn wire(&self) -> &[u8] {
-        if self.wire.is_empty() { &self.adu } else { &self.wire }
+        let n = usize::from(self.adu_len);
+        if self.bytes.len() > n { &self.bytes[n..] } else { &self.bytes[..n] }
     }
 }
 
@@ -88,8 +89,11 @@ pub enum Answer<T> {
 /// The requests of one context.
 pub struct Pipeline<T> {
     framing: Framing,
-    queue: VecDeque<Entry<T>>,
-    in_flight: VecDeque<Entry<T>>,
+    /// The requests in flight (the first `sent`, in the order they went out), then
+    /// the queue. One deque, grown one entry at a time at first: a context polled
+    /// with one request at a time holds room for one.
+    entries: VecDeque<Entry<T>>,
+    sent: usize,
     max_in_flight: usize,
     /// The bytes of the requests that went in flight and are not written yet.
     out: Vec<u8>,
@@ -102,8 +106,8 @@ impl<T> Pipeline<T> {
     pub fn new(framing: Framing) -> Self {
         Pipeline {
             framing,
-            queue: VecDeque::new(),
-            in_flight: VecDeque::new(),
+            entries: VecDeque::new(),
+            sent: 0,
             max_in_flight: 1,
             out: Vec::new(),
             gone: VecDeque::new(),
@@ -131,15 +135,28 @@ impl<T> Pipeline<T> {
 
     /// Queued plus in flight.
     pub fn pending(&self) -> usize {
-        self.queue.len() + self.in_flight.len()
+        self.entries.len()
     }
 
     pub fn in_flight(&self) -> usize {
-        self.in_flight.len()
+        self.sent
     }
 
     pub fn is_empty(&self) -> bool {
-        self.queue.is_empty() && self.in_flight.is_empty()
+        self.entries.is_empty()
+    }
+
+    /// The requests in flight, in the order they went out.
+    fn on_wire(&self) -> impl Iterator<Item = &Entry<T>> + '_ {
+        self.entries.range(..self.sent)
+    }
+
+    /// Takes the request at `i` out (in flight when `i < sent`).
+    fn take(&mut self, i: usize) -> Entry<T> {
+        if i < self.sent {
+            self.sent -= 1;
+        }
+        self.entries.remove(i).expect("index checked")
     }
 
     /// Queues a request: `adu` sealed (binary), `wire` what goes on the line (the
@@ -151,10 +168,18 @@ impl<T> Pipeline<T> {
         }
         let id = self.next_id;
         self.next_id = if self.next_id == i32::MAX { 0 } else { self.next_id + 1 };
-        self.queue.push_back(Entry {
+        let mut bytes = Vec::with_capacity(adu.len() + wire.len());
+        bytes.extend_from_slice(adu);
+        bytes.extend_from_slice(wire);
+        if self.entries.len() == self.entries.capacity() && self.entries.capacity() < 2 {
+            // Room for one more only, while there are few (a deque's first growth
+            // makes room for four).
+            self.entries.reserve_exact(1);
+        }
+        self.entries.push_back(Entry {
             id,
-            wire: wire.to_vec(),
-            adu: adu.to_vec(),
+            bytes: bytes.into_boxed_slice(),
+            adu_len: adu.len() as u16,
             tid,
             broadcast,
             deadline: None,
@@ -169,16 +194,18 @@ impl<T> Pipeline<T> {
     /// `response` is the response timeout, counted from `now`. Returns how many went.
     pub fn fill(&mut self, now: Duration, response: Duration) -> usize {
         let mut moved = 0;
-        while self.in_flight.len() < self.max_in_flight() && !self.in_flight.iter().any(|e| e.broadcast) {
-            let Some(mut e) = self.queue.pop_front() else { break };
+        while self.sent < self.entries.len() && self.sent < self.max_in_flight() && !self.on_wire().any(|e| e.broadcast)
+        {
+            let e = &mut self.entries[self.sent];
             self.out.extend_from_slice(e.wire());
             e.deadline = Some(now + if e.broadcast { TURNAROUND } else { response });
+            let tid = e.tid;
             // A transaction id used again: its old request's late answer can no
             // longer be told apart; this request's answer wins.
             if self.framing == Framing::Tcp {
-                self.gone.retain(|&t| t != e.tid);
+                self.gone.retain(|&t| t != tid);
             }
-            self.in_flight.push_back(e);
+            self.sent += 1;
             moved += 1;
         }
         moved
@@ -197,23 +224,23 @@ impl<T> Pipeline<T> {
     /// The earliest time something is due: an answer's deadline or the end of a
     /// broadcast's turnaround.
     pub fn deadline(&self) -> Option<Duration> {
-        self.in_flight.iter().filter_map(|e| e.deadline).min()
+        self.on_wire().filter_map(|e| e.deadline).min()
     }
 
     /// The earliest deadline of a request that waits for an answer (a receive's
     /// time limit).
     pub fn answer_deadline(&self) -> Option<Duration> {
-        self.in_flight.iter().filter(|e| !e.broadcast).filter_map(|e| e.deadline).min()
+        self.on_wire().filter(|e| !e.broadcast).filter_map(|e| e.deadline).min()
     }
 
     /// The oldest request in flight that expects an answer.
     pub fn first_awaiting(&self) -> Option<&Entry<T>> {
-        self.in_flight.iter().find(|e| !e.broadcast)
+        self.on_wire().find(|e| !e.broadcast)
     }
 
     /// Expects an answer: a request in flight that is not a broadcast.
     pub fn awaits_answer(&self) -> bool {
-        self.in_flight.iter().any(|e| !e.broadcast)
+        self.on_wire().any(|e| !e.broadcast)
     }
 
     /// The requests whose time is up at `now`: broadcasts whose turnaround ended
@@ -222,9 +249,9 @@ impl<T> Pipeline<T> {
     pub fn due(&mut self, now: Duration) -> Vec<(Entry<T>, End)> {
         let mut ended = Vec::new();
         let mut i = 0;
-        while i < self.in_flight.len() {
-            if self.in_flight[i].deadline.is_some_and(|d| now >= d) {
-                let e = self.in_flight.remove(i).expect("index checked");
+        while i < self.sent {
+            if self.entries[i].deadline.is_some_and(|d| now >= d) {
+                let e = self.take(i);
                 if e.broadcast {
                     ended.push((e, End::Sent));
                 } else {
@@ -253,12 +280,12 @@ impl<T> Pipeline<T> {
     /// The request an answer belongs to. `tid`: the answer's transaction id (TCP).
     pub fn answer(&mut self, tid: Option<u16>) -> Answer<T> {
         let index = match (self.framing, tid) {
-            (Framing::Tcp, Some(tid)) => self.in_flight.iter().position(|e| e.tid == tid && !e.broadcast),
+            (Framing::Tcp, Some(tid)) => self.on_wire().position(|e| e.tid == tid && !e.broadcast),
             (Framing::Tcp, None) => None,
-            _ => self.in_flight.iter().position(|e| !e.broadcast),
+            _ => self.on_wire().position(|e| !e.broadcast),
         };
         match index {
-            Some(i) => Answer::Of(self.in_flight.remove(i).expect("index found")),
+            Some(i) => Answer::Of(self.take(i)),
             None => match tid {
                 Some(tid) if self.framing == Framing::Tcp => {
                     if let Some(k) = self.gone.iter().position(|&t| t == tid) {
@@ -277,12 +304,10 @@ impl<T> Pipeline<T> {
     /// as gone (its answer will be dropped); one partly written cannot be taken back
     /// from the line, so its bytes go out all the same.
     pub fn cancel(&mut self, id: i32) -> Option<Entry<T>> {
-        if let Some(i) = self.queue.iter().position(|e| e.id == id) {
-            return self.queue.remove(i);
-        }
-        let i = self.in_flight.iter().position(|e| e.id == id)?;
-        let e = self.in_flight.remove(i).expect("index found");
-        if !e.broadcast {
+        let i = self.entries.iter().position(|e| e.id == id)?;
+        let on_wire = i < self.sent;
+        let e = self.take(i);
+        if on_wire && !e.broadcast {
             self.forget(e.tid);
         }
         Some(e)
@@ -292,21 +317,21 @@ impl<T> Pipeline<T> {
     /// order they went out, then the queue. The output is dropped.
     pub fn drain(&mut self) -> Vec<Entry<T>> {
         self.out.clear();
-        let mut all: Vec<Entry<T>> = self.in_flight.drain(..).collect();
-        all.extend(self.queue.drain(..));
-        all
+        self.sent = 0;
+        self.entries.drain(..).collect()
     }
 
     /// Takes the requests in flight out (the line failed under them), keeping the
     /// queue; the output is dropped.
     pub fn drain_in_flight(&mut self) -> Vec<Entry<T>> {
         self.out.clear();
-        self.in_flight.drain(..).collect()
+        let n = std::mem::take(&mut self.sent);
+        self.entries.drain(..n).collect()
     }
 
     /// The ids of the requests, in flight then queued (tests, `modbus_pending`).
     pub fn ids(&self) -> impl Iterator<Item = i32> + '_ {
-        self.in_flight.iter().chain(self.queue.iter()).map(|e| e.id)
+        self.entries.iter().map(|e| e.id)
     }
 }
 
