@@ -6,7 +6,8 @@
 //! brings the epoll registrations up to date; a context leaves the handle when it is
 //! removed or freed, wherever that happens (a callback may do it).
 
-use std::collections::HashSet;
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap, HashSet};
 use std::ffi::c_int;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
@@ -20,6 +21,61 @@ use crate::transport::{self, epoll};
 /// The opaque `modbus_multi_t`.
 pub struct Multi {
     members: Arc<Members>,
+    /// The members' deadlines, earliest first: a wait and the contexts due are found
+    /// without looking at every member.
+    timers: Mutex<Timers>,
+}
+
+/// Deadlines by member, as a heap of `(deadline, handle address)`. An entry holds
+/// while the member's [`Member::until`] is that deadline; others are stale, dropped
+/// as they come to the top, and all at once when they outnumber the members.
+#[derive(Default)]
+struct Timers {
+    heap: BinaryHeap<Reverse<(Duration, usize)>>,
+}
+
+impl Timers {
+    /// The earliest deadline that holds.
+    fn earliest(&mut self, list: &HashMap<usize, Member>) -> Option<Duration> {
+        while let Some(&Reverse((t, key))) = self.heap.peek() {
+            if holds(list, key, t) {
+                return Some(t);
+            }
+            self.heap.pop();
+        }
+        None
+    }
+
+    /// Takes out the members whose deadline passed at `now` (their `until` is
+    /// consumed: the next ask sets it again).
+    fn take_due(&mut self, list: &mut HashMap<usize, Member>, now: Duration) -> Vec<usize> {
+        let mut due = Vec::new();
+        while let Some(&Reverse((t, key))) = self.heap.peek() {
+            if t > now {
+                break;
+            }
+            self.heap.pop();
+            if holds(list, key, t) {
+                if let Some(mb) = list.get_mut(&key) {
+                    mb.until = None;
+                }
+                due.push(key);
+            }
+        }
+        due
+    }
+
+    fn push(&mut self, list: &HashMap<usize, Member>, t: Duration, key: usize) {
+        self.heap.push(Reverse((t, key)));
+        if self.heap.len() > 2 * list.len() + 64 {
+            self.heap.retain(|&Reverse((t, key))| holds(list, key, t));
+        }
+    }
+}
+
+/// The deadline `t` of member `key` is current.
+fn holds(list: &HashMap<usize, Member>, key: usize, t: Duration) -> bool {
+    list.get(&key).is_some_and(|mb| mb.until == Some(t))
 }
 
 /// Makes a multi handle; NULL with errno on failure.
@@ -28,7 +84,7 @@ pub extern "C" fn modbus_multi_new() -> *mut Multi {
     match epoll::create() {
         Ok(epfd) => {
             let members = Members { epfd, list: Mutex::new(Default::default()), dirty: Mutex::default() };
-            Box::into_raw(Box::new(Multi { members: Arc::new(members) }))
+            Box::into_raw(Box::new(Multi { members: Arc::new(members), timers: Mutex::default() }))
         }
         Err(e) => {
             fail(e);
@@ -117,7 +173,7 @@ pub unsafe extern "C" fn modbus_multi_timeout(m: *mut Multi) -> c_int {
     let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
     // SAFETY: the members are live contexts (a context leaves the list as it is freed).
     match unsafe { sync(m) } {
-        Ok((earliest, _)) => ms_until(earliest),
+        Ok(earliest) => ms_until(earliest),
         Err(e) => fail(e),
     }
 }
@@ -135,7 +191,7 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
     // SAFETY: guaranteed by the caller.
     let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
     // SAFETY: as in `modbus_multi_timeout`.
-    let (earliest, due) = match unsafe { sync(m) } {
+    let earliest = match unsafe { sync(m) } {
         Ok(s) => s,
         Err(e) => return fail(e),
     };
@@ -175,9 +231,12 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
         wait = 0;
     }
     let now = transport::now();
-    for (key, until) in due {
-        if until.is_some_and(|u| u <= now) && !processed.contains(&key) && is_member(m, key) {
-            processed.insert(key);
+    let due = {
+        let mut list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
+        m.timers.lock().unwrap_or_else(PoisonError::into_inner).take_due(&mut list, now)
+    };
+    for key in due {
+        if processed.insert(key) && is_member(m, key) {
             // SAFETY: a member is a live context.
             completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, 0) }.max(0);
         }
@@ -230,16 +289,13 @@ fn ms_until(t: Option<Duration>) -> c_int {
     }
 }
 
-/// Each member's deadline, by handle address.
-type Due = Vec<(usize, Option<Duration>)>;
-
 /// Asks each context whose interest may have changed (`Members::dirty`) what it waits
 /// for and brings its epoll registration up to date. Returns the earliest deadline of
-/// all members and the members that have one.
+/// all members.
 ///
 /// # Safety
 /// The members of `m` are live contexts.
-unsafe fn sync(m: &Multi) -> Result<(Option<Duration>, Due)> {
+unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
     let mut dirty = std::mem::take(&mut *m.members.dirty.lock().unwrap_or_else(PoisonError::into_inner));
     dirty.sort_unstable();
     dirty.dedup();
@@ -277,14 +333,16 @@ unsafe fn sync(m: &Multi) -> Result<(Option<Duration>, Due)> {
             }
             (false, false) => {}
         }
+        let changed = member.until != interest.until;
         *member = if active {
             Member { fd: interest.fd, generation, events: interest.events, until: interest.until, pending }
         } else {
             Member { fd: -1, generation, events: 0, until: interest.until, pending }
         };
+        if let (true, Some(t)) = (changed, interest.until) {
+            m.timers.lock().unwrap_or_else(PoisonError::into_inner).push(&list, t, key);
+        }
     }
     let list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
-    let due: Due = list.iter().filter(|(_, mb)| mb.until.is_some()).map(|(k, mb)| (*k, mb.until)).collect();
-    let earliest = due.iter().filter_map(|(_, u)| *u).min();
-    Ok((earliest, due))
+    Ok(m.timers.lock().unwrap_or_else(PoisonError::into_inner).earliest(&list))
 }
