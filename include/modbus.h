@@ -807,6 +807,27 @@ int modbus_read_fifo_queue_async(modbus_t *ctx,
                                  void *user_data);
 
 /**
+ * `modbus_read_device_identification` without waiting (FC 2B / MEI 0E): a stream
+ * access follows the device's "more follows" with the next requests under the same
+ * request id (`modbus_cancel` of that id stops it between rounds); the callback runs
+ * once, at the end, with the number of objects stored. `objects` and `conformity`
+ * are written as the answers come.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `objects` valid for `max_objects` entries and
+ * `conformity` NULL or writable, until the request completes.
+ */
+MODBUS_API
+int modbus_read_device_identification_async(modbus_t *ctx,
+                                            int read_code,
+                                            int object_id,
+                                            modbus_device_id_object_t *objects,
+                                            int max_objects,
+                                            int *conformity,
+                                            modbus_callback_t cb,
+                                            void *user_data);
+
+/**
  * Makes a multi handle; NULL with errno on failure.
  */
 MODBUS_API modbus_multi_t *modbus_multi_new(void);

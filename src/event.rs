@@ -73,6 +73,23 @@ pub fn submit(ctx: &mut Context, req: &Request<'_>, completion: Completion) -> R
 /// [`submit`]; `answered`: false for a request no device answers (Force Listen Only
 /// Mode), which completes once it is out, as a broadcast does.
 pub fn submit_expecting(ctx: &mut Context, req: &Request<'_>, completion: Completion, answered: bool) -> Result<i32> {
+    queue(ctx, req, completion, answered, None)
+}
+
+/// The next request of a call that takes several (device identification objects
+/// that "more follow"), under the id of the request `id` that just completed, ahead
+/// of the queue.
+pub fn resubmit(ctx: &mut Context, id: i32, req: &Request<'_>, completion: Completion) -> Result<i32> {
+    queue(ctx, req, completion, true, Some(id))
+}
+
+fn queue(
+    ctx: &mut Context,
+    req: &Request<'_>,
+    completion: Completion,
+    answered: bool,
+    continuing: Option<i32>,
+) -> Result<i32> {
     if ctx.session.slave < 0 {
         ctx.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
@@ -94,7 +111,10 @@ pub fn submit_expecting(ctx: &mut Context, req: &Request<'_>, completion: Comple
     let broadcast = (framing != Framing::Tcp && ctx.session.slave == 0) || !answered;
     let tid = ctx.t_id;
     let o = state(ctx);
-    let id = o.pipeline.submit(&buf[..len], wire, tid, broadcast, completion);
+    let id = match continuing {
+        Some(id) => o.pipeline.resubmit(id, &buf[..len], wire, tid, completion),
+        None => o.pipeline.submit(&buf[..len], wire, tid, broadcast, completion),
+    };
     mark(o);
     id.ok_or(Error(libc::EAGAIN))
 }
@@ -425,7 +445,9 @@ fn values(framing: Framing, deliver: Deliver, rsp: &[u8], count: i32) -> (i32, V
             (count, counted_data(&rsp[h..], n).to_vec())
         }
         // The decoder reads the PDU (without the checksum).
-        Deliver::Decode { .. } => (count, rsp[h..rsp.len() - framing.checksum_length()].to_vec()),
+        Deliver::Decode { .. } | Deliver::Stream { .. } => {
+            (count, rsp[h..rsp.len() - framing.checksum_length()].to_vec())
+        }
     }
 }
 

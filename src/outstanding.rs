@@ -33,6 +33,23 @@ pub enum Deliver {
     /// arguments (the extensions' calls); it writes the values out and returns what
     /// the call returns.
     Decode { decode: DecodeFn, args: DecodeArgs },
+    /// A call answered by several requests (device identification objects that
+    /// "more follow"): each answer's PDU is handed to `decode`, which writes its
+    /// values out and says whether the call is done or asks for the next request,
+    /// which goes under the same id.
+    Stream { decode: StreamFn, args: DecodeArgs },
+}
+
+/// A decoder of [`Deliver::Stream`]: `(pdu, count, args) -> what next`; it keeps
+/// what the next round needs in `args`.
+pub type StreamFn = unsafe fn(&[u8], c_int, &mut DecodeArgs) -> Streamed;
+
+/// What a [`StreamFn`] says after an answer.
+pub enum Streamed {
+    /// The call is done: what it returns.
+    Done(c_int),
+    /// The call goes on with this request.
+    Next(crate::proto::request::Request<'static>),
 }
 
 /// A decoder of [`Deliver::Decode`]: `(pdu, count, args) -> rc`.

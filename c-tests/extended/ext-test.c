@@ -509,14 +509,14 @@ static void test_function_codes(modbus_t *ctx)
 /* The _async forms of the extensions' calls (the event-driven client): the same
  * answers as the blocking calls above, through modbus_process. */
 struct ares {
-    int done, rc, error;
+    int done, rc, error, id;
 };
 
 static void ares_cb(modbus_t *ctx, int id, int rc, int error, void *user)
 {
     struct ares *r = user;
     (void) ctx;
-    (void) id;
+    r->id = id;
     r->done++;
     r->rc = rc;
     r->error = error;
@@ -525,7 +525,7 @@ static void ares_cb(modbus_t *ctx, int id, int rc, int error, void *user)
 static struct ares await_one(modbus_t *ctx, int id, struct ares *r)
 {
     if (id < 0) {
-        struct ares bad = {1, -1, errno};
+        struct ares bad = {1, -1, errno, id};
         return bad;
     }
     for (int i = 0; i < 200 && modbus_pending(ctx) > 0; i++) {
@@ -643,6 +643,60 @@ static void test_device_identification(modbus_t *ctx)
         static const uint8_t unknown_start[] = {0x2B, 0x0E, 0x01, 0x42};
         rc = raw(ctx, unknown_start, sizeof(unknown_start), rsp);
         EXPECT(rc > 7 && rsp[6] == 3 && rsp[7] == 0, "an unknown starting object restarts at object 0");
+    }
+    {
+        /* The _async form: the same stream, its rounds under one request id. */
+        modbus_device_id_object_t blk[16], asy[16];
+        struct ares r;
+        int nblk = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_EXTENDED, 0, blk, 16, &conf);
+        int id;
+        memset(asy, 0xEE, sizeof(asy));
+        memset(&r, 0, sizeof(r));
+        conf = 0;
+        id = modbus_read_device_identification_async(ctx, MODBUS_DEVICE_ID_EXTENDED, 0, asy, 16, &conf, ares_cb, &r);
+        r = await_one(ctx, id, &r);
+        ok = r.done == 1 && r.id == id && r.rc == nblk && nblk == 10 && conf == 0x83;
+        for (i = 0; ok && i < nblk; i++) {
+            ok = asy[i].id == blk[i].id && asy[i].length == blk[i].length &&
+                 memcmp(asy[i].value, blk[i].value, blk[i].length + 1u) == 0;
+        }
+        EXPECT(ok, "2B/0E async, extended stream over several answers: rc=%d (blocking %d), one callback (%d) "
+               "for id %d (%d), the blocking call's objects", r.rc, nblk, r.done, r.id, id);
+        memset(&r, 0, sizeof(r));
+        id = modbus_read_device_identification_async(ctx, MODBUS_DEVICE_ID_EXTENDED, 0, asy, 8, NULL, ares_cb, &r);
+        r = await_one(ctx, id, &r);
+        EXPECT(r.done == 1 && r.rc == 8 && asy[7].id == 0x80, "2B/0E async with room for 8 objects: rc=%d", r.rc);
+        memset(&r, 0, sizeof(r));
+        id = modbus_read_device_identification_async(ctx, MODBUS_DEVICE_ID_SPECIFIC, 0x90, asy, 16, NULL, ares_cb,
+                                                     &r);
+        r = await_one(ctx, id, &r);
+        EXPECT(r.done == 1 && r.rc == -1 && r.error == EMBXILADD, "2B/0E async, unknown object: -1 %s",
+               modbus_strerror(r.error));
+        {
+            /* Cancelled in its second round: the id is still the request's. */
+            struct pollfd pfd;
+            int timeout, rounds = 0;
+            memset(&r, 0, sizeof(r));
+            id = modbus_read_device_identification_async(ctx, MODBUS_DEVICE_ID_EXTENDED, 0, asy, 16, NULL, ares_cb,
+                                                         &r);
+            /* The first answer: 7 objects, more follows (written before the next round). */
+            memset(asy, 0, sizeof(asy));
+            for (i = 0; i < 200 && asy[6].length == 0 && r.done == 0; i++) {
+                modbus_get_pollfd(ctx, &pfd, &timeout);
+                int n = poll(&pfd, pfd.fd >= 0 ? 1 : 0, timeout < 0 || timeout > 100 ? 100 : timeout);
+                modbus_process(ctx, n > 0 ? pfd.revents : 0);
+                rounds++;
+            }
+            int pending = modbus_pending(ctx);
+            int crc = modbus_cancel(ctx, id);
+            EXPECT(r.done == 1 && crc == 0 && pending == 1 && r.id == id && r.rc == -1 && r.error == ECANCELED,
+                   "2B/0E async cancelled between rounds: pending %d, cancel %d, callback %d with %s", pending, crc,
+                   r.done, r.rc == -1 ? modbus_strerror(r.error) : "success");
+            (void) rounds;
+            /* Its second answer, if it was on the wire, is dropped: the next call gets its own. */
+            rc = modbus_read_device_identification(ctx, MODBUS_DEVICE_ID_BASIC, 0, obj, 16, &conf);
+            EXPECT(rc == 3, "the blocking call after it: %d objects", rc);
+        }
     }
 }
 

@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::event;
 use crate::ffi::client::{read_bits_request, read_registers_request, write_bits_request, write_registers_request};
 use crate::ffi::{Modbus, fail, with_ctx};
-use crate::outstanding::{Completion, Deliver, Done, RawCallback};
+use crate::outstanding::{Completion, Deliver, Done, RawCallback, Streamed};
 use crate::proto::data::{registers_from_be, set_bits_from_bytes};
 use crate::proto::fc;
 use crate::proto::request::Request;
@@ -47,9 +47,25 @@ fn completion(cb: Callback, user_data: *mut c_void, deliver: Deliver) -> Complet
 unsafe fn fire(ctx: *mut Modbus, g: &mut Guard<'_>) -> c_int {
     let mut fired = 0;
     while let Some(done) = event::take_done(g) {
+        let (rc, error) = match (done.result, done.completion.deliver) {
+            (Ok(rc), Deliver::Stream { decode, mut args }) => {
+                // SAFETY: the decoder writes to the call's pointers, valid until its
+                // last round completes.
+                match unsafe { decode(&done.data, rc, &mut args) } {
+                    Streamed::Done(rc) => (rc, 0),
+                    Streamed::Next(req) => {
+                        let c = Completion { deliver: Deliver::Stream { decode, args }, ..done.completion };
+                        match event::resubmit(g, done.id, &req, c) {
+                            Ok(_) => continue,
+                            Err(e) => (-1, e.errno()),
+                        }
+                    }
+                }
+            }
+            // SAFETY: forwarded caller contract.
+            _ => unsafe { deliver(&done) },
+        };
         fired += 1;
-        // SAFETY: forwarded caller contract.
-        let (rc, error) = unsafe { deliver(&done) };
         if let Some(cb) = done.completion.callback {
             let user = done.completion.user_data;
             // SAFETY: the application's callback, with its own user data.

@@ -386,11 +386,7 @@ pub unsafe extern "C" fn modbus_read_device_identification(
     max_objects: c_int,
     conformity: *mut c_int,
 ) -> c_int {
-    if !(READ_BASIC..=READ_SPECIFIC).contains(&read_code)
-        || !(0..=0xFF).contains(&object_id)
-        || max_objects < 1
-        || objects.is_null()
-    {
+    if !device_id_args_ok(read_code, object_id, objects, max_objects) {
         return fail(Error::INVALID);
     }
     // SAFETY: forwarded caller contract.
@@ -400,6 +396,14 @@ pub unsafe extern "C" fn modbus_read_device_identification(
             read_device_id(g, read_code as u8, object_id as u8, out, conformity.as_mut())
         })
     }
+}
+
+/// The arguments of `modbus_read_device_identification[_async]` are valid.
+fn device_id_args_ok(read_code: c_int, object_id: c_int, objects: *mut modbus_device_id_object_t, max: c_int) -> bool {
+    (READ_BASIC..=READ_SPECIFIC).contains(&read_code)
+        && (0..=0xFF).contains(&object_id)
+        && max >= 1
+        && !objects.is_null()
 }
 
 fn read_device_id(
@@ -412,32 +416,51 @@ fn read_device_id(
     let mut stored = 0usize;
     // Each round trip returns at least one object or ends the stream, so 256 rounds
     // cover every object id; the bound keeps a misbehaving device from looping us.
-    for _ in 0..256 {
+    for round in 0..DEVICE_ID_ROUNDS {
         let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
         let (pdu, count) = exchange(g, &Request::ReadDeviceId { read_code, object_id }, &mut rsp)?;
-        let answer = decode::DeviceIdAnswer::decode(pdu, count as usize);
-        if let Some(c) = conformity.as_deref_mut() {
-            *c = answer.conformity as c_int;
-        }
-        for (id, value) in answer.objects() {
-            if stored == out.len() {
-                return Ok(stored as c_int);
-            }
-            let slot = &mut out[stored];
-            slot.id = id;
-            slot.length = value.len() as u8;
-            for (dst, &src) in slot.value.iter_mut().zip(value) {
-                *dst = src as c_char;
-            }
-            slot.value[value.len()] = 0;
-            stored += 1;
-        }
-        match answer.next_request(read_code, object_id) {
-            Some(next) => object_id = next,
-            None => break,
+        match device_id_round(pdu, count, out, conformity.as_deref_mut(), &mut stored, read_code, object_id) {
+            Some(next) if round + 1 < DEVICE_ID_ROUNDS => object_id = next,
+            _ => break,
         }
     }
     Ok(stored as c_int)
+}
+
+/// The most round trips of one device identification call.
+const DEVICE_ID_ROUNDS: usize = 256;
+
+/// One answer of a device identification stream: its objects go to `out[*stored..]`
+/// (as many as there is room for), the conformity level to `conformity`. Returns the
+/// object id the next request starts at, or `None` when the call is done (the
+/// stream ended, or `out` is full).
+fn device_id_round(
+    pdu: &[u8],
+    count: c_int,
+    out: &mut [modbus_device_id_object_t],
+    conformity: Option<&mut c_int>,
+    stored: &mut usize,
+    read_code: u8,
+    object_id: u8,
+) -> Option<u8> {
+    let answer = decode::DeviceIdAnswer::decode(pdu, count as usize);
+    if let Some(c) = conformity {
+        *c = answer.conformity as c_int;
+    }
+    for (id, value) in answer.objects() {
+        if *stored == out.len() {
+            return None;
+        }
+        let slot = &mut out[*stored];
+        slot.id = id;
+        slot.length = value.len() as u8;
+        for (dst, &src) in slot.value.iter_mut().zip(value) {
+            *dst = src as c_char;
+        }
+        slot.value[value.len()] = 0;
+        *stored += 1;
+    }
+    answer.next_request(read_code, object_id)
 }
 
 // ---------------------------------------------------------------- the _async forms
@@ -446,7 +469,7 @@ fn read_device_id(
 // callback is what the blocking call returns.
 
 use crate::ffi::event::{Callback, submit, submit_expecting};
-use crate::outstanding::Deliver;
+use crate::outstanding::{Deliver, Streamed};
 use std::ffi::c_void;
 
 /// `modbus_read_exception_status` without waiting (FC 07): `*status` is written
@@ -617,4 +640,59 @@ pub unsafe extern "C" fn modbus_read_fifo_queue_async(
     let deliver = Deliver::Decode { decode: dec_fifo, args: [dest as usize, 0, 0, 0, 0, 0] };
     // SAFETY: forwarded caller contract.
     unsafe { submit(ctx, cb, user_data, deliver, |_| Ok(Request::ReadFifoQueue { addr: addr as u16 })) }
+}
+
+/// `modbus_read_device_identification` without waiting (FC 2B / MEI 0E): a stream
+/// access follows the device's "more follows" with the next requests under the same
+/// request id (`modbus_cancel` of that id stops it between rounds); the callback runs
+/// once, at the end, with the number of objects stored. `objects` and `conformity`
+/// are written as the answers come.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `objects` valid for `max_objects` entries and
+/// `conformity` NULL or writable, until the request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_read_device_identification_async(
+    ctx: *mut Modbus,
+    read_code: c_int,
+    object_id: c_int,
+    objects: *mut modbus_device_id_object_t,
+    max_objects: c_int,
+    conformity: *mut c_int,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    if !device_id_args_ok(read_code, object_id, objects, max_objects) {
+        return fail(Error::INVALID);
+    }
+    // args: objects, max_objects, conformity, objects stored so far, read code, and
+    // the object id this round asked from, with the rounds made (<< 8).
+    let args = [objects as usize, max_objects as usize, conformity as usize, 0, read_code as usize, object_id as usize];
+    let deliver = Deliver::Stream { decode: dec_device_id, args };
+    let (read_code, object_id) = (read_code as u8, object_id as u8);
+    // SAFETY: forwarded caller contract.
+    unsafe { submit(ctx, cb, user_data, deliver, move |_| Ok(Request::ReadDeviceId { read_code, object_id })) }
+}
+
+/// A round of [`modbus_read_device_identification_async`] (see its `args`).
+///
+/// # Safety
+/// `args[0]` valid for `args[1]` objects; `args[2]` NULL or a writable `int *`.
+unsafe fn dec_device_id(pdu: &[u8], count: c_int, args: &mut DecodeArgs) -> Streamed {
+    // SAFETY: guaranteed by the caller.
+    let out = unsafe { slice::from_raw_parts_mut(args[0] as *mut modbus_device_id_object_t, args[1]) };
+    // SAFETY: as above.
+    let conformity = unsafe { (args[2] as *mut c_int).as_mut() };
+    let read_code = args[4] as u8;
+    let (object_id, rounds) = (args[5] as u8, args[5] >> 8);
+    let mut stored = args[3];
+    let next = device_id_round(pdu, count, out, conformity, &mut stored, read_code, object_id);
+    args[3] = stored;
+    match next {
+        Some(next) if rounds + 1 < DEVICE_ID_ROUNDS => {
+            args[5] = usize::from(next) | (rounds + 1) << 8;
+            Streamed::Next(Request::ReadDeviceId { read_code, object_id: next })
+        }
+        _ => Streamed::Done(stored as c_int),
+    }
 }

@@ -177,3 +177,22 @@ fn ascii_requests_go_out_as_characters_and_are_checked_as_bytes() {
         _ => panic!("the request in flight"),
     }
 }
+
+#[test]
+fn a_continued_request_keeps_its_id_and_goes_next() {
+    let mut p = tcp(1);
+    let first = submit(&mut p, 1, "stream");
+    let other = submit(&mut p, 2, "other");
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 1);
+    p.wrote(12);
+    let Answer::Of(e) = p.answer(Some(1)) else { panic!("the answer of the first") };
+    assert_eq!(e.id, first);
+    // Its next round: same id, ahead of the request queued after it.
+    assert_eq!(p.resubmit(first, &adu(3), &[], 3, "stream, round 2"), Some(first));
+    assert_eq!(p.ids().collect::<Vec<_>>(), vec![first, other]);
+    assert_eq!(p.fill(MS, RESPONSE), 1);
+    assert_eq!(p.output(), &adu(3));
+    // Cancelled by its id in its second round.
+    assert_eq!(p.cancel(first).map(|e| e.payload), Some("stream, round 2"));
+    assert_eq!(p.pending(), 1);
+}
