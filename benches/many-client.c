@@ -11,9 +11,11 @@
  *                                       device (a barrier per cycle)
  *
  * Output: "RESULT mode=... n=... cycles=... median_ms=... max_ms=... rss_kb=...
- * ok=... failed=..." (VmHWM: the peak resident set). The library is whichever
- * libmodbus.so.5 the loader finds (LIBINFO line first); async looks its functions up
- * with dlsym, so that the same binary runs on Debian's libmodbus for the other modes.
+ * ok=... failed=... cpu_ms=..." (rss_kb: VmHWM, the peak resident set; cpu_ms: the
+ * user and system CPU time of the process, all its threads, over the measured cycles
+ * only). The library is whichever libmodbus.so.5 the loader finds (LIBINFO line
+ * first); async looks its functions up with dlsym, so that the same binary runs on
+ * Debian's libmodbus for the other modes.
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
@@ -27,6 +29,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <time.h>
 
 #include <modbus.h>
@@ -53,6 +56,20 @@ static long peak_rss_kb(void)
     }
     return kb;
 }
+
+/* User plus system CPU time of the process (every thread) so far, in ms. */
+static double cpu_now_ms(void)
+{
+    struct rusage ru;
+    if (getrusage(RUSAGE_SELF, &ru) != 0) {
+        return -1;
+    }
+    return (double) (ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) * 1e3 +
+           (double) (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec) / 1e3;
+}
+
+/* The CPU time of the measured cycles: cpu_now_ms() before the first, after the last. */
+static double cpu_ms;
 
 static int cmp_double(const void *a, const void *b)
 {
@@ -101,6 +118,7 @@ static int run_async(int port, int n, int cycles, double *times)
             return 1;
         }
     }
+    cpu_ms = cpu_now_ms();
     for (int c = 0; c < cycles; c++) {
         double t0 = now_ms();
         for (int i = 0; i < n; i++) {
@@ -113,6 +131,7 @@ static int run_async(int port, int n, int cycles, double *times)
         }
         times[c] = now_ms() - t0;
     }
+    cpu_ms = cpu_now_ms() - cpu_ms;
     return 0;
 }
 
@@ -129,6 +148,7 @@ static int run_serial(int port, int n, int cycles, double *times)
             return 1;
         }
     }
+    cpu_ms = cpu_now_ms();
     for (int c = 0; c < cycles; c++) {
         double t0 = now_ms();
         for (int i = 0; i < n; i++) {
@@ -140,6 +160,7 @@ static int run_serial(int port, int n, int cycles, double *times)
         }
         times[c] = now_ms() - t0;
     }
+    cpu_ms = cpu_now_ms() - cpu_ms;
     return 0;
 }
 
@@ -185,12 +206,14 @@ static int run_threads(int port, int n, int cycles, double *times)
             return 1;
         }
     }
+    cpu_ms = cpu_now_ms();
     for (int c = 0; c < cycles; c++) {
         double t0 = now_ms();
         pthread_barrier_wait(&start_b);
         pthread_barrier_wait(&end_b);
         times[c] = now_ms() - t0;
     }
+    cpu_ms = cpu_now_ms() - cpu_ms;
     for (int i = 0; i < n; i++) {
         pthread_join(th[i], NULL);
     }
@@ -218,7 +241,7 @@ int main(int argc, char **argv)
         max = times[c] > max ? times[c] : max;
     }
     qsort(times, (size_t) cycles, sizeof(double), cmp_double);
-    printf("RESULT mode=%s n=%d cycles=%d median_ms=%.2f max_ms=%.2f rss_kb=%ld ok=%d failed=%d\n", argv[1], n, cycles,
-           times[cycles / 2], max, peak_rss_kb(), ok_count, failed_count);
+    printf("RESULT mode=%s n=%d cycles=%d median_ms=%.2f max_ms=%.2f rss_kb=%ld ok=%d failed=%d cpu_ms=%.0f\n", argv[1], n,
+           cycles, times[cycles / 2], max, peak_rss_kb(), ok_count, failed_count, cpu_ms);
     return failed_count == 0 ? 0 : 1;
 }

@@ -5,6 +5,11 @@
 #   BENCH_QUICK=1 scripts/bench.sh   short mode (about 1-2 minutes)
 #   scripts/bench.sh --many          many devices from one thread (the event-driven
 #                                    client) against libmodbus' ways (benches/many.sh)
+#   scripts/bench.sh --pipeline      pipelined requests on one connection (the
+#                                    event-driven client, modbus_set_max_in_flight)
+#                                    against libmodbus' blocking calls, over loopback
+#                                    and a 10 ms round trip (benches/pipeline.sh,
+#                                    about 3 minutes)
 #   scripts/bench.sh --repeat N [CASE ...]
 #                                    the throughput of CASE (default wr121, TCP) in N
 #                                    runs with new processes each: how far a ratio
@@ -28,6 +33,11 @@ if [ "${1:-}" = --many ]; then
     # Many devices from one thread: benches/many.sh (about 10 s).
     scripts/install-deps.sh >/dev/null
     exec benches/many.sh
+fi
+if [ "${1:-}" = --pipeline ]; then
+    # Pipelining on one connection: benches/pipeline.sh (about 3 minutes).
+    scripts/install-deps.sh >/dev/null
+    exec benches/pipeline.sh
 fi
 if [ "${1:-}" = --repeat ]; then
     [ $# -ge 2 ] || { echo "usage: $0 --repeat N [CASE ...]" >&2; exit 2; }

@@ -15,6 +15,10 @@
  *   event-test tls PORT       mb-server tls (Modbus/TCP Security; certificates from
  *                             MB_TLS_CA, MB_TLS_CERT, MB_TLS_KEY), then a peer that
  *                             stalls its handshake
+ *   event-test threads PORT N mb-server tcp: two threads per context, one giving
+ *                             requests, one processing them (N), on a context and
+ *                             on a context of a multi handle (also run by "tcp"; the
+ *                             ThreadSanitizer build of the event suite runs this)
  *
  * Every asynchronous result is compared with the blocking call's on the same context
  * and server: rc, errno and the values. One line per check (c-tests/common/check.h);
@@ -1018,6 +1022,113 @@ static int many_devices(int port, int n)
     return chk_summary();
 }
 
+/* ---------------------------------------------------------------- two threads
+ * One thread gives requests (modbus_read_registers_async) while another processes
+ * (modbus_process, modbus_multi_perform): each call locks the context, so the two
+ * may run at once. The processing thread waits at most 10 ms at a time: a request
+ * given by another thread does not wake a wait already under way. */
+struct tt {
+    modbus_t **ctx;
+    int nctx, n, done, bad;
+    uint16_t want[4];
+    uint16_t (*regs)[4];
+    pthread_mutex_t lock;
+};
+
+static void tt_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    struct tt *t = user;
+    (void) ctx;
+    (void) error;
+    (void) id;
+    pthread_mutex_lock(&t->lock);
+    t->done++;
+    if (rc != 4) {
+        t->bad++;
+    }
+    pthread_mutex_unlock(&t->lock);
+}
+
+static void *tt_giver(void *arg)
+{
+    struct tt *t = arg;
+    for (int i = 0; i < t->n; i++) {
+        modbus_t *ctx = t->ctx[i % t->nctx];
+        while (modbus_read_registers_async(ctx, 0, 4, t->regs[i], tt_cb, t) < 0) {
+            if (errno != EAGAIN) {
+                pthread_mutex_lock(&t->lock);
+                t->bad++;
+                t->done++;
+                pthread_mutex_unlock(&t->lock);
+                break;
+            }
+            usleep(100);
+        }
+    }
+    return NULL;
+}
+
+static int tt_finished(struct tt *t)
+{
+    pthread_mutex_lock(&t->lock);
+    int f = t->done == t->n;
+    pthread_mutex_unlock(&t->lock);
+    return f;
+}
+
+static void two_threads(int port, int n)
+{
+    for (int multi = 0; multi <= 1; multi++) {
+        /* (One context in the multi handle too: mb-server serves one client at a time.) */
+        struct tt t = {.nctx = 1, .n = n};
+        modbus_multi_t *m = multi ? modbus_multi_new() : NULL;
+        pthread_t giver;
+        int ok = 1;
+        pthread_mutex_init(&t.lock, NULL);
+        t.ctx = calloc((size_t) t.nctx, sizeof(*t.ctx));
+        t.regs = calloc((size_t) n, sizeof(*t.regs));
+        for (int c = 0; c < t.nctx; c++) {
+            t.ctx[c] = modbus_new_tcp("127.0.0.1", port);
+            modbus_set_response_timeout(t.ctx[c], 5, 0);
+            modbus_set_max_in_flight(t.ctx[c], 4);
+            if (modbus_connect(t.ctx[c]) != 0 || (m != NULL && modbus_multi_add(m, t.ctx[c]) != 0)) {
+                ok = 0;
+            }
+        }
+        ok = ok && modbus_read_registers(t.ctx[0], 0, 4, t.want) == 4;
+        double t0 = now_s();
+        pthread_create(&giver, NULL, tt_giver, &t);
+        while (ok && !tt_finished(&t) && now_s() - t0 < 60) {
+            if (m != NULL) {
+                modbus_multi_perform(m, 10);
+                continue;
+            }
+            struct pollfd pfd;
+            int timeout;
+            modbus_get_pollfd(t.ctx[0], &pfd, &timeout);
+            int k = poll(&pfd, pfd.fd >= 0 ? 1 : 0, timeout < 0 || timeout > 10 ? 10 : timeout);
+            modbus_process(t.ctx[0], k > 0 ? pfd.revents : 0);
+        }
+        pthread_join(giver, NULL);
+        int same = 0;
+        for (int i = 0; i < n; i++) {
+            same += memcmp(t.regs[i], t.want, sizeof(t.want)) == 0;
+        }
+        EXPECT(ok && t.done == n && t.bad == 0 && same == n,
+               "two threads on %s: %d requests given by one, processed by the other: %d completed, %d failed, "
+               "%d with the blocking call's values (%.2f s)",
+               multi ? "a context of a multi handle (depth 4)" : "one context (depth 4)", n, t.done, t.bad, same,
+               now_s() - t0);
+        for (int c = 0; c < t.nctx; c++) {
+            modbus_free(t.ctx[c]);
+        }
+        modbus_multi_free(m);
+        free(t.ctx);
+        free(t.regs);
+        pthread_mutex_destroy(&t.lock);
+    }
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
@@ -1035,6 +1146,10 @@ int main(int argc, char **argv)
         fprintf(stderr, "the event-driven client is rsmodbus': this is not it\n");
         return 97;
     }
+    if (strcmp(argv[1], "threads") == 0) {
+        two_threads(atoi(argv[2]), argc > 3 ? atoi(argv[3]) : 2000);
+        return chk_summary();
+    }
     int serial = strcmp(argv[1], "rtu") == 0, tls = strcmp(argv[1], "tls") == 0;
     modbus_t *ctx = serial ? modbus_new_rtu(argv[2], 115200, 'N', 8, 1)
                     : tls  ? mbt_new_tls("event-test", atoi(argv[2]))
@@ -1048,6 +1163,10 @@ int main(int argc, char **argv)
     modbus_set_response_timeout(ctx, 2, 0);
     chk_set_prefix(serial ? "rtu: " : tls ? "tls: " : "tcp: ");
     compare_calls(ctx, serial);
+    if (!serial && !tls && getenv("EVENT_SLAVE") == NULL) {
+        /* (Not against pymodbus: it takes no pipelining, see EVENT_DEPTH.) */
+        two_threads(atoi(argv[2]), getenv("EVENT_THREADS_N") != NULL ? atoi(getenv("EVENT_THREADS_N")) : 2000);
+    }
     if (tls) {
         /* The same calls, the handshake too without waiting: a new context, not
          * connected, whose first request connects. */
