@@ -7,7 +7,9 @@
 
 use std::collections::{HashMap, VecDeque};
 use std::ffi::{c_int, c_void};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
+
+use crate::handle::lock::OwnerMutex;
 
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH};
 use crate::proto::session::pipeline::Pipeline;
@@ -120,10 +122,10 @@ pub struct Members {
     /// The multi handle's epoll descriptor.
     pub epfd: i32,
     /// By handle address: what is registered for each, and what it waits for.
-    pub list: Mutex<HashMap<usize, Member>>,
+    pub list: OwnerMutex<HashMap<usize, Member>>,
     /// The contexts whose interest may have changed since the handle last asked
     /// (a request given, processed, cancelled, a close): only these are asked again.
-    pub dirty: Mutex<Vec<usize>>,
+    pub dirty: OwnerMutex<Vec<usize>>,
 }
 
 /// What a multi handle registered for one context.
@@ -132,8 +134,12 @@ pub struct Member {
     /// The descriptor (-1: none registered) and which of the line's it was.
     pub fd: i32,
     pub generation: u32,
-    /// The poll(2) events registered (0: none).
+    /// The poll(2) events registered (0: none). A context that waits for nothing
+    /// keeps its registration (most will wait again soon: two `epoll_ctl` calls
+    /// per request saved); the handle drops it if it reports anyway.
     pub events: i16,
+    /// The poll(2) events the context waits for, as last asked.
+    pub wants: i16,
     /// When it is due without I/O, as last asked.
     pub until: Option<std::time::Duration>,
     /// It had requests pending, as last asked.
@@ -143,13 +149,13 @@ pub struct Member {
 impl Members {
     /// The context `key` is to be asked again before the next wait.
     pub fn mark(&self, key: usize) {
-        self.dirty.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push(key);
+        self.dirty.lock().push(key);
     }
 
     /// Takes the context of handle address `key` out (its registration with it: a
     /// descriptor still open stops reporting).
     pub fn remove(&self, key: usize) {
-        let mut list = self.list.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut list = self.list.lock();
         if let Some(m) = list.remove(&key) {
             if m.fd >= 0 && m.events != 0 {
                 let _ = crate::transport::epoll::control(self.epfd, libc::EPOLL_CTL_DEL, m.fd, 0, 0);

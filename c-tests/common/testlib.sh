@@ -301,6 +301,16 @@ EOF
 # ------------------------------------------------------------ C programs
 C_BUILD_RESULT=result
 
+# tsan_library LOG: the ThreadSanitizer build of the library (cargo -Zsanitizer=thread,
+# into target/tsan; cargo's output to LOG), with its libmodbus.so.5 link. The
+# directory is $TSAN_LIB_DIR.
+TSAN_LIB_DIR=$ROOT/target/tsan/x86_64-unknown-linux-gnu/release
+tsan_library() {
+    RUSTC_BOOTSTRAP=1 RUSTFLAGS="-Zsanitizer=thread -Cunsafe-allow-abi-mismatch=sanitizer" \
+        cargo build --release --lib --target x86_64-unknown-linux-gnu --target-dir "$ROOT/target/tsan" \
+        >"$1" 2>&1 && ln -sf libmodbus.so "$TSAN_LIB_DIR/libmodbus.so.5"
+}
+
 c_build_dir() {
     local base=${CTEST_BUILD:-$ROOT/target/c-tests-build}
     case "${1:-}" in

@@ -6,9 +6,10 @@
 # answers late) and RTU on a pty pair. Every asynchronous result is compared with the
 # blocking call's on the same context; against pymodbus' server too (target/interop/venv,
 # made as the interop suite makes it). Modbus/TCP Security against our server (the
-# handshake without waiting, and a peer that stalls it). Once more under valgrind.
+# handshake without waiting, and a peer that stalls it). Once more under valgrind;
+# two threads on a context under ThreadSanitizer.
 #
-# Usage: c-tests/suites/event.sh [--no-cargo] [--no-valgrind] [--only REGEX]
+# Usage: c-tests/suites/event.sh [--no-cargo] [--no-valgrind] [--no-tsan] [--only REGEX]
 # Logs: target/event-tests/<case>/. Last line "N passed, M failed".
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -uo pipefail
@@ -18,6 +19,13 @@ OUT=$ROOT/target/event-tests
 LIBDIR=$ROOT/target/release
 # shellcheck source=c-tests/common/testlib.sh
 . "$ROOT/c-tests/common/testlib.sh"
+TSAN=1
+suite_flag() {
+    case "$1" in
+    --no-tsan) TSAN=0 ;;
+    *) return 1 ;;
+    esac
+}
 parse_flags --only --no-valgrind -- "$@"
 
 section "build"
@@ -154,6 +162,40 @@ fi
 if [ "$VALGRIND" = 1 ] && command -v valgrind >/dev/null; then
     section "under valgrind memcheck"
     run_case valgrind-tcp debian tcp valgrind
+fi
+
+# Two threads on one context (one gives requests, one processes them) and on a multi
+# handle, with the library and event-test built for ThreadSanitizer (the threads
+# suite's build of the library, target/tsan).
+if [ "$TSAN" = 1 ] && selected tsan; then
+    section "under ThreadSanitizer: two threads on a context (event-test threads)"
+    WORK=$OUT/tsan
+    mkdir -p "$WORK"
+    if tsan_library "$WORK/cargo-tsan.log" && c_build SAN=thread event-test; then
+        start server "$BIN/mb-server" tcp 0
+        if wait_ready server READY 10; then
+            port=$(sed -n 's/^READY //p' "$WORK/server.log" | head -n 1)
+            TSAN_OPTIONS="halt_on_error=0 exitcode=66" LD_LIBRARY_PATH=$TSAN_LIB_DIR timeout -k 5 300 \
+                "$(c_build_dir thread)/event-test" threads "$port" 2000 >"$WORK/out.log" 2>"$WORK/err.log"
+            rc=$?
+            if grep -q "LIBINFO: .*$TSAN_LIB_DIR/libmodbus.so" "$WORK/out.log"; then
+                result "tsan: loaded the ThreadSanitizer build of our library" PASS
+            else
+                result "tsan: loaded the ThreadSanitizer build of our library" FAIL "$(head -n 2 "$WORK/out.log")"
+            fi
+            program_checks tsan "$WORK/out.log" "$rc"
+            if grep -q ThreadSanitizer "$WORK/err.log"; then
+                result "tsan: no ThreadSanitizer report" FAIL "$(grep -E '^(WARNING|SUMMARY)' "$WORK/err.log" | head -n 5)"
+            else
+                result "tsan: no ThreadSanitizer report" PASS
+            fi
+        else
+            result "tsan: mb-server ready" FAIL "$(tail -n 3 "$WORK/server.log")"
+        fi
+        stop server
+    else
+        result "tsan: the ThreadSanitizer builds" FAIL "see $WORK/cargo-tsan.log and the build log"
+    fi
 fi
 
 section "summary"

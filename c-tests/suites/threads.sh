@@ -38,8 +38,6 @@ cd "$ROOT" || exit 2
 OUT=$ROOT/target/threads
 LOGS=$OUT/logs
 OURS=$ROOT/target/release
-TSAN_TARGET=$ROOT/target/tsan
-TSAN_LIB_DIR=$TSAN_TARGET/x86_64-unknown-linux-gnu/release
 NTHREADS=16
 NTX=10000
 
@@ -123,11 +121,8 @@ done
 # ---------------------------------------------------------------- 2. TSan
 if [ "$TSAN" -eq 1 ]; then
     echo "=== ThreadSanitizer build of the library (target/tsan)"
-    if RUSTC_BOOTSTRAP=1 RUSTFLAGS="-Zsanitizer=thread -Cunsafe-allow-abi-mismatch=sanitizer" \
-        cargo build --release --lib --target x86_64-unknown-linux-gnu --target-dir "$TSAN_TARGET" \
-        >"$LOGS/cargo-tsan.log" 2>&1; then
+    if tsan_library "$LOGS/cargo-tsan.log"; then
         ok "cargo build -Zsanitizer=thread"
-        ln -sf libmodbus.so "$TSAN_LIB_DIR/libmodbus.so.5"
         if c_build SAN=thread threads; then
             export TSAN_OPTIONS="halt_on_error=0 exitcode=66"
             echo "=== tsan-selftest: a deliberate race must be reported inside libmodbus.so"

@@ -9,12 +9,13 @@
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, HashMap, HashSet};
 use std::ffi::c_int;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::Arc;
 use std::time::Duration;
 
 use crate::error::{Error, Result};
 use crate::event;
 use crate::ffi::{Modbus, fail, status};
+use crate::handle::lock::OwnerMutex;
 use crate::outstanding::{Member, Members};
 use crate::transport::{self, epoll};
 
@@ -23,7 +24,7 @@ pub struct Multi {
     members: Arc<Members>,
     /// The members' deadlines, earliest first: a wait and the contexts due are found
     /// without looking at every member.
-    timers: Mutex<Timers>,
+    timers: OwnerMutex<Timers>,
 }
 
 /// Deadlines by member, as a heap of `(deadline, handle address)`. An entry holds
@@ -83,8 +84,9 @@ fn holds(list: &HashMap<usize, Member>, key: usize, t: Duration) -> bool {
 pub extern "C" fn modbus_multi_new() -> *mut Multi {
     match epoll::create() {
         Ok(epfd) => {
-            let members = Members { epfd, list: Mutex::new(Default::default()), dirty: Mutex::default() };
-            Box::into_raw(Box::new(Multi { members: Arc::new(members), timers: Mutex::default() }))
+            let members =
+                Members { epfd, list: OwnerMutex::new(Default::default()), dirty: OwnerMutex::new(Default::default()) };
+            Box::into_raw(Box::new(Multi { members: Arc::new(members), timers: OwnerMutex::new(Timers::default()) }))
         }
         Err(e) => {
             fail(e);
@@ -110,11 +112,7 @@ pub unsafe extern "C" fn modbus_multi_add(m: *mut Multi, ctx: *mut Modbus) -> c_
                 return Err(Error(libc::EBUSY));
             }
             let key = ctx as usize;
-            members
-                .list
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
-                .insert(key, Member { fd: -1, ..Member::default() });
+            members.list.lock().insert(key, Member { fd: -1, ..Member::default() });
             members.mark(key);
             o.multi = Some((members, key));
             Ok(0)
@@ -219,7 +217,14 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
             let key = ev.u64 as usize;
             // (`ev` is a copy: the packed field is read by value.)
             let revents = { ev.events } as u16 as i16;
-            if processed.insert(key) && is_member(m, key) {
+            if processed.contains(&key) {
+                continue;
+            }
+            // Not a member (any more): nothing to do. Waiting for nothing: its kept
+            // registration reported (a stray byte, a hang-up) and goes; the next
+            // request finds what happened (a deadline of its own still counts below).
+            if idle_registration(m, key) == Some(false) {
+                processed.insert(key);
                 // SAFETY: a member is a live context.
                 completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, revents) }.max(0);
             }
@@ -232,8 +237,8 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
     }
     let now = transport::now();
     let due = {
-        let mut list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
-        m.timers.lock().unwrap_or_else(PoisonError::into_inner).take_due(&mut list, now)
+        let mut list = m.members.list.lock();
+        m.timers.lock().take_due(&mut list, now)
     };
     for key in due {
         if processed.insert(key) && is_member(m, key) {
@@ -255,7 +260,7 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
     }
     // SAFETY: the caller hands back a handle made by `modbus_multi_new`.
     let m = unsafe { Box::from_raw(m) };
-    let keys: Vec<usize> = m.members.list.lock().unwrap_or_else(PoisonError::into_inner).keys().copied().collect();
+    let keys: Vec<usize> = m.members.list.lock().keys().copied().collect();
     for key in keys {
         // SAFETY: a member is a live context.
         let _ = unsafe {
@@ -274,11 +279,25 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
 /// Some member had requests pending when last asked (`sync` asks every one whose
 /// interest may have changed).
 fn any_pending(m: &Multi) -> bool {
-    m.members.list.lock().unwrap_or_else(PoisonError::into_inner).values().any(|mb| mb.pending)
+    m.members.list.lock().values().any(|mb| mb.pending)
+}
+
+/// `None` when `key` is not a member; `Some(true)` when it waits for nothing (its
+/// registration, kept, is dropped now), `Some(false)` otherwise.
+fn idle_registration(m: &Multi, key: usize) -> Option<bool> {
+    let mut list = m.members.list.lock();
+    let mb = list.get_mut(&key)?;
+    if mb.wants != 0 || mb.events == 0 {
+        return Some(false);
+    }
+    let _ = epoll::control(m.members.epfd, libc::EPOLL_CTL_DEL, mb.fd, 0, 0);
+    mb.events = 0;
+    mb.fd = -1;
+    Some(true)
 }
 
 fn is_member(m: &Multi, key: usize) -> bool {
-    m.members.list.lock().unwrap_or_else(PoisonError::into_inner).contains_key(&key)
+    m.members.list.lock().contains_key(&key)
 }
 
 /// Milliseconds until `t`, rounded up; -1 for none.
@@ -296,7 +315,7 @@ fn ms_until(t: Option<Duration>) -> c_int {
 /// # Safety
 /// The members of `m` are live contexts.
 unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
-    let mut dirty = std::mem::take(&mut *m.members.dirty.lock().unwrap_or_else(PoisonError::into_inner));
+    let mut dirty = std::mem::take(&mut *m.members.dirty.lock());
     dirty.sort_unstable();
     dirty.dedup();
     for key in dirty {
@@ -310,7 +329,7 @@ unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
             })
         };
         let Ok((interest, generation, pending)) = asked else { continue };
-        let mut list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut list = m.members.list.lock();
         let Some(member) = list.get_mut(&key) else { continue };
         let epfd = m.members.epfd;
         let active = interest.fd >= 0 && interest.events != 0;
@@ -320,9 +339,6 @@ unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
         match (registered, active) {
             (true, true) if member.events == interest.events => {}
             (true, true) => epoll::control(epfd, libc::EPOLL_CTL_MOD, interest.fd, interest.events, key as u64)?,
-            (true, false) => {
-                let _ = epoll::control(epfd, libc::EPOLL_CTL_DEL, member.fd, 0, 0);
-            }
             (false, true) => {
                 match epoll::control(epfd, libc::EPOLL_CTL_ADD, interest.fd, interest.events, key as u64) {
                     Err(e) if e.0 == libc::EEXIST => {
@@ -331,18 +347,26 @@ unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
                     r => r?,
                 }
             }
-            (false, false) => {}
+            // Waiting for nothing: the registration stays (see `Member::events`).
+            (_, false) => {}
         }
         let changed = member.until != interest.until;
-        *member = if active {
-            Member { fd: interest.fd, generation, events: interest.events, until: interest.until, pending }
-        } else {
-            Member { fd: -1, generation, events: 0, until: interest.until, pending }
+        *member = match (active, registered) {
+            (true, _) => Member {
+                fd: interest.fd,
+                generation,
+                events: interest.events,
+                wants: interest.events,
+                until: interest.until,
+                pending,
+            },
+            (false, true) => Member { wants: 0, until: interest.until, pending, ..*member },
+            (false, false) => Member { fd: -1, generation, events: 0, wants: 0, until: interest.until, pending },
         };
         if let (true, Some(t)) = (changed, interest.until) {
-            m.timers.lock().unwrap_or_else(PoisonError::into_inner).push(&list, t, key);
+            m.timers.lock().push(&list, t, key);
         }
     }
-    let list = m.members.list.lock().unwrap_or_else(PoisonError::into_inner);
-    Ok(m.timers.lock().unwrap_or_else(PoisonError::into_inner).earliest(&list))
+    let list = m.members.list.lock();
+    Ok(m.timers.lock().earliest(&list))
 }

@@ -156,8 +156,11 @@ fn peer_text(addr: &libc::sockaddr_storage) -> Option<String> {
     Some(unsafe { CStr::from_ptr(buf.as_ptr()) }.to_string_lossy().into_owned())
 }
 
-/// Accepts one client on `listen_fd` (close-on-exec, blocking, no TCP_NODELAY, as
-/// libmodbus). Returns the new descriptor and the peer's address text. Signals do not
+/// Accepts one client on `listen_fd` (close-on-exec, blocking, as libmodbus), with
+/// TCP_NODELAY, which libmodbus leaves off there: with Nagle's algorithm, the answers
+/// to requests a client pipelined wait, after the first, for its acknowledgement (a
+/// round trip, or a delayed ACK's 40 ms); an answer is a whole frame, never worth
+/// holding back. Returns the new descriptor and the peer's address text. Signals do not
 /// end the wait (with `SA_RESTART` or without); `closed()` does, checked at the start
 /// and whenever the eventfd `wake` (-1: none) is written: `Err(STOPPED)`.
 pub fn accept(listen_fd: i32, wake: i32, closed: &dyn Fn() -> bool) -> Result<(i32, Option<String>)> {
@@ -187,6 +190,8 @@ pub fn accept(listen_fd: i32, wake: i32, closed: &dyn Fn() -> bool) -> Result<(i
             libc::accept4(listen_fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len, libc::SOCK_CLOEXEC)
         };
         if fd >= 0 {
+            // Best effort, as on a client socket: the accept stands without it.
+            let _ = super::set_option(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1 as libc::c_int);
             return Ok((fd, peer_text(&addr)));
         }
         let e = last_error();
