@@ -303,8 +303,8 @@ C_BUILD_RESULT=result
 
 # tsan_library LOG: the ThreadSanitizer build of the library (cargo -Zsanitizer=thread,
 # into target/tsan; cargo's output to LOG), with its libmodbus.so.5 link. The
-# directory is $TSAN_LIB_DIR.
-TSAN_LIB_DIR=$ROOT/target/tsan/x86_64-unknown-linux-gnu/release
+# directory is $TSAN_LIB_DIR (set for the suites that define ROOT).
+TSAN_LIB_DIR=${ROOT:+$ROOT/target/tsan/x86_64-unknown-linux-gnu/release}
 tsan_library() {
     RUSTC_BOOTSTRAP=1 RUSTFLAGS="-Zsanitizer=thread -Cunsafe-allow-abi-mismatch=sanitizer" \
         cargo build --release --lib --target x86_64-unknown-linux-gnu --target-dir "$ROOT/target/tsan" \
