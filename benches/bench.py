@@ -500,6 +500,20 @@ def syscalls(counts):
     return total, calls
 
 
+# A run's setup and teardown vary by a system call or two with timing, whatever its
+# length (strace of the TLS server, read 125 registers, runs of 500 transactions:
+# recvfrom 1047 or 1048, ppoll 2 or 3; runs of 1000: 2047 or 2048, 2 or 3), so the
+# difference of two runs carries up to 2 calls that no transaction made: a bound on
+# system calls per transaction allows 2 / n over it.
+RUN_NOISE_CALLS = 2
+
+
+def within_calls(measured, bound, metric="strace"):
+    """A system-call count per transaction from `per_tx` meets `bound`."""
+    n = METRIC_N[metric] // (2 if QUICK else 1)
+    return measured <= bound + RUN_NOISE_CALLS / n
+
+
 def per_tx(metric, side, transport, case, lib, peer="debian"):
     n = METRIC_N[metric] // (2 if QUICK else 1)
     a = cost_run(metric, side, transport, case, lib, n, peer=peer)
@@ -591,7 +605,8 @@ def verdicts(results, costs, rows):
     for (metric, transport, case, side), (theirs, ours) in costs.items():
         title = f"{transport.upper()} {CASE_TITLES[case]}, {side}"
         if metric == "syscalls" and transport == "tcp":
-            rows.append((f"{title}: <= {TCP_SYSCALLS} system calls", "met" if ours <= TCP_SYSCALLS else "NOT MET",
+            met = within_calls(ours, TCP_SYSCALLS)
+            rows.append((f"{title}: <= {TCP_SYSCALLS} system calls", "met" if met else "NOT MET",
                          f"{ours:.1f} (Debian {theirs:.1f})"))
         elif metric == "Ir":
             rows.append((f"{title}: fewer instructions than Debian", "met" if ours < theirs else "NOT MET",
@@ -840,7 +855,7 @@ def tls_section():
                         t_tls, detail = syscalls(tls)
                         row += f" {t_tcp:.1f} | {t_tls:.1f} | {detail} |"
                         rows.append((f"TLS {CASE_TITLES[case]}, {side}: <= {TLS_SYSCALLS} system calls",
-                                     "met" if t_tls <= TLS_SYSCALLS else "NOT MET", f"{t_tls:.1f} ({detail})"))
+                                     "met" if within_calls(t_tls, TLS_SYSCALLS) else "NOT MET", f"{t_tls:.1f} ({detail})"))
                     elif metric == "callgrind":
                         row += f" {fmt(tcp['total'])} | {fmt(tls['total'])} |"
                     else:
