@@ -79,6 +79,20 @@ static int cmp_double(const void *a, const void *b)
 
 static int ok_count, failed_count;
 
+/* Device i's context, connected (2 s response timeout); NULL after printing why. */
+static modbus_t *device(int port, int i)
+{
+    modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+    if (ctx != NULL) {
+        modbus_set_response_timeout(ctx, 2, 0);
+        if (modbus_connect(ctx) == 0) {
+            return ctx;
+        }
+    }
+    fprintf(stderr, "device %d: %s\n", i, modbus_strerror(errno));
+    return NULL;
+}
+
 /* ---------------------------------------------------------------- async (rsmodbus) */
 typedef void (*cb_t)(modbus_t *, int, int, int, void *);
 static int left;
@@ -111,10 +125,11 @@ static int run_async(int port, int n, int cycles, double *times)
     modbus_t **ctx = calloc((size_t) n, sizeof(*ctx));
     uint16_t(*regs)[10] = calloc((size_t) n, sizeof(*regs));
     for (int i = 0; i < n; i++) {
-        ctx[i] = modbus_new_tcp("127.0.0.1", port);
-        modbus_set_response_timeout(ctx[i], 2, 0);
-        if (modbus_connect(ctx[i]) != 0 || multi_add(m, ctx[i]) != 0) {
-            fprintf(stderr, "device %d: %s\n", i, modbus_strerror(errno));
+        if ((ctx[i] = device(port, i)) == NULL) {
+            return 1;
+        }
+        if (multi_add(m, ctx[i]) != 0) {
+            fprintf(stderr, "device %d: modbus_multi_add: %s\n", i, modbus_strerror(errno));
             return 1;
         }
     }
@@ -141,10 +156,7 @@ static int run_serial(int port, int n, int cycles, double *times)
     modbus_t **ctx = calloc((size_t) n, sizeof(*ctx));
     uint16_t regs[10];
     for (int i = 0; i < n; i++) {
-        ctx[i] = modbus_new_tcp("127.0.0.1", port);
-        modbus_set_response_timeout(ctx[i], 2, 0);
-        if (modbus_connect(ctx[i]) != 0) {
-            fprintf(stderr, "device %d: %s\n", i, modbus_strerror(errno));
+        if ((ctx[i] = device(port, i)) == NULL) {
             return 1;
         }
     }
@@ -199,10 +211,12 @@ static int run_threads(int port, int n, int cycles, double *times)
     pthread_barrier_init(&start_b, NULL, (unsigned) n + 1);
     pthread_barrier_init(&end_b, NULL, (unsigned) n + 1);
     for (int i = 0; i < n; i++) {
-        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
-        modbus_set_response_timeout(ctx, 2, 0);
-        if (modbus_connect(ctx) != 0 || pthread_create(&th[i], &attr, device_thread, ctx) != 0) {
-            fprintf(stderr, "device %d: %s\n", i, modbus_strerror(errno));
+        modbus_t *ctx = device(port, i);
+        if (ctx == NULL) {
+            return 1;
+        }
+        if (pthread_create(&th[i], &attr, device_thread, ctx) != 0) {
+            fprintf(stderr, "device %d: pthread_create failed\n", i);
             return 1;
         }
     }
