@@ -51,13 +51,16 @@ pub struct Entry<T> {
 }
 
 impl<T> Entry<T> {
-    fn new(id: i32, adu: &[u8], wire: &[u8], tid: u16, broadcast: bool, payload: T) -> Self {
+    /// `None` for an ADU longer than a frame.
+    fn new(id: i32, adu: &[u8], wire: &[u8], tid: u16, broadcast: bool, payload: T) -> Option<Self> {
+        if adu.len() > MAX_ADU_LENGTH {
+            return None;
+        }
         let mut bytes = Vec::with_capacity(adu.len() + wire.len());
         bytes.extend_from_slice(adu);
         bytes.extend_from_slice(wire);
-        // An ADU longer than a frame is refused by `insert` (u16 keeps its length).
-        let adu_len = adu.len().min(usize::from(u16::MAX)) as u16;
-        Entry { id, bytes: bytes.into_boxed_slice(), adu_len, tid, broadcast, deadline: None, payload }
+        let adu_len = adu.len() as u16;
+        Some(Entry { id, bytes: bytes.into_boxed_slice(), adu_len, tid, broadcast, deadline: None, payload })
     }
 
     /// The request's ADU (sealed, binary).
@@ -172,28 +175,23 @@ impl<T> Pipeline<T> {
     /// same bytes, or its ASCII characters: empty means `adu`). Returns its id (>= 0),
     /// or `None` when the queue is full.
     pub fn submit(&mut self, adu: &[u8], wire: &[u8], tid: u16, broadcast: bool, payload: T) -> Option<i32> {
-        if self.pending() >= MAX_PENDING {
-            return None;
-        }
-        let id = self.next_id;
-        self.next_id = if self.next_id == i32::MAX { 0 } else { self.next_id + 1 };
-        let at = self.entries.len();
-        self.insert(at, Entry::new(id, adu, wire, tid, broadcast, payload))
+        let e = Entry::new(self.next_id, adu, wire, tid, broadcast, payload)?;
+        let id = self.insert(self.entries.len(), e)?;
+        self.next_id = if id == i32::MAX { 0 } else { id + 1 };
+        Some(id)
     }
 
     /// Queues the next request of a call that takes several (a stream of device
     /// identification objects) under the id of the one that just completed, first in
     /// the queue. `None` when the queue is full.
     pub fn resubmit(&mut self, id: i32, adu: &[u8], wire: &[u8], tid: u16, payload: T) -> Option<i32> {
-        if self.pending() >= MAX_PENDING {
-            return None;
-        }
-        let at = self.sent;
-        self.insert(at, Entry::new(id, adu, wire, tid, false, payload))
+        let e = Entry::new(id, adu, wire, tid, false, payload)?;
+        self.insert(self.sent, e)
     }
 
+    /// Puts `e` at position `at`; `None` when the queue is full.
     fn insert(&mut self, at: usize, e: Entry<T>) -> Option<i32> {
-        if e.adu_len as usize > MAX_ADU_LENGTH {
+        if self.pending() >= MAX_PENDING {
             return None;
         }
         if self.entries.len() == self.entries.capacity() && self.entries.capacity() < 2 {
