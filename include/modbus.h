@@ -355,6 +355,35 @@ typedef void (*modbus_callback_t)(modbus_t *ctx, int request_id, int rc, int err
 /* Many contexts behind one descriptor (modbus_multi_new(3)). */
 typedef struct _modbus_multi modbus_multi_t;
 
+/* A server whose data is the application's code (modbus_reply_callbacks(3)). */
+typedef struct {
+    int unit_id;
+    int function;
+    int transaction_id;      /* of the request; 0 on a serial line */
+    int socket;              /* the context's descriptor (the client's socket on TCP) */
+    const char *tls_role;    /* the client's role; NULL on plain TCP and serial lines */
+} modbus_request_info_t;
+
+/* Each data callback returns 0, a MODBUS_EXCEPTION_* code (sent as the exception
+ * answer) or MODBUS_REPLY_NONE (no answer at all). */
+#define MODBUS_REPLY_NONE (-0x100)
+
+typedef struct {
+    size_t struct_size;      /* sizeof(modbus_server_callbacks_t): the struct may grow */
+    int (*accept_unit)(void *user_data, int unit_id);   /* 1 serve, 0 not */
+    int (*read_bits)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
+                     uint8_t *dest);
+    int (*read_registers)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
+                          uint16_t *dest);
+    int (*write_bits)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
+                      const uint8_t *src);
+    int (*write_registers)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
+                           const uint16_t *src);
+    /* any other function code: the answer's PDU length, -exception or MODBUS_REPLY_NONE */
+    int (*other)(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu,
+                 int pdu_length, uint8_t *rsp_pdu, int rsp_max);
+} modbus_server_callbacks_t;
+
 /**
  * rsmodbus extension: the error recovery mode of `ctx`, as `modbus_set_error_recovery`
  * left it: 0 (`MODBUS_ERROR_RECOVERY_NONE`) or the OR of `MODBUS_ERROR_RECOVERY_LINK`
@@ -903,6 +932,69 @@ modbus_t *modbus_new_ascii(const char *device,
                            char parity,
                            int data_bit,
                            int stop_bit);
+
+/**
+ * Answers the request `req` (as `modbus_receive` stored it) through the
+ * application's callbacks `cb`, exactly as `modbus_reply` answers it from a
+ * mapping: the same checks in the same order, the same exceptions and debug
+ * lines. Values arrive in host order (registers as `uint16_t`, bits one per byte,
+ * 0 or 1). FC 16 (mask write) reads then writes one register; FC 17 writes then
+ * reads. A broadcast on a serial line runs the write callbacks and sends nothing.
+ *
+ * Each data callback returns 0, a `MODBUS_EXCEPTION_*` code (sent as the
+ * exception answer), or `MODBUS_REPLY_NONE` (no answer at all); any other value is
+ * answered with exception 04. A NULL data callback answers its function codes with
+ * exception 01. `other` gets every function code the reply does not serve from
+ * data (report slave id, read exception status, unknown codes; the codes a
+ * context is configured to serve with `modbus_enable_diagnostics` and its
+ * siblings keep their own handlers): it writes the response PDU, function code
+ * first, to `rsp_pdu` (at most `rsp_max` bytes) and returns its length, or returns
+ * -code for an exception, or `MODBUS_REPLY_NONE`; when NULL, those codes get
+ * `modbus_reply`'s answers. `accept_unit` (NULL: every unit) says whether a unit
+ * is served: one that is not gets no answer on a serial line and exception 0B
+ * (gateway target device failed to respond) on TCP.
+ *
+ * The callbacks run on the calling thread, with the context locked: they must
+ * not block (an answer that needs time is sent later, with `modbus_reply`,
+ * `modbus_reply_callbacks` or `modbus_reply_exception` on the stored request),
+ * and a call on the same context from a callback fails with EDEADLK.
+ *
+ * Returns the bytes sent, 0 when nothing was sent, -1 on error (EINVAL: `req`
+ * or `cb` NULL, or `cb->struct_size` too small).
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `req` NULL or holding a request as
+ * `modbus_reply` requires (and `req_length` bytes when not negative); `cb` NULL or
+ * valid for `cb->struct_size` bytes, its members NULL or functions of the types
+ * declared.
+ */
+MODBUS_API
+int modbus_reply_callbacks(modbus_t *ctx,
+                           const uint8_t *req,
+                           int req_length,
+                           const modbus_server_callbacks_t *cb,
+                           void *user_data);
+
+/**
+ * `modbus_receive` for a server that answers through callbacks. Requests are framed
+ * whole: the function codes beyond libmodbus by their own layouts, and unknown
+ * codes by the MBAP length on TCP and the frame on ASCII (libmodbus reads only up
+ * to their function code), so that `other` sees all of them. For a server that
+ * answers several units: on a serial line, a
+ * request is kept when `cb->accept_unit` says its unit is served (or it is a
+ * broadcast), whatever the context's slave; a request for another unit returns 0
+ * (and the answer of that unit that follows it on the bus is skipped, as
+ * `modbus_receive` skips it). With `accept_unit` NULL, and on TCP, this is
+ * `modbus_receive`.
+ *
+ * # Safety
+ * As `modbus_receive`; `cb` NULL or valid for `cb->struct_size` bytes.
+ */
+MODBUS_API
+int modbus_receive_callbacks(modbus_t *ctx,
+                             uint8_t *req,
+                             const modbus_server_callbacks_t *cb,
+                             void *user_data);
 
 /**
  * rsmodbus extension (server): turns the serial-line diagnostics of this server

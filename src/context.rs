@@ -142,6 +142,7 @@ impl Context {
                 },
                 recovery: 0,
                 slave,
+                any_unit: false,
                 read_ahead: false,
                 ascii_delimiter: b'\n',
                 line: LineCaps { socket: false, reads_without_waiting: false, timed_reads: false },

@@ -15,14 +15,16 @@ use crate::error::{Error, Result, exception};
 use crate::proto::Diag;
 use crate::proto::diagnostics::Delivery;
 use crate::proto::frame::{Framing, MsgKind};
-use crate::proto::reply::{Mapping, Outcome, Server, exception_response};
+use crate::proto::reply::{Data, Outcome, Server, exception_response};
 use crate::proto::security;
 use crate::server_ext::BusEvent;
 
 /// `modbus_receive`: waits for one request and returns its length, or 0 for a frame
 /// libmodbus filters out (RTU: addressed to another slave, or the answer of that
-/// slave which follows it on a shared bus).
-pub fn receive(g: &mut Guard<'_>, buf: &mut [u8]) -> Result<usize> {
+/// slave which follows it on a shared bus). With `units`, a serial request is kept
+/// when `units` accepts its unit (or it is a broadcast), whatever the context's
+/// slave (`modbus_receive_callbacks`).
+pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) -> Result<usize> {
     if g.framing() == Framing::Tcp {
         let r = engine::receive_msg(g, buf, MsgKind::Indication);
         count_bus(g, &r);
@@ -41,10 +43,20 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut [u8]) -> Result<usize> {
         g.diag().out(format_args!("Confirmation to ignore\n"));
         return Ok(0);
     }
+    g.session.any_unit = units.is_some();
     let r = engine::receive_msg(g, buf, MsgKind::Indication);
+    g.session.any_unit = false;
     count_bus(g, &r);
     match r? {
-        Received::Frame(len) => Ok(len),
+        Received::Frame(len) => {
+            let unit = buf[0];
+            if unit == 0 || units.is_none_or(|u| u.accept_unit(unit)) {
+                return Ok(len);
+            }
+            g.diag().out(format_args!("Request for slave {unit} ignored (not served)\n"));
+            set_confirmation_to_ignore(g, true);
+            Ok(0)
+        }
         Received::Ignored(_) => {
             set_confirmation_to_ignore(g, true);
             Ok(0)
@@ -97,10 +109,23 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
     }
 }
 
-/// `modbus_reply`: answers `req` (at most the bytes the request describes; see
-/// [`crate::proto::reply::request_extent`]) from `mapping`. Returns the bytes sent, 0
-/// for a suppressed RTU broadcast (and, with diagnostics, in listen-only mode).
-pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn Mapping) -> Result<usize> {
+/// `modbus_reply` and `modbus_reply_callbacks`: answers `req` (at most the bytes the
+/// request describes; see [`crate::proto::reply::request_extent`]) from `data`.
+/// Returns the bytes sent, 0 for a suppressed RTU broadcast, a unit `data` does not
+/// serve on a serial line, an answer `data` withholds (and, with diagnostics, in
+/// listen-only mode). On TCP, a unit not served is answered with exception 0B
+/// (gateway target device failed to respond), as gateways answer it.
+pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, data: &mut dyn Data) -> Result<usize> {
+    let framing = g.framing();
+    let unit = req.get(framing.header_length() - 1).copied().unwrap_or(0);
+    let broadcast = framing.is_serial() && unit == 0;
+    if !broadcast && !data.accept_unit(unit) {
+        if framing.is_serial() {
+            g.diag().out(format_args!("Request for slave {unit} not served\n"));
+            return Ok(0);
+        }
+        return reply_exception(g, req, exception::GATEWAY_TARGET as u32);
+    }
     if g.line.authorizes() && !authorized(g, req)? {
         // Exception 01, nothing changed; as modbus_reply_exception sends it
         // (not in listen-only mode, counted by the diagnostics).
@@ -111,11 +136,11 @@ pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, mapping: &mut dyn M
     let mut out = g.spare.take();
     let result = match g.server_ext.as_deref_mut() {
         None => {
-            let outcome = server.reply(req, req_length, mapping, &mut sink, &mut out);
+            let outcome = server.answer(req, req_length, data, &mut sink, &mut out);
             perform(g, outcome, &mut out).0
         }
         Some(ext) => {
-            let answer = ext.reply(server, req, req_length, mapping, &mut sink, &mut out);
+            let answer = ext.reply(server, req, req_length, data, &mut sink, &mut out);
             let (result, delivery) = perform(g, answer.outcome, &mut out);
             if let Some(ext) = g.server_ext.as_deref_mut() {
                 ext.complete(&answer, delivery);

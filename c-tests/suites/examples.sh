@@ -7,7 +7,8 @@
 #     against our server and ours against a server built on Debian's;
 #   - poll-many (12 devices from one thread, 3 cycles) against tcp-server;
 #   - rtu-client against rtu-server over a pty pair (socat), and a client asking the
-#     wrong slave id (it must time out);
+#     wrong slave id (it must time out); then against server-callbacks (three units
+#     through callbacks), units 17 and 18, and unit 20 (not served: a timeout);
 #   - tcp-client linked statically with libmodbus.a (pkg-config --static), and
 #     fully static (gcc -static).
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
@@ -35,7 +36,7 @@ export PKG_CONFIG_PATH=$LIB
 PC=libmodbus-uninstalled
 
 # --- build --------------------------------------------------------------------
-for prog in tcp-client tcp-server rtu-client rtu-server poll-many; do
+for prog in tcp-client tcp-server rtu-client rtu-server poll-many server-callbacks; do
     # shellcheck disable=SC2046
     check "compile $prog against the build tree" \
         "$CC" "${CFLAGS_W[@]}" "examples/$prog.c" -o "$WORK/$prog" \
@@ -166,6 +167,44 @@ if pty_pair pty "$WORK/ttyS" "$WORK/ttyC"; then
     stop pty
 else
     bad "socat pty pair" "socat did not create $WORK/ttyS and $WORK/ttyC"
+fi
+
+# Three units on one line through callbacks (server-callbacks): two of them answer
+# rtu-client with their own data, a fourth unit gets no answer. (A pty pair of its
+# own: socat ends a pair when the first server closes its end.)
+if pty_pair cbpty "$WORK/ttyS2" "$WORK/ttyC2"; then
+    start cb-server "$WORK/server-callbacks" "$WORK/ttyS2" 19200 E 16
+    if wait_ready cb-server "serving units 17, 18, 19" 10; then
+        for unit in 17 18; do
+            start "cb-client$unit" "$WORK/rtu-client" "$WORK/ttyC2" "$unit" 19200 E
+            wait_exit "cb-client$unit" 30
+            log=$WORK/cb-client$unit.log
+            [ "$rc" -eq 0 ] && ok "callbacks: unit $unit client exits 0" ||
+                bad "callbacks: unit $unit client exits 0" "exit $rc" "$(tail -n 5 "$log")"
+            expect_line "callbacks: unit $unit registers read back" "$log" \
+                "registers 0..9: 0x1234 0xBEEF 0x002A 0x03EB 0x03EC 0x03ED 0x03EE 0x03EF 0x03F0 0x03F1"
+            expect_line "callbacks: unit $unit input registers" "$log" "input registers 0..3: 2000 2001 2002 2003"
+            expect_line "callbacks: unit $unit exception reported as errno" "$log" \
+                "read at 9999: rc=-1 (Illegal data address)"
+        done
+        start cb-wrong "$WORK/rtu-client" "$WORK/ttyC2" 20 19200 E
+        wait_exit cb-wrong 20
+        if [ "$rc" -ne 0 ] && grep -qxF "write_registers failed: Connection timed out" "$WORK/cb-wrong.log"; then
+            ok "callbacks: unit 20, not served, times out (exit $rc)"
+        else
+            bad "callbacks: unit 20, not served, times out" "exit $rc" "$(tail -n 5 "$WORK/cb-wrong.log")"
+        fi
+        wait_exit cb-server 20
+        expect_line "callbacks: unit 17 answered its 8 requests" "$WORK/cb-server.log" "unit 17: 8 requests"
+        expect_line "callbacks: unit 18 answered its 8 requests" "$WORK/cb-server.log" "unit 18: 8 requests"
+        expect_line "callbacks: unit 19 got none" "$WORK/cb-server.log" "unit 19: 0 requests"
+    else
+        bad "callbacks: server starts" "$(cat "$WORK/cb-server.log")"
+    fi
+    stop cb-server
+    stop cbpty
+else
+    bad "socat pty pair for server-callbacks" "socat did not create $WORK/ttyS2 and $WORK/ttyC2"
 fi
 
 # --- static -------------------------------------------------------------------

@@ -10,11 +10,13 @@
 #  1. raw-frame differential (c-tests/server/driver.c + srv.c) over TCP, TCP-PI and RTU
 #     on a pty: response bytes, timing class (immediate / after the flush delay / none)
 #     and the server's debug log, per case;
+# 1b. the same frames, our server answering through modbus_reply_callbacks over a
+#     callback set that serves the same mapping: the same responses and timing;
 #  2. the same frames against our server under valgrind memcheck: same responses and
 #     logs, no memory error, no leak, clean exit;
 #  3. Debian's unit-test-server and unit-test-client (copied from libmodbus-dev's
 #     examples at test time), all four client x server library combinations, per
-#     transport;
+#     transport, and both clients against our server answering through the callbacks;
 #  4. descriptors above FD_SETSIZE (highfd.c);
 #  5. 50 concurrent clients plus two misbehaving ones on one poll loop (multi.c).
 # Differences are allowed only when named in c-tests/server/allowed-differences.txt.
@@ -47,18 +49,19 @@ DEB_LIBDIR=$(pkg-config --variable=libdir libmodbus 2>/dev/null || echo /usr/lib
 DEB_LIB=$(readlink -f "$DEB_LIBDIR/libmodbus.so.5")
 OURS_LIB=
 
-lib_env() { # lib_env debian|ours: the env(1) arguments that select the library
-    if [ "$1" = ours ]; then
+lib_env() { # lib_env debian|ours|callbacks: the env(1) arguments that select the library
+    if [ "$1" != debian ]; then
         echo "env LD_LIBRARY_PATH=$OURS_DIR"
     else
         echo "env -u LD_LIBRARY_PATH"
     fi
 }
 
-# check_loaded FILE debian|ours: every process that wrote FILE mapped that library.
+# check_loaded FILE debian|ours|callbacks: every process that wrote FILE mapped that
+# library (callbacks: ours, with modbus_reply through modbus_reply_callbacks).
 check_loaded() {
     local want=$DEB_LIB line n=0 bad=0
-    [ "$2" = ours ] && want=$OURS_LIB
+    [ "$2" != debian ] && want=$OURS_LIB
     [ -s "$1" ] || { echo "no LOADED line in $1"; return 1; }
     while read -r _ _ path; do
         n=$((n + 1))
@@ -178,6 +181,48 @@ for t in tcp tcppi rtu; do
     differential "$t"
 done
 
+# ------------------------------------------------------------ 1b. through the callbacks
+# The same frames, our server answering through modbus_reply_callbacks over a callback
+# set that serves the same mapping (server/reply-callbacks.c, LD_PRELOADed into the
+# server only): every response and its timing as modbus_reply's.
+callbacks_run() { # callbacks_run TRANSPORT
+    local t=$1 d=$LOGS/callbacks-$1 ok=1 why=""
+    mkdir -p "$d"
+    env LD_LIBRARY_PATH="$OURS_DIR" SRVTEST_LOADED_FILE="$d/loaded" \
+        timeout -k 5 180 "$BIN/driver" run "$t" "$d/server.log" -- \
+        env LD_PRELOAD="$BIN/libreply-callbacks.so" "$BIN/srv" >"$d/record.txt" 2>"$d/driver.err" &
+    local pid=$!
+    PIDS+=("$pid")
+    wait_pid "$pid" || { ok=0; why="driver exit $?;"; }
+    check_loaded "$d/loaded" ours >"$d/loaded.check" || { ok=0; why="$why server did not load ours;"; }
+    grep -q '^reply-callbacks: modbus_reply answers through modbus_reply_callbacks' "$d/server.log" ||
+        { ok=0; why="$why the server did not answer through the callbacks;"; }
+    if [ $ok = 1 ]; then
+        "$BIN/driver" compare "$LOGS/diff-$t/record-ours.txt" "$d/record.txt" --responses >"$d/compare.txt"
+        if ! grep -q '^COMPARED .* 0 failed' "$d/compare.txt"; then
+            ok=0
+            why="$why responses differ from modbus_reply's ($(grep -c '^FAIL' "$d/compare.txt") cases, see $d/compare.txt);"
+            grep '^FAIL' "$d/compare.txt" | head -n 5 | cut -c1-300 | sed 's/^/    | /'
+        fi
+    fi
+    if [ $ok = 1 ]; then
+        result "callbacks $t: every frame through modbus_reply_callbacks, same responses and timing as modbus_reply ($(grep -c '^PASS' "$d/compare.txt") cases)" PASS
+    else
+        result "callbacks $t" FAIL "$why"
+    fi
+    MATRIX+=("callbacks|$t|$([ $ok = 1 ] && echo same || echo FAIL)")
+}
+
+section "1b. the same frames through modbus_reply_callbacks (a callback set over the same mapping)"
+for t in tcp tcppi rtu; do
+    selected "callbacks $t" || continue
+    if [ -z "${DIFF_DONE[$t]:-}" ]; then
+        result "callbacks $t" FAIL "no record of modbus_reply's answers (differential $t did not run)"
+        continue
+    fi
+    callbacks_run "$t"
+done
+
 # ------------------------------------------------------------ 2. valgrind
 valgrind_run() { # valgrind_run TRANSPORT
     local t=$1 d=$LOGS/valgrind-$1 ok=1 why=""
@@ -234,7 +279,9 @@ unit_start() {
     d=$(ut_dir "$t" "$clib" "$slib")
     mkdir -p "$d"
     port=$("$BIN/driver" freeport)
-    [ "$slib" = ours ] && extra+=(UT_SERVER_312=1)
+    [ "$slib" != debian ] && extra+=(UT_SERVER_312=1)
+    local preload="$BIN/libloaded.so"
+    [ "$slib" = callbacks ] && preload="$preload $BIN/libreply-callbacks.so"
     [ "$clib" = ours ] && extra+=(UT_CLIENT_312=1)
     UT_SOCAT[$key]=""
     if [ "$t" = rtu ]; then
@@ -242,7 +289,7 @@ unit_start() {
         UT_SOCAT[$key]=$LAST_PID
     fi
     # shellcheck disable=SC2046
-    start_bg "$d/server.log" "$d/server.log" $(lib_env "$slib") LD_PRELOAD="$BIN/libloaded.so" SRVTEST_LOADED_FILE="$d/loaded-server" \
+    start_bg "$d/server.log" "$d/server.log" $(lib_env "$slib") LD_PRELOAD="$preload" SRVTEST_LOADED_FILE="$d/loaded-server" \
         UT_PORT="$port" UT_DEVICE="$d/ttyV0" "$BIN/unit-test-server" "$t"
     UT_SRV[$key]=$LAST_PID
     for i in $(seq 1 100); do
@@ -280,6 +327,10 @@ unit_finish() {
         why="$why $(grep -m1 'assertion error' "$d/client.log" | cut -c1-160);"
     check_loaded "$d/loaded-client" "$clib" >"$d/loaded.check" || why="$why client did not load $clib;"
     check_loaded "$d/loaded-server" "$slib" >>"$d/loaded.check" || why="$why server did not load $slib;"
+    if [ "$slib" = callbacks ]; then
+        grep -q '^reply-callbacks: modbus_reply answers through' "$d/server.log" ||
+            why="$why the server did not answer through the callbacks;"
+    fi
     for n in $(grep -o 'EXPECTED-3.1.12-DIFFERENCE: [a-z0-9-]*' "$d/client.log" | awk '{print $2}' | sort -u); do
         grep -q "^$n|" "$ALLOWED" || why="$why difference $n is not named;"
     done
@@ -305,13 +356,16 @@ unit_finish() {
 declare -A UT_CELL=()
 if [ "$ut_built" = 1 ]; then
     section "3. Debian's unit-test-client x unit-test-server, every library combination"
+    # "callbacks": our library, the server's modbus_reply through modbus_reply_callbacks
+    # (server/reply-callbacks.c).
+    ut_combos=("debian debian" "debian ours" "ours debian" "ours ours" "debian callbacks" "ours callbacks")
     for t in tcp tcppi rtu; do
         selected "unit-test $t" || continue
-        # The four combinations of a transport run side by side (own ports and ptys).
-        for combo in "debian debian" "debian ours" "ours debian" "ours ours"; do
+        # The combinations of a transport run side by side (own ports and ptys).
+        for combo in "${ut_combos[@]}"; do
             unit_start "$t" ${combo% *} ${combo#* }
         done
-        for combo in "debian debian" "debian ours" "ours debian" "ours ours"; do
+        for combo in "${ut_combos[@]}"; do
             unit_finish "$t" ${combo% *} ${combo#* }
         done
     done
@@ -369,9 +423,10 @@ section "summary"
 for t in tcp tcppi rtu; do
     [ -n "${UT_CELL["$t debian debian"]:-}" ] || continue
     echo "unit-test matrix, $t (client library x server library; N+Mopt = OK lines + optional checks that failed):"
-    printf '  %-14s %-52s %s\n' "" "server debian" "server ours"
+    printf '  %-14s %-40s %-40s %s\n' "" "server debian" "server ours" "server ours, callbacks"
     for c in debian ours; do
-        printf '  client %-7s %-52s %s\n' "$c" "${UT_CELL["$t $c debian"]:-}" "${UT_CELL["$t $c ours"]:-}"
+        printf '  client %-7s %-40s %-40s %s\n' "$c" "${UT_CELL["$t $c debian"]:-}" "${UT_CELL["$t $c ours"]:-}" \
+            "${UT_CELL["$t $c callbacks"]:-}"
     done
 done
 for row in "${MATRIX[@]}"; do

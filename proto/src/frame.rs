@@ -137,7 +137,8 @@ pub enum Layout {
 /// by their own layouts; off, they are framed as libmodbus frames them (up to the
 /// function code for a request, one byte more for a response: its issues #340, #343,
 /// #493), so that a server not configured for them behaves exactly like libmodbus.
-/// Unknown function codes (and exception responses) are libmodbus's too.
+/// Unknown function codes (and exception responses) are libmodbus's too, but for the
+/// requests a server beyond libmodbus takes whole.
 pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
     use Layout::*;
     match kind {
@@ -150,6 +151,9 @@ pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
             fc::READ_FILE_RECORD | fc::WRITE_FILE_RECORD if extended => Counted(1),
             fc::READ_FIFO_QUEUE if extended => Fixed(2),
             fc::ENCAPSULATED_INTERFACE if extended => Fixed(3),
+            // A server beyond libmodbus takes a request it does not know whole (the
+            // MBAP length on TCP, the frame on ASCII) for the application to answer.
+            _ if extended => Known(0),
             _ => Fixed(0),
         },
         MsgKind::Confirmation => match function {
@@ -173,9 +177,10 @@ pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
 /// responses the `extended` flag frames differently (see [`layout`]). The one list
 /// of them; the response checks ask it.
 pub fn beyond_libmodbus(function: u8) -> bool {
-    [MsgKind::Indication, MsgKind::Confirmation]
-        .into_iter()
-        .any(|kind| layout(kind, true, function) != layout(kind, false, function))
+    let request = layout(MsgKind::Indication, true, function);
+    let unknown = request == Layout::Known(0);
+    (!unknown && request != layout(MsgKind::Indication, false, function))
+        || layout(MsgKind::Confirmation, true, function) != layout(MsgKind::Confirmation, false, function)
 }
 
 /// `MEI_READ_DEVICE_ID`: the MEI type of FC 0x2B that carries device identification.
@@ -599,12 +604,18 @@ mod tests {
             };
             let expected = if counted { Layout::Counted(meta) } else { Layout::Fixed(meta) };
             assert_eq!(layout(MsgKind::Confirmation, false, function), expected, "response {function:#x}");
-            // Extended framing changes only the codes beyond libmodbus.
+            // Extended framing changes only the codes beyond libmodbus, and takes the
+            // requests libmodbus frames up to their code whole (from the line).
             let beyond = matches!(function, 0x08 | 0x0B | 0x0C | 0x14 | 0x15 | 0x18 | 0x2B);
+            assert_eq!(beyond_libmodbus(function), beyond, "beyond libmodbus {function:#x}");
             for kind in [MsgKind::Indication, MsgKind::Confirmation] {
-                if !beyond {
-                    assert_eq!(layout(kind, true, function), layout(kind, false, function), "{kind:?} {function:#x}");
+                if beyond {
+                    continue;
                 }
+                let plain = layout(kind, false, function);
+                let whole = kind == MsgKind::Indication && plain == Layout::Fixed(0);
+                let expected = if whole { Layout::Known(0) } else { plain };
+                assert_eq!(layout(kind, true, function), expected, "{kind:?} {function:#x}");
             }
         }
     }

@@ -232,6 +232,165 @@ fn pack_unmasked(chunk: &[u8]) -> u8 {
     byte as u8
 }
 
+/// Why a data access was not carried out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refusal {
+    /// Answer with this exception code.
+    Exception(u8),
+    /// Send no answer at all.
+    Silent,
+}
+
+/// The request a data access serves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Request {
+    pub unit: u8,
+    pub function: u8,
+    /// The MBAP transaction id (0 on a serial line).
+    pub transaction_id: u16,
+}
+
+/// `nb` items from `address`: a range a request touches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Range {
+    pub address: u16,
+    pub nb: u16,
+}
+
+/// What a server serves, as the accesses a request makes: `modbus_reply`'s mapping
+/// ([`MappingData`]) and `modbus_reply_callbacks`' callbacks are the two kinds, on
+/// the one path of [`Server::answer`]. Values are in host order: registers as
+/// `u16`, bits one per byte (0 or 1). Which table an access reaches is the
+/// request's function code: reads of bits are coils (01) or discrete inputs (02);
+/// reads of registers are input registers (04) or holding registers (03, 16, 17).
+pub trait Data {
+    /// Whether the server answers requests for `unit` (a serial broadcast is never
+    /// asked about).
+    fn accept_unit(&mut self, _unit: u8) -> bool {
+        true
+    }
+    /// Where libmodbus checks a request's ranges against its tables, before any
+    /// access: a mapping refuses ranges outside its tables here, with libmodbus's
+    /// message (so that the order of libmodbus's checks holds). Callbacks refuse when
+    /// they are called.
+    fn check(&mut self, _rq: &Request, _ranges: &[Range], _diag: &mut dyn Diag) -> Result<(), Refusal> {
+        Ok(())
+    }
+    fn read_bits(&mut self, rq: &Request, address: u16, dest: &mut [u8]) -> Result<(), Refusal>;
+    fn read_registers(&mut self, rq: &Request, address: u16, dest: &mut [u16]) -> Result<(), Refusal>;
+    fn write_bits(&mut self, rq: &Request, address: u16, src: &[u8]) -> Result<(), Refusal>;
+    fn write_registers(&mut self, rq: &Request, address: u16, src: &[u16]) -> Result<(), Refusal>;
+    /// A function code the reply does not serve from data (report slave id, read
+    /// exception status, unknown codes): `Some` is the answer, the response PDU's
+    /// length written to `rsp` (function code first), or a refusal; `None` leaves
+    /// libmodbus's own answer.
+    fn other(&mut self, _rq: &Request, _pdu: &[u8], _rsp: &mut [u8]) -> Option<Result<usize, Refusal>> {
+        None
+    }
+}
+
+/// A [`Mapping`] as [`Data`]: what `modbus_reply` serves.
+pub struct MappingData<'a>(pub &'a mut dyn Mapping);
+
+impl MappingData<'_> {
+    /// The table a function code reads or writes (`check`'s start and size).
+    fn bounds(&mut self, function: u8) -> (i32, i64) {
+        let m = &mut *self.0;
+        match function {
+            fc::READ_COILS | fc::WRITE_SINGLE_COIL | fc::WRITE_MULTIPLE_COILS => {
+                let t = m.bits();
+                (t.start, t.nb())
+            }
+            fc::READ_DISCRETE_INPUTS => {
+                let t = m.input_bits();
+                (t.start, t.nb())
+            }
+            fc::READ_INPUT_REGISTERS => {
+                let t = m.input_registers();
+                (t.start, t.nb())
+            }
+            _ => {
+                let t = m.registers();
+                (t.start, t.nb())
+            }
+        }
+    }
+}
+
+/// The refusal of an access outside a table (which `check` has already refused).
+const OUTSIDE: Refusal = Refusal::Exception(exception::ILLEGAL_DATA_ADDRESS);
+
+impl Data for MappingData<'_> {
+    fn check(&mut self, rq: &Request, ranges: &[Range], diag: &mut dyn Diag) -> Result<(), Refusal> {
+        let (start, size) = self.bounds(rq.function);
+        let covered = |r: &Range| {
+            let first = r.address as i64 - start as i64;
+            first >= 0 && first + r.nb as i64 <= size
+        };
+        if ranges.iter().all(covered) {
+            return Ok(());
+        }
+        // libmodbus shows the address when it lies below the table, else the end.
+        let shown = |r: &Range| {
+            if (r.address as i64) < start as i64 { r.address as i64 } else { r.address as i64 + r.nb as i64 }
+        };
+        let first = ranges.first().copied().unwrap_or(Range { address: 0, nb: 0 });
+        let (address, what) = match rq.function {
+            fc::READ_COILS => (shown(&first), "read_bits"),
+            fc::READ_DISCRETE_INPUTS => (shown(&first), "read_input_bits"),
+            fc::READ_HOLDING_REGISTERS => (shown(&first), "read_registers"),
+            fc::READ_INPUT_REGISTERS => (shown(&first), "read_input_registers"),
+            fc::WRITE_SINGLE_COIL => (first.address as i64, "write bit"),
+            fc::WRITE_MULTIPLE_COILS => (shown(&first), "write_bits"),
+            fc::WRITE_MULTIPLE_REGISTERS => (shown(&first), "write_registers"),
+            fc::WRITE_AND_READ_REGISTERS => {
+                let write = ranges.get(1).copied().unwrap_or(first);
+                diag.err(format_args!(
+                    "Illegal data read address 0x{:X} or write address 0x{:X} write_and_read_registers\n",
+                    shown(&first),
+                    shown(&write)
+                ));
+                return Err(OUTSIDE);
+            }
+            // 06 and 16 (mask write).
+            _ => (first.address as i64, "write_register"),
+        };
+        diag.err(format_args!("Illegal data address 0x{address:X} in {what}\n"));
+        Err(OUTSIDE)
+    }
+
+    fn read_bits(&mut self, rq: &Request, address: u16, dest: &mut [u8]) -> Result<(), Refusal> {
+        let table = if rq.function == fc::READ_DISCRETE_INPUTS { self.0.input_bits() } else { self.0.bits() };
+        let first = table.range(address, dest.len() as i64).ok_or(OUTSIDE)?;
+        dest.copy_from_slice(&table.data[first..first + dest.len()]);
+        Ok(())
+    }
+
+    fn read_registers(&mut self, rq: &Request, address: u16, dest: &mut [u16]) -> Result<(), Refusal> {
+        let table = if rq.function == fc::READ_INPUT_REGISTERS { self.0.input_registers() } else { self.0.registers() };
+        let first = table.range(address, dest.len() as i64).ok_or(OUTSIDE)?;
+        dest.copy_from_slice(&table.data[first..first + dest.len()]);
+        Ok(())
+    }
+
+    fn write_bits(&mut self, _rq: &Request, address: u16, src: &[u8]) -> Result<(), Refusal> {
+        let table = self.0.bits();
+        let first = table.range(address, src.len() as i64).ok_or(OUTSIDE)?;
+        table.data[first..first + src.len()].copy_from_slice(src);
+        Ok(())
+    }
+
+    fn write_registers(&mut self, _rq: &Request, address: u16, src: &[u16]) -> Result<(), Refusal> {
+        let table = self.0.registers();
+        let first = table.range(address, src.len() as i64).ok_or(OUTSIDE)?;
+        table.data[first..first + src.len()].copy_from_slice(src);
+        Ok(())
+    }
+}
+
+/// Nothing sent, 0 returned: an answer withheld.
+pub const SILENT: Outcome = Outcome::Respond { len: 0, exception: None, flush_first: false, suppressed: true };
+
 /// The server's state that shapes a reply.
 #[derive(Clone, Copy, Debug)]
 pub struct Server {
@@ -240,9 +399,14 @@ pub struct Server {
     pub quirks: u32,
 }
 
+/// An answer as built: the response's length, its exception code, and whether the
+/// link is flushed (after the response timeout) before it is sent.
+type Built = (usize, Option<u8>, bool);
+
 impl Server {
-    /// Answers `req` (the request as received; see [`request_extent`]) against
-    /// `mapping`. `req_length` is the C caller's value, which may be anything.
+    /// `modbus_reply`: answers `req` (the request as received; see
+    /// [`request_extent`]) from `mapping`. `req_length` is the C caller's value, which
+    /// may be anything.
     #[inline]
     pub fn reply(
         &self,
@@ -252,15 +416,18 @@ impl Server {
         diag: &mut dyn Diag,
         out: &mut [u8; MAX_ADU_LENGTH],
     ) -> Outcome {
-        self.reply_general(req, req_length, mapping, diag, out)
+        self.answer(req, req_length, &mut MappingData(mapping), diag, out)
     }
 
-    #[inline]
-    fn reply_general(
+    /// Answers `req` from `data`, in libmodbus's order of checks: the request's
+    /// quantities, then its ranges ([`Data::check`]), then its lengths and values,
+    /// then the accesses; FC 16 (mask write) reads then writes the register, FC 17
+    /// writes then reads.
+    pub fn answer(
         &self,
         req: &[u8],
         req_length: i32,
-        mapping: &mut dyn Mapping,
+        data: &mut dyn Data,
         diag: &mut dyn Diag,
         out: &mut [u8; MAX_ADU_LENGTH],
     ) -> Outcome {
@@ -273,235 +440,209 @@ impl Server {
         // The comparison is unsigned in C, so a negative length counts as large.
         let address = if req_length < 0 || req_length as i64 >= (h + 3) as i64 { r.u16(h + 1) } else { 0 };
         let tid = framing.response_tid(req);
+        let rq = Request { unit: slave, function, transaction_id: tid };
 
         // Prints the message (stderr side), then builds the exception response.
         macro_rules! exception {
             ($code:expr, $flush:expr, $($fmt:tt)*) => {{
                 diag.err(format_args!($($fmt)*));
-                (exception_response(framing, req, $code, out), Some($code), $flush)
+                Ok((exception_response(framing, req, $code, out), Some($code), $flush))
+            }};
+        }
+        // The response to a read: `[header][byte count]`, then `fill` writes the
+        // values after it and gives their length.
+        macro_rules! respond_read {
+            ($count:expr, $fill:expr) => {{
+                let n = response_basis(framing, tid, slave, function, out);
+                out[n] = $count as u8;
+                let values: usize = $fill(&mut out[n + 1..]);
+                Ok((n + 1 + values, None, false))
+            }};
+        }
+        // A multiple write's response: its header, then the request's address and
+        // quantity.
+        macro_rules! echo {
+            () => {{
+                let n = response_basis(framing, tid, slave, function, out);
+                for k in n..n + 4 {
+                    out[k] = r.u8(k);
+                }
+                Ok((n + 4, None, false))
+            }};
+        }
+        // A single write's response: the request's first `len` bytes, as they came.
+        macro_rules! copy {
+            ($len:expr) => {{
+                r.copy_to(out, $len);
+                Ok(($len, None, false))
             }};
         }
 
-        let (len, exc, flush_first) = match function {
+        let built: Result<Built, Refusal> = match function {
             fc::READ_COILS | fc::READ_DISCRETE_INPUTS => {
-                let is_input = function == fc::READ_DISCRETE_INPUTS;
-                let name = if is_input { "read_input_bits" } else { "read_bits" };
-                let nb = r.u16(h + 3) as i64;
-                let table = if is_input { mapping.input_bits() } else { mapping.bits() };
-                if !(1..=MAX_READ_BITS as i64).contains(&nb) {
+                let name = if function == fc::READ_DISCRETE_INPUTS { "read_input_bits" } else { "read_bits" };
+                let nb = r.u16(h + 3);
+                if !(1..=MAX_READ_BITS as i64).contains(&(nb as i64)) {
                     exception!(
                         exception::ILLEGAL_DATA_VALUE,
                         true,
                         "Illegal nb of values {nb} in {name} (max {MAX_READ_BITS})\n"
                     )
-                } else if let Some(first) = table.range(address, nb) {
-                    let mut n = response_basis(framing, tid, slave, function, out);
-                    out[n] = ((nb + 7) / 8) as u8;
-                    n += 1;
-                    n += pack_bits(&table.data[first..first + nb as usize], &mut out[n..]);
-                    (n, None, false)
                 } else {
-                    let shown =
-                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{shown:X} in {name}\n")
+                    let mut bits = [0u8; MAX_READ_BITS as usize];
+                    let bits = &mut bits[..nb as usize];
+                    data.check(&rq, &[Range { address, nb }], diag)
+                        .and_then(|()| data.read_bits(&rq, address, bits))
+                        .and_then(|()| respond_read!(nb.div_ceil(8), |o: &mut [u8]| pack_bits(bits, o)))
                 }
             }
             fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS => {
                 let is_input = function == fc::READ_INPUT_REGISTERS;
                 let name = if is_input { "read_input_registers" } else { "read_registers" };
-                let nb = r.u16(h + 3) as i64;
-                let table = if is_input { mapping.input_registers() } else { mapping.registers() };
-                if !(1..=MAX_READ_REGISTERS as i64).contains(&nb) {
+                let nb = r.u16(h + 3);
+                if !(1..=MAX_READ_REGISTERS as i64).contains(&(nb as i64)) {
                     exception!(
                         exception::ILLEGAL_DATA_VALUE,
                         true,
                         "Illegal nb of values {nb} in {name} (max {MAX_READ_REGISTERS})\n"
                     )
-                } else if let Some(first) = table.range(address, nb) {
-                    let mut n = response_basis(framing, tid, slave, function, out);
-                    out[n] = (nb * 2) as u8;
-                    n += 1;
-                    registers_to_be(&table.data[first..first + nb as usize], &mut out[n..n + 2 * nb as usize]);
-                    n += 2 * nb as usize;
-                    (n, None, false)
                 } else {
-                    let shown =
-                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
-                    exception!(exception::ILLEGAL_DATA_ADDRESS, false, "Illegal data address 0x{shown:X} in {name}\n")
+                    let mut regs = [0u16; MAX_READ_REGISTERS as usize];
+                    let regs = &mut regs[..nb as usize];
+                    data.check(&rq, &[Range { address, nb }], diag)
+                        .and_then(|()| data.read_registers(&rq, address, regs))
+                        .and_then(|()| {
+                            respond_read!(nb * 2, |o: &mut [u8]| {
+                                registers_to_be(regs, &mut o[..2 * regs.len()]);
+                                2 * regs.len()
+                            })
+                        })
                 }
             }
-            fc::WRITE_SINGLE_COIL => {
-                let table = mapping.bits();
-                let expected = fixed_request_length(framing, 5);
-                if let Some(i) = table.range(address, 1) {
-                    if req_length as i64 != expected {
-                        exception!(
-                            exception::ILLEGAL_DATA_VALUE,
-                            false,
-                            "Invalid request length in modbus_reply to write bit ({req_length})\n"
-                        )
-                    } else {
-                        let data = r.u16(h + 3);
-                        if data == 0xFF00 || data == 0 {
-                            table.data[i] = (data != 0) as u8;
-                            r.copy_to(out, h + 5);
-                            (h + 5, None, false)
-                        } else {
-                            exception!(
-                                exception::ILLEGAL_DATA_VALUE,
-                                false,
-                                "Illegal data value 0x{data:X} in write_bit request at address {address:X}\n"
-                            )
-                        }
-                    }
-                } else {
+            fc::WRITE_SINGLE_COIL => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(|()| {
+                let value = r.u16(h + 3);
+                if req_length as i64 != fixed_request_length(framing, 5) {
                     exception!(
-                        exception::ILLEGAL_DATA_ADDRESS,
+                        exception::ILLEGAL_DATA_VALUE,
                         false,
-                        "Illegal data address 0x{address:X} in write bit\n"
+                        "Invalid request length in modbus_reply to write bit ({req_length})\n"
                     )
-                }
-            }
-            fc::WRITE_SINGLE_REGISTER => {
-                let table = mapping.registers();
-                let expected = fixed_request_length(framing, 5);
-                if let Some(i) = table.range(address, 1) {
-                    if req_length as i64 != expected {
-                        exception!(
-                            exception::ILLEGAL_DATA_VALUE,
-                            false,
-                            "Invalid request length in modbus_reply to write register ({req_length})\n"
-                        )
-                    } else {
-                        table.data[i] = r.u16(h + 3);
-                        r.copy_to(out, h + 5);
-                        (h + 5, None, false)
-                    }
-                } else {
+                } else if value != 0xFF00 && value != 0 {
                     exception!(
-                        exception::ILLEGAL_DATA_ADDRESS,
+                        exception::ILLEGAL_DATA_VALUE,
                         false,
-                        "Illegal data address 0x{address:X} in write_register\n"
+                        "Illegal data value 0x{value:X} in write_bit request at address {address:X}\n"
                     )
+                } else {
+                    data.write_bits(&rq, address, &[(value != 0) as u8]).and_then(|()| copy!(h + 5))
                 }
-            }
+            }),
+            fc::WRITE_SINGLE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(|()| {
+                if req_length as i64 != fixed_request_length(framing, 5) {
+                    exception!(
+                        exception::ILLEGAL_DATA_VALUE,
+                        false,
+                        "Invalid request length in modbus_reply to write register ({req_length})\n"
+                    )
+                } else {
+                    data.write_registers(&rq, address, &[r.u16(h + 3)]).and_then(|()| copy!(h + 5))
+                }
+            }),
             fc::WRITE_MULTIPLE_COILS => {
-                let nb = r.u16(h + 3) as i64;
+                let nb = r.u16(h + 3);
                 let byte_count = r.u8(h + 5) as i64;
-                let table = mapping.bits();
-                if !(1..=MAX_WRITE_BITS as i64).contains(&nb) || byte_count * 8 < nb {
+                if !(1..=MAX_WRITE_BITS as i64).contains(&(nb as i64)) || byte_count * 8 < nb as i64 {
                     // CVE-2019-14462: the byte count must cover the quantity.
                     exception!(
                         exception::ILLEGAL_DATA_VALUE,
                         true,
                         "Illegal number of values {nb} in write_bits (max {MAX_WRITE_BITS})\n"
                     )
-                } else if let Some(first) = table.range(address, nb) {
-                    let bits = &mut table.data[first..first + nb as usize];
-                    match req.get(h + 6..h + 6 + bits.len().div_ceil(8)) {
-                        Some(packed) => crate::data::set_bits_from_bytes(bits, packed),
-                        None => {
-                            for (k, bit) in bits.iter_mut().enumerate() {
-                                *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
+                } else {
+                    data.check(&rq, &[Range { address, nb }], diag).and_then(|()| {
+                        let mut bits = [0u8; MAX_WRITE_BITS as usize];
+                        let bits = &mut bits[..nb as usize];
+                        match req.get(h + 6..h + 6 + bits.len().div_ceil(8)) {
+                            Some(packed) => crate::data::set_bits_from_bytes(bits, packed),
+                            None => {
+                                for (k, bit) in bits.iter_mut().enumerate() {
+                                    *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
+                                }
                             }
                         }
-                    }
-                    let n = response_basis(framing, tid, slave, function, out);
-                    for k in 0..4 {
-                        out[n + k] = r.u8(n + k);
-                    }
-                    (n + 4, None, false)
-                } else {
-                    let shown =
-                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
-                    exception!(
-                        exception::ILLEGAL_DATA_ADDRESS,
-                        false,
-                        "Illegal data address 0x{shown:X} in write_bits\n"
-                    )
+                        data.write_bits(&rq, address, bits).and_then(|()| echo!())
+                    })
                 }
             }
             fc::WRITE_MULTIPLE_REGISTERS => {
-                let nb = r.u16(h + 3) as i64;
+                let nb = r.u16(h + 3);
                 let byte_count = r.u8(h + 5) as i64;
-                let table = mapping.registers();
-                if !(1..=MAX_WRITE_REGISTERS as i64).contains(&nb) || byte_count != nb * 2 {
+                if !(1..=MAX_WRITE_REGISTERS as i64).contains(&(nb as i64)) || byte_count != nb as i64 * 2 {
                     // CVE-2019-14463: the byte count must be exactly two per register.
                     exception!(
                         exception::ILLEGAL_DATA_VALUE,
                         true,
                         "Illegal number of values {nb} in write_registers (max {MAX_WRITE_REGISTERS})\n"
                     )
-                } else if let Some(first) = table.range(address, nb) {
-                    r.registers_to(h + 6, &mut table.data[first..first + nb as usize]);
-                    let n = response_basis(framing, tid, slave, function, out);
-                    for k in 0..4 {
-                        out[n + k] = r.u8(n + k);
-                    }
-                    (n + 4, None, false)
                 } else {
-                    let shown =
-                        if (address as i64) < table.start as i64 { address as i64 } else { address as i64 + nb };
-                    exception!(
-                        exception::ILLEGAL_DATA_ADDRESS,
-                        false,
-                        "Illegal data address 0x{shown:X} in write_registers\n"
-                    )
+                    data.check(&rq, &[Range { address, nb }], diag).and_then(|()| {
+                        let mut regs = [0u16; MAX_WRITE_REGISTERS as usize];
+                        let regs = &mut regs[..nb as usize];
+                        r.registers_to(h + 6, regs);
+                        data.write_registers(&rq, address, regs).and_then(|()| echo!())
+                    })
                 }
             }
-            fc::REPORT_SLAVE_ID => {
-                let mut n = response_basis(framing, tid, slave, function, out);
-                let count_at = n;
-                n += 1;
-                out[n] = REPORT_SLAVE_ID_BYTE;
-                out[n + 1] = 0xFF; // run indicator ON
-                n += 2;
-                for part in [b"LMB".as_slice(), VERSION_STRING.as_bytes()] {
-                    out[n..n + part.len()].copy_from_slice(part);
-                    n += part.len();
-                }
-                out[count_at] = (n - count_at - 1) as u8;
-                (n, None, false)
-            }
-            fc::READ_EXCEPTION_STATUS => {
-                // libmodbus through 3.1.12 answers nothing at all.
-                diag.err(format_args!("FIXME Not implemented\n"));
-                return Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT));
-            }
-            fc::MASK_WRITE_REGISTER => {
-                let table = mapping.registers();
-                if let Some(i) = table.range(address, 1) {
-                    // libmodbus modifies the register before checking the length.
-                    let and = r.u16(h + 3);
-                    let or = r.u16(h + 5);
-                    table.data[i] = (table.data[i] & and) | (or & !and);
-                    if req_length as i64 != fixed_request_length(framing, 7) {
-                        exception!(
-                            exception::ILLEGAL_DATA_VALUE,
-                            false,
-                            "Invalid request length in modbus_reply to mask write register ({req_length})\n"
-                        )
-                    } else {
-                        r.copy_to(out, h + 7);
-                        (h + 7, None, false)
+            fc::REPORT_SLAVE_ID => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
+                Some(answered) => self.answered(answered, &rq, out),
+                None => {
+                    let mut n = response_basis(framing, tid, slave, function, out);
+                    let count_at = n;
+                    n += 1;
+                    out[n] = REPORT_SLAVE_ID_BYTE;
+                    out[n + 1] = 0xFF; // run indicator ON
+                    n += 2;
+                    for part in [b"LMB".as_slice(), VERSION_STRING.as_bytes()] {
+                        out[n..n + part.len()].copy_from_slice(part);
+                        n += part.len();
                     }
-                } else {
-                    exception!(
-                        exception::ILLEGAL_DATA_ADDRESS,
-                        false,
-                        "Illegal data address 0x{address:X} in write_register\n"
-                    )
+                    out[count_at] = (n - count_at - 1) as u8;
+                    Ok((n, None, false))
                 }
-            }
+            },
+            fc::READ_EXCEPTION_STATUS => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
+                Some(answered) => self.answered(answered, &rq, out),
+                None => {
+                    // libmodbus through 3.1.12 answers nothing at all.
+                    diag.err(format_args!("FIXME Not implemented\n"));
+                    return Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT));
+                }
+            },
+            fc::MASK_WRITE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(|()| {
+                // libmodbus modifies the register before checking the length.
+                let mut value = [0u16];
+                data.read_registers(&rq, address, &mut value)?;
+                let and = r.u16(h + 3);
+                let or = r.u16(h + 5);
+                data.write_registers(&rq, address, &[(value[0] & and) | (or & !and)])?;
+                if req_length as i64 != fixed_request_length(framing, 7) {
+                    exception!(
+                        exception::ILLEGAL_DATA_VALUE,
+                        false,
+                        "Invalid request length in modbus_reply to mask write register ({req_length})\n"
+                    )
+                } else {
+                    copy!(h + 7)
+                }
+            }),
             fc::WRITE_AND_READ_REGISTERS => {
-                let nb = r.u16(h + 3) as i64;
+                let nb = r.u16(h + 3);
                 let address_write = r.u16(h + 5);
-                let nb_write = r.u16(h + 7) as i64;
+                let nb_write = r.u16(h + 7);
                 let write_bytes = r.u8(h + 9) as i64;
-                let table = mapping.registers();
-                if !(1..=MAX_WR_WRITE_REGISTERS as i64).contains(&nb_write)
-                    || !(1..=MAX_WR_READ_REGISTERS as i64).contains(&nb)
-                    || write_bytes != nb_write * 2
+                if !(1..=MAX_WR_WRITE_REGISTERS as i64).contains(&(nb_write as i64))
+                    || !(1..=MAX_WR_READ_REGISTERS as i64).contains(&(nb as i64))
+                    || write_bytes != nb_write as i64 * 2
                 {
                     exception!(
                         exception::ILLEGAL_DATA_VALUE,
@@ -509,40 +650,57 @@ impl Server {
                         "Illegal nb of values (W{nb_write}, R{nb}) in write_and_read_registers \
                              (max W{MAX_WR_WRITE_REGISTERS}, R{MAX_WR_READ_REGISTERS})\n"
                     )
-                } else if let (Some(first), Some(first_write)) =
-                    (table.range(address, nb), table.range(address_write, nb_write))
-                {
-                    // CVE-2022-0367: both ranges are checked. Write first, then read.
-                    r.registers_to(h + 10, &mut table.data[first_write..first_write + nb_write as usize]);
-                    let mut n = response_basis(framing, tid, slave, function, out);
-                    out[n] = (nb * 2) as u8;
-                    n += 1;
-                    registers_to_be(&table.data[first..first + nb as usize], &mut out[n..n + 2 * nb as usize]);
-                    n += 2 * nb as usize;
-                    (n, None, false)
                 } else {
-                    let start = table.start as i64;
-                    let shown = if (address as i64) < start { address as i64 } else { address as i64 + nb };
-                    let shown_write = if (address_write as i64) < start {
-                        address_write as i64
-                    } else {
-                        address_write as i64 + nb_write
-                    };
-                    exception!(
-                        exception::ILLEGAL_DATA_ADDRESS,
-                        false,
-                        "Illegal data read address 0x{shown:X} or write address 0x{shown_write:X} \
-                             write_and_read_registers\n"
-                    )
+                    let ranges = [Range { address, nb }, Range { address: address_write, nb: nb_write }];
+                    data.check(&rq, &ranges, diag).and_then(|()| {
+                        // CVE-2022-0367: both ranges are checked. Write first, then read.
+                        let mut written = [0u16; MAX_WR_WRITE_REGISTERS as usize];
+                        let written = &mut written[..nb_write as usize];
+                        r.registers_to(h + 10, written);
+                        data.write_registers(&rq, address_write, written)?;
+                        let mut regs = [0u16; MAX_WR_READ_REGISTERS as usize];
+                        let regs = &mut regs[..nb as usize];
+                        data.read_registers(&rq, address, regs)?;
+                        respond_read!(nb * 2, |o: &mut [u8]| {
+                            registers_to_be(regs, &mut o[..2 * regs.len()]);
+                            2 * regs.len()
+                        })
+                    })
                 }
             }
-            _ => exception!(exception::ILLEGAL_FUNCTION, true, "Unknown Modbus function code: 0x{function:X}\n"),
+            _ => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
+                Some(answered) => self.answered(answered, &rq, out),
+                None => {
+                    exception!(exception::ILLEGAL_FUNCTION, true, "Unknown Modbus function code: 0x{function:X}\n")
+                }
+            },
         };
 
+        let (len, exc, flush_first) = match built {
+            Ok(built) => built,
+            Err(Refusal::Silent) => return SILENT,
+            Err(Refusal::Exception(code)) => (exception_response(framing, req, code, out), Some(code), false),
+        };
         let suppressed =
             framing.is_serial() && slave as i32 == BROADCAST_ADDRESS && self.quirks & QUIRK_REPLY_TO_BROADCAST == 0;
         Outcome::Respond { len, exception: exc, flush_first, suppressed }
     }
+
+    /// The response of [`Data::other`]'s answer: its PDU (already in place after the
+    /// header) behind the header.
+    fn answered(&self, answered: Result<usize, Refusal>, rq: &Request, out: &mut [u8]) -> Result<Built, Refusal> {
+        let len = answered?;
+        let h = self.framing.header_length();
+        self.framing.write_header(out, rq.unit, rq.transaction_id);
+        Ok((h + len, None, false))
+    }
+}
+
+/// The PDU of a request (without its header and checksum).
+pub fn pdu(framing: Framing, req: &[u8]) -> &[u8] {
+    let h = framing.header_length();
+    let end = req.len().saturating_sub(framing.checksum_length());
+    if end <= h { &[] } else { &req[h..end] }
 }
 
 #[cfg(test)]

@@ -36,7 +36,7 @@ use crate::diagnostics::{Delivery, Diagnostics, sub};
 use crate::error::{Error, Result, exception};
 use crate::frame::{Framing, MAX_ADU_LENGTH, MEI_READ_DEVICE_ID};
 use crate::limits::{BROADCAST_ADDRESS, MAX_PDU_LENGTH};
-use crate::reply::{Mapping, Outcome, QUIRK_REPLY_TO_BROADCAST, Server, exception_response};
+use crate::reply::{Data, Outcome, QUIRK_REPLY_TO_BROADCAST, SILENT, Server, exception_response, pdu as pdu_of};
 use crate::{Diag, fc};
 
 /// Records per file: numbers 0..=9999.
@@ -84,9 +84,6 @@ pub struct Answer {
     pub completed: bool,
 }
 
-/// Nothing to send, return 0 (listen-only mode, Force Listen Only Mode).
-const SILENT: Outcome = Outcome::Respond { len: 0, exception: None, flush_first: false, suppressed: true };
-
 /// What `modbus_receive` saw, for the bus counters.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BusEvent {
@@ -126,13 +123,6 @@ fn be16(b: &[u8], at: usize) -> u16 {
 
 fn put16(out: &mut [u8], at: usize, v: u16) {
     out[at..at + 2].copy_from_slice(&v.to_be_bytes());
-}
-
-/// The PDU of a request as received: from the function code to the checksum.
-fn pdu_of(framing: Framing, req: &[u8]) -> &[u8] {
-    let h = framing.header_length();
-    let end = req.len().saturating_sub(framing.checksum_length());
-    if end <= h { &[] } else { &req[h..end] }
 }
 
 /// `Some(clear_log)` for a well-formed Restart Communications Option request.
@@ -375,14 +365,14 @@ impl ServerExt {
     // ------------------------------------------------------------ modbus_reply
 
     /// Answers `req` (see `core::reply::request_extent`): the configured function
-    /// codes here, everything else through `server.reply` (libmodbus's answers, from
-    /// `mapping`). In listen-only mode nothing is processed or sent.
+    /// codes here, everything else through `server.answer` (libmodbus's answers, from
+    /// `data`). In listen-only mode nothing is processed or sent.
     pub fn reply(
         &mut self,
         server: Server,
         req: &[u8],
         req_length: i32,
-        mapping: &mut dyn Mapping,
+        data: &mut dyn Data,
         diag: &mut dyn Diag,
         out: &mut [u8; MAX_ADU_LENGTH],
     ) -> Answer {
@@ -416,7 +406,7 @@ impl ServerExt {
             _ => false,
         };
         if !served {
-            let outcome = server.reply(req, req_length, mapping, diag, out);
+            let outcome = server.answer(req, req_length, data, diag, out);
             return Answer { outcome, after: After::Nothing, completed: true };
         }
 

@@ -6,7 +6,7 @@ use super::*;
 use crate::Recorded;
 use crate::ascii::lrc;
 use crate::crc::crc16;
-use crate::reply::{Table, Tables};
+use crate::reply::{MappingData, Table, Tables};
 
 const T: Framing = Framing::Tcp;
 const R: Framing = Framing::Rtu;
@@ -83,7 +83,7 @@ fn run_with(ext: &mut ServerExt, framing: Framing, quirks: u32, req: &[u8], data
     let mut diag = Recorded::default();
     let mut out = [0u8; MAX_ADU_LENGTH];
     let server = Server { framing, quirks };
-    let answer = ext.reply(server, req, req.len() as i32, &mut data.tables(), &mut diag, &mut out);
+    let answer = ext.reply(server, req, req.len() as i32, &mut MappingData(&mut data.tables()), &mut diag, &mut out);
     let (sent, delivery) = match answer.outcome {
         Outcome::Respond { len, suppressed: false, .. } => {
             assert!(len + framing.checksum_length() <= framing.max_adu_length(), "response too long: {len}");
@@ -269,7 +269,7 @@ fn seed_frame_examples() {
     let server = Server { framing: R, quirks: 0 };
     // Log the receive event, then put the seed's state in place and build the answer.
     let mut probe = e.clone();
-    let _ = probe.reply(server, &req, 4, &mut data.tables(), &mut diag, &mut out);
+    let _ = probe.reply(server, &req, 4, &mut MappingData(&mut data.tables()), &mut diag, &mut out);
     let d = e.diagnostics_mut().unwrap();
     d.preset(0x0108, 0x0121, &[0x04, 0x00]);
     let body = &mut out[1..1 + MAX_PDU_LENGTH];

@@ -117,6 +117,9 @@ pub struct Settings {
     pub recovery: i32,
     /// The context's slave (-1: unset); serial frames for others are ignored.
     pub slave: i32,
+    /// A server that answers several units: serial frames for every unit are taken
+    /// (the caller filters them), `slave` notwithstanding.
+    pub any_unit: bool,
     /// Read all the line has, keeping what lies past the message (a client that owns
     /// its line); off, never read past the message.
     pub read_ahead: bool,
@@ -317,6 +320,7 @@ fn check(s: &Settings, msg: &[u8], len: usize) -> Finished {
         Framing::Rtu => match rtu_integrity(&msg[..len], s.slave) {
             RtuIntegrity::Ok => Outcome::Frame(len),
             RtuIntegrity::BadCrc(received, computed) => Outcome::BadChecksum { lrc: false, received, computed },
+            RtuIntegrity::OtherSlave(..) if s.any_unit => Outcome::Frame(len),
             RtuIntegrity::OtherSlave(theirs, ours) => Outcome::Ignored { len, theirs, ours },
         },
         _ => Outcome::Frame(len),
@@ -743,7 +747,7 @@ impl Receiver {
             let outcome = Outcome::BadChecksum { lrc: true, received: received as u16, computed: computed as u16 };
             return ended(s, outcome, len);
         }
-        if frame[0] as i32 != s.slave && frame[0] != 0 {
+        if frame[0] as i32 != s.slave && frame[0] != 0 && !s.any_unit {
             return ended(s, Outcome::Ignored { len, theirs: frame[0], ours: s.slave }, len);
         }
         let whole = len >= 3

@@ -242,6 +242,7 @@ fn settings(framing: Framing, kind: MsgKind) -> Settings {
         timeouts: timeouts(500, 100, 0),
         recovery: 0,
         slave: 1,
+        any_unit: false,
         read_ahead: kind == MsgKind::Confirmation,
         ascii_delimiter: b'\n',
         line: LineCaps { socket, reads_without_waiting: true, timed_reads: socket && kind == MsgKind::Confirmation },

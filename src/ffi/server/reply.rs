@@ -6,7 +6,7 @@ use std::slice;
 use super::mapping::{CMapping, modbus_mapping_t};
 use crate::error::Error;
 use crate::ffi::{Modbus, fail, with_ctx};
-use crate::proto::reply::request_extent;
+use crate::proto::reply::{MappingData, request_extent};
 
 /// Waits for one request and stores it in `req`. Returns its length, or 0 for a
 /// frame filtered out (RTU: another slave's request, or the answer to it).
@@ -25,7 +25,7 @@ pub unsafe extern "C" fn modbus_receive(ctx: *mut Modbus, req: *mut u8) -> c_int
             // SAFETY: the caller's buffer holds the framing's maximum ADU. The receive
             // writes only the bytes it reads, as libmodbus does (even on errors).
             let caller = slice::from_raw_parts_mut(req, g.framing().max_adu_length());
-            crate::server::receive(g, caller).map(|n| n as c_int)
+            crate::server::receive(g, caller, None).map(|n| n as c_int)
         })
     }
 }
@@ -61,7 +61,7 @@ pub unsafe extern "C" fn modbus_reply(
             // SAFETY: the same bytes, now as one slice.
             let req = slice::from_raw_parts(req, extent);
             let mut mapping = CMapping(mb_mapping);
-            crate::server::reply(g, req, req_length, &mut mapping).map(|n| n as c_int)
+            crate::server::reply(g, req, req_length, &mut MappingData(&mut mapping)).map(|n| n as c_int)
         })
     }
 }
