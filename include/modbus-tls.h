@@ -35,6 +35,7 @@ MODBUS_BEGIN_DECLS
 #define EMBTLSVERSION (EMBTLS + 5)
 #define EMBTLSCONFIG (EMBTLS + 6)
 #define EMBTLSPASSWORD (EMBTLS + 7)
+#define EMBTLSCACERT (EMBTLS + 8)
 
 /* modbus_tls_authorize_t, below: the server's authorization callback; 1 allows the
  * request, 0 refuses it. `role` is NULL when the client's certificate has none. */

@@ -10,6 +10,9 @@
 #                                    against libmodbus' blocking calls, over loopback
 #                                    and a 10 ms round trip (benches/pipeline.sh,
 #                                    about 3 minutes)
+#   scripts/bench.sh --callbacks     modbus_reply_callbacks against modbus_reply on one
+#                                    mapping: CPU per reply (benches/reply-cost.sh,
+#                                    about 20 s)
 #   scripts/bench.sh --repeat N [CASE ...]
 #                                    the throughput of CASE (default wr121, TCP) in N
 #                                    runs with new processes each: how far a ratio
@@ -38,6 +41,9 @@ if [ "${1:-}" = --pipeline ]; then
     # Pipelining on one connection: benches/pipeline.sh (about 3 minutes).
     scripts/install-deps.sh >/dev/null
     exec benches/pipeline.sh
+fi
+if [ "${1:-}" = --callbacks ]; then
+    exec benches/reply-cost.sh
 fi
 if [ "${1:-}" = --repeat ]; then
     [ $# -ge 2 ] || { echo "usage: $0 --repeat N [CASE ...]" >&2; exit 2; }

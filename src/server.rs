@@ -24,6 +24,7 @@ use crate::server_ext::BusEvent;
 /// slave which follows it on a shared bus). With `units`, a serial request is kept
 /// when `units` accepts its unit (or it is a broadcast), whatever the context's
 /// slave (`modbus_receive_callbacks`).
+#[inline(always)]
 pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) -> Result<usize> {
     if g.framing() == Framing::Tcp {
         let r = engine::receive_msg(g, buf, MsgKind::Indication);
@@ -115,7 +116,8 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 /// serve on a serial line, an answer `data` withholds (and, with diagnostics, in
 /// listen-only mode). On TCP, a unit not served is answered with exception 0B
 /// (gateway target device failed to respond), as gateways answer it.
-pub fn reply(g: &mut Guard<'_>, req: &[u8], req_length: i32, data: &mut dyn Data) -> Result<usize> {
+#[inline]
+pub fn reply<D: Data>(g: &mut Guard<'_>, req: &[u8], req_length: i32, data: &mut D) -> Result<usize> {
     let framing = g.framing();
     let unit = req.get(framing.header_length() - 1).copied().unwrap_or(0);
     let broadcast = framing.is_serial() && unit == 0;

@@ -143,6 +143,20 @@ if [[ $out == *"write refused: Illegal function"* ]]; then
 else
     bad "examples: tls-client as Reader" "$out"
 fi
+# A server name the certificate carries (a DNS name; the host is an address), and a
+# unit id; then a name it does not carry.
+out=$("$BIN/tls-client" "$C/ca.pem" "$C/reader.pem" "$C/reader.key" 127.0.0.1 "$PORT" localhost 7 2>&1)
+if [[ $out == *"server localhost, unit 7"* && $out == *"registers 0-4:"* && $out == *"write refused"* ]]; then
+    ok "examples: tls-client with server name localhost (host 127.0.0.1) and unit 7"
+else
+    bad "examples: tls-client with server name localhost and unit 7" "$out"
+fi
+out=$("$BIN/tls-client" "$C/ca.pem" "$C/reader.pem" "$C/reader.key" 127.0.0.1 "$PORT" wrong.example 2>&1)
+if [[ $out == *"connection failed: TLS: certificate not valid for the peer's name"* ]]; then
+    ok "examples: tls-client with a server name the certificate does not carry: EMBTLSNAME"
+else
+    bad "examples: tls-client with a wrong server name" "$out"
+fi
 # Restore register 0 (the examples wrote it).
 # TLS 1.1 is refused by the server.
 if openssl s_client -help 2>&1 | grep -q -- -tls1_1; then
@@ -235,6 +249,15 @@ start_server cut server && {
 scenario stop
 scenario callback
 scenario sessions
+# Callbacks over TLS: the role in the request info; a request answered later.
+scenario later
+# A CA's certificate presented as a peer's own: named (errno and debug trace).
+scenario caaspeer
+if grep -q "ERROR TLS handshake: TLS: the peer presented a CA certificate as its own" "$WORK/scenario-caaspeer.out"; then
+    ok "caaspeer: the client's debug trace names the reason"
+else
+    bad "caaspeer: the client's debug trace names the reason" "$(grep 'TLS handshake' "$WORK/scenario-caaspeer.out" | head -n 2)"
+fi
 
 # Records cut in the middle, and peers that leave without close_notify
 # (c-tests/tls/cut.py): clients of our poll-loop server first, then our client
@@ -270,7 +293,7 @@ if c_build_group ASAN SAN=address; then
         >"$WORK/asan-server.out" 2>&1 &
     SERVER_PID=$!
     for _ in $(seq 100); do grep -q serving "$WORK/asan-server.out" && break; sleep 0.05; done
-    for sc in operator reader nocert rogue password stop callback sessions; do
+    for sc in operator reader nocert rogue password stop callback sessions later; do
         if ASAN_OPTIONS=detect_leaks=1 timeout 60 "$ASAN_BIN/tls-test" "$C" 127.0.0.1 "$PORT" "$sc" \
             >"$WORK/asan-$sc.out" 2>&1 && ! grep -q "Sanitizer" "$WORK/asan-$sc.out"; then
             ok "AddressSanitizer: client scenario $sc"

@@ -41,6 +41,13 @@
  *              never meets the old session (role ENOENT, receive -1 EMBTLS); the
  *              session of a client that went is dropped once its socket stops being
  *              current (role ENOENT; receive -1 ECONNRESET, as on a TCP socket)
+ *   later      (in this process) a server answering through modbus_reply_callbacks:
+ *              the request info names the client's role (Operator); of two requests
+ *              in flight from the event-driven client, the first is answered after
+ *              the second, and each gets its own values
+ *   caaspeer   (in this process) a server presenting its CA's certificate as its
+ *              own: the client's connect fails with EMBTLSCACERT, and its debug trace
+ *              says why
  *   threads N  N threads share one client context, 300 write/read-back pairs each on
  *              their own register (80 + i): every answer right
  *   password   keys encrypted with a password (make-certs.sh): without it or with a
@@ -54,6 +61,7 @@
 #define _GNU_SOURCE
 #include <arpa/inet.h>
 #include <errno.h>
+#include <poll.h>
 #include <pthread.h>
 #include <signal.h>
 #include <stdio.h>
@@ -534,6 +542,143 @@ static void sessions_scenario(void)
     modbus_free(server);
 }
 
+/* ---- later: callbacks over TLS, a request answered after the next one ---- */
+
+static char later_role[64];
+
+static int later_read(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest)
+{
+    (void) user_data;
+    snprintf(later_role, sizeof later_role, "%s", ri->tls_role != NULL ? ri->tls_role : "(null)");
+    for (int i = 0; i < nb; i++)
+        dest[i] = (uint16_t) (addr + i);
+    return 0;
+}
+
+static const modbus_server_callbacks_t LATER_CB = {
+    .struct_size = sizeof(modbus_server_callbacks_t),
+    .read_registers = later_read,
+};
+
+struct later_server {
+    modbus_t *ctx;
+    int listener;
+};
+
+/* Serves one client: a read at 150 waits for the next request, answered first. */
+static void *later_serve(void *arg)
+{
+    struct later_server *ls = arg;
+    uint8_t req[MODBUS_TCP_MAX_ADU_LENGTH], held[MODBUS_TCP_MAX_ADU_LENGTH];
+    int held_len = 0;
+    if (modbus_tcp_accept(ls->ctx, &ls->listener) < 0)
+        return NULL;
+    for (;;) {
+        int rc = modbus_receive_callbacks(ls->ctx, req, &LATER_CB, NULL);
+        if (rc < 0)
+            break;
+        if (req[7] == MODBUS_FC_READ_HOLDING_REGISTERS && req[8] == 0 && req[9] == 150 && held_len == 0) {
+            memcpy(held, req, (size_t) rc);
+            held_len = rc;
+            continue;
+        }
+        modbus_reply_callbacks(ls->ctx, req, rc, &LATER_CB, NULL);
+        if (held_len > 0) {
+            modbus_reply_callbacks(ls->ctx, held, held_len, &LATER_CB, NULL);
+            held_len = 0;
+        }
+    }
+    modbus_close(ls->ctx);
+    return NULL;
+}
+
+static int later_order;
+static void later_done(modbus_t *ctx, int id, int rc, int error, void *user_data)
+{
+    (void) ctx;
+    (void) id;
+    (void) error;
+    ((int *) user_data)[0] = rc;
+    ((int *) user_data)[1] = later_order++;
+}
+
+static void later_scenario(void)
+{
+    struct later_server ls;
+    int port, a[2] = {-2, -1}, b[2] = {-2, -1};
+    uint16_t ra[4], rb[4], regs[2];
+    char portstr[16], detail[160];
+    pthread_t t;
+    ls.ctx = listening_server(&ls.listener, &port);
+    pthread_create(&t, NULL, later_serve, &ls);
+    snprintf(portstr, sizeof portstr, "%d", port);
+    modbus_t *ctx = client("127.0.0.1", portstr, "operator", 1);
+    int rc = modbus_connect(ctx);
+    EXPECT_DETAIL(rc == 0, "later: connects", rc ? modbus_strerror(errno) : NULL);
+    rc = modbus_read_registers(ctx, 7, 2, regs);
+    EXPECT_DETAIL(rc == 2 && regs[0] == 7 && strcmp(later_role, "Operator") == 0,
+                  "later: the callback's request info names the client's role", later_role);
+    EXPECT(modbus_set_max_in_flight(ctx, 2) == 0, "later: two requests in flight");
+    EXPECT(modbus_read_registers_async(ctx, 150, 4, ra, later_done, a) >= 0 &&
+               modbus_read_registers_async(ctx, 160, 4, rb, later_done, b) >= 0,
+           "later: two reads submitted");
+    for (int i = 0; i < 200 && modbus_pending(ctx) > 0; i++) {
+        struct pollfd pfd;
+        int to;
+        modbus_get_pollfd(ctx, &pfd, &to);
+        pfd.revents = 0;
+        poll(&pfd, 1, to < 0 || to > 50 ? 50 : to);
+        modbus_process(ctx, pfd.revents);
+    }
+    snprintf(detail, sizeof detail, "rc %d, %d; order %d, %d", a[0], b[0], a[1], b[1]);
+    EXPECT_DETAIL(a[0] == 4 && b[0] == 4 && ra[0] == 150 && ra[3] == 153 && rb[0] == 160 && rb[3] == 163 &&
+                      b[1] == 0 && a[1] == 1,
+                  "later: over TLS, the read at 150 answered after the read at 160, each with its values", detail);
+    modbus_close(ctx);
+    pthread_join(t, NULL);
+    modbus_free(ctx);
+    close(ls.listener);
+    modbus_free(ls.ctx);
+}
+
+/* ---- caaspeer: a server that presents its CA's certificate as its own ---- */
+
+static void *caaspeer_serve(void *arg)
+{
+    struct later_server *ls = arg;
+    modbus_tcp_accept(ls->ctx, &ls->listener); /* fails: the client refuses */
+    return NULL;
+}
+
+static void caaspeer_scenario(void)
+{
+    struct later_server ls;
+    int port;
+    char portstr[16], detail[200];
+    pthread_t t;
+    ls.ctx = listening_server(&ls.listener, &port);
+    if (modbus_set_tls_certificate(ls.ctx, path("ca", "pem"), path("ca", "key")) == -1) {
+        EXPECT_DETAIL(0, "caaspeer: the server takes the CA's certificate and key", modbus_strerror(errno));
+        exit(1);
+    }
+    modbus_set_response_timeout(ls.ctx, 2, 0);
+    pthread_create(&t, NULL, caaspeer_serve, &ls);
+    snprintf(portstr, sizeof portstr, "%d", port);
+    modbus_t *ctx = client("127.0.0.1", portstr, "operator", 1);
+    modbus_set_debug(ctx, TRUE); /* the trace names the reason (checked by tls.sh) */
+    errno = 0;
+    int rc = modbus_connect(ctx);
+    int e = errno;
+    snprintf(detail, sizeof detail, "rc %d, errno %d (%s)", rc, e, modbus_strerror(e));
+    EXPECT_DETAIL(rc == -1 && e == EMBTLSCACERT && strstr(modbus_strerror(e), "CA certificate") != NULL,
+                  "caaspeer: the client refuses a CA certificate as the server's own: EMBTLSCACERT", detail);
+    modbus_close(ctx);
+    pthread_join(t, NULL);
+    modbus_free(ctx);
+    close(ls.listener);
+    modbus_free(ls.ctx);
+}
+
 /* ---- threads: one client context shared by N threads ---- */
 
 static modbus_t *shared;
@@ -677,6 +822,10 @@ int main(int argc, char *argv[])
         callback_scenario();
     } else if (strcmp(scenario, "sessions") == 0) {
         sessions_scenario();
+    } else if (strcmp(scenario, "later") == 0) {
+        later_scenario();
+    } else if (strcmp(scenario, "caaspeer") == 0) {
+        caaspeer_scenario();
     } else if (strcmp(scenario, "threads") == 0) {
         int n = argc > 5 ? atoi(argv[5]) : 8, bad = 0;
         pthread_t t[16];

@@ -55,6 +55,7 @@ pub fn byte_from_bits(src: &[u8]) -> u8 {
 
 /// Registers to the wire: `values[i]` big-endian at `out[2 * i..]`, for as many as both
 /// hold. A plain zip: the compiler turns it into vector shifts.
+#[inline]
 pub fn registers_to_be(values: &[u16], out: &mut [u8]) {
     for (pair, v) in out.chunks_exact_mut(2).zip(values) {
         pair.copy_from_slice(&v.to_be_bytes());

@@ -80,6 +80,7 @@ pub const EMBTLSNAME: i32 = EMBTLS + 4;
 pub const EMBTLSVERSION: i32 = EMBTLS + 5;
 pub const EMBTLSCONFIG: i32 = EMBTLS + 6;
 pub const EMBTLSPASSWORD: i32 = EMBTLS + 7;
+pub const EMBTLSCACERT: i32 = EMBTLS + 8;
 
 /// An errno value, as libmodbus would set it.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -155,6 +156,7 @@ pub const fn strerror_modbus_c(errnum: i32) -> Option<&'static core::ffi::CStr> 
         EMBTLSVERSION => c"TLS: protocol version not accepted (TLS 1.2 or newer)",
         EMBTLSCONFIG => c"TLS: certificate, key or CA not set",
         EMBTLSPASSWORD => c"TLS: the private key is encrypted: password missing or wrong",
+        EMBTLSCACERT => c"TLS: the peer presented a CA certificate as its own (not an end-entity certificate)",
         _ => return None,
     })
 }

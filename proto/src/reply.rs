@@ -125,6 +125,7 @@ impl Req<'_> {
 
 /// Writes the response header (`build_response_basis`): TCP `[tid][0 0][0 0][unit][fc]`
 /// with the length left for sealing, RTU `[slave][fc]`. Returns its length.
+#[inline]
 fn response_basis(framing: Framing, tid: u16, slave: u8, function: u8, out: &mut [u8]) -> usize {
     let h = framing.write_header(out, slave, tid);
     out[h] = function;
@@ -278,6 +279,39 @@ pub trait Data {
     }
     fn read_bits(&mut self, rq: &Request, address: u16, dest: &mut [u8]) -> Result<(), Refusal>;
     fn read_registers(&mut self, rq: &Request, address: u16, dest: &mut [u16]) -> Result<(), Refusal>;
+    /// `nb` bits from `address`, packed into the response (`wire`, LSB first); returns
+    /// the bytes written. By default through [`Data::read_bits`] and a buffer; a
+    /// mapping packs straight from its table.
+    fn read_bits_wire(
+        &mut self,
+        rq: &Request,
+        address: u16,
+        nb: u16,
+        wire: &mut [u8],
+        _diag: &mut dyn Diag,
+    ) -> Result<usize, Refusal> {
+        let mut bits = [0u8; MAX_READ_BITS as usize];
+        let bits = &mut bits[..nb as usize];
+        self.read_bits(rq, address, bits)?;
+        Ok(pack_bits(bits, wire))
+    }
+    /// `nb` registers from `address`, big-endian into the response (`wire`, 2 x `nb`
+    /// bytes). By default through [`Data::read_registers`] and a buffer; a mapping
+    /// converts straight from its table.
+    fn read_registers_wire(
+        &mut self,
+        rq: &Request,
+        address: u16,
+        nb: u16,
+        wire: &mut [u8],
+        _diag: &mut dyn Diag,
+    ) -> Result<(), Refusal> {
+        let mut regs = [0u16; MAX_READ_REGISTERS as usize];
+        let regs = &mut regs[..nb as usize];
+        self.read_registers(rq, address, regs)?;
+        registers_to_be(regs, &mut wire[..2 * regs.len()]);
+        Ok(())
+    }
     fn write_bits(&mut self, rq: &Request, address: u16, src: &[u8]) -> Result<(), Refusal>;
     fn write_registers(&mut self, rq: &Request, address: u16, src: &[u16]) -> Result<(), Refusal>;
     /// A function code the reply does not serve from data (report slave id, read
@@ -290,10 +324,11 @@ pub trait Data {
 }
 
 /// A [`Mapping`] as [`Data`]: what `modbus_reply` serves.
-pub struct MappingData<'a>(pub &'a mut dyn Mapping);
+pub struct MappingData<'a, M: Mapping + ?Sized>(pub &'a mut M);
 
-impl MappingData<'_> {
+impl<M: Mapping + ?Sized> MappingData<'_, M> {
     /// The table a function code reads or writes (`check`'s start and size).
+    #[inline]
     fn bounds(&mut self, function: u8) -> (i32, i64) {
         let m = &mut *self.0;
         match function {
@@ -320,8 +355,13 @@ impl MappingData<'_> {
 /// The refusal of an access outside a table (which `check` has already refused).
 const OUTSIDE: Refusal = Refusal::Exception(exception::ILLEGAL_DATA_ADDRESS);
 
-impl Data for MappingData<'_> {
+impl<M: Mapping + ?Sized> Data for MappingData<'_, M> {
+    #[inline(always)]
     fn check(&mut self, rq: &Request, ranges: &[Range], diag: &mut dyn Diag) -> Result<(), Refusal> {
+        if rq.function <= fc::READ_INPUT_REGISTERS {
+            // A read's range is checked by the read itself (nothing comes between).
+            return Ok(());
+        }
         let (start, size) = self.bounds(rq.function);
         let covered = |r: &Range| {
             let first = r.address as i64 - start as i64;
@@ -330,35 +370,10 @@ impl Data for MappingData<'_> {
         if ranges.iter().all(covered) {
             return Ok(());
         }
-        // libmodbus shows the address when it lies below the table, else the end.
-        let shown = |r: &Range| {
-            if (r.address as i64) < start as i64 { r.address as i64 } else { r.address as i64 + r.nb as i64 }
-        };
-        let first = ranges.first().copied().unwrap_or(Range { address: 0, nb: 0 });
-        let (address, what) = match rq.function {
-            fc::READ_COILS => (shown(&first), "read_bits"),
-            fc::READ_DISCRETE_INPUTS => (shown(&first), "read_input_bits"),
-            fc::READ_HOLDING_REGISTERS => (shown(&first), "read_registers"),
-            fc::READ_INPUT_REGISTERS => (shown(&first), "read_input_registers"),
-            fc::WRITE_SINGLE_COIL => (first.address as i64, "write bit"),
-            fc::WRITE_MULTIPLE_COILS => (shown(&first), "write_bits"),
-            fc::WRITE_MULTIPLE_REGISTERS => (shown(&first), "write_registers"),
-            fc::WRITE_AND_READ_REGISTERS => {
-                let write = ranges.get(1).copied().unwrap_or(first);
-                diag.err(format_args!(
-                    "Illegal data read address 0x{:X} or write address 0x{:X} write_and_read_registers\n",
-                    shown(&first),
-                    shown(&write)
-                ));
-                return Err(OUTSIDE);
-            }
-            // 06 and 16 (mask write).
-            _ => (first.address as i64, "write_register"),
-        };
-        diag.err(format_args!("Illegal data address 0x{address:X} in {what}\n"));
-        Err(OUTSIDE)
+        outside(rq, ranges, start, diag)
     }
 
+    #[inline]
     fn read_bits(&mut self, rq: &Request, address: u16, dest: &mut [u8]) -> Result<(), Refusal> {
         let table = if rq.function == fc::READ_DISCRETE_INPUTS { self.0.input_bits() } else { self.0.bits() };
         let first = table.range(address, dest.len() as i64).ok_or(OUTSIDE)?;
@@ -366,6 +381,7 @@ impl Data for MappingData<'_> {
         Ok(())
     }
 
+    #[inline]
     fn read_registers(&mut self, rq: &Request, address: u16, dest: &mut [u16]) -> Result<(), Refusal> {
         let table = if rq.function == fc::READ_INPUT_REGISTERS { self.0.input_registers() } else { self.0.registers() };
         let first = table.range(address, dest.len() as i64).ok_or(OUTSIDE)?;
@@ -373,6 +389,40 @@ impl Data for MappingData<'_> {
         Ok(())
     }
 
+    #[inline(always)]
+    fn read_bits_wire(
+        &mut self,
+        rq: &Request,
+        address: u16,
+        nb: u16,
+        wire: &mut [u8],
+        diag: &mut dyn Diag,
+    ) -> Result<usize, Refusal> {
+        let table = if rq.function == fc::READ_DISCRETE_INPUTS { self.0.input_bits() } else { self.0.bits() };
+        let Some(first) = table.range(address, nb as i64) else {
+            return outside(rq, &[Range { address, nb }], table.start, diag).map(|()| 0);
+        };
+        Ok(pack_bits(&table.data[first..first + nb as usize], wire))
+    }
+
+    #[inline(always)]
+    fn read_registers_wire(
+        &mut self,
+        rq: &Request,
+        address: u16,
+        nb: u16,
+        wire: &mut [u8],
+        diag: &mut dyn Diag,
+    ) -> Result<(), Refusal> {
+        let table = if rq.function == fc::READ_INPUT_REGISTERS { self.0.input_registers() } else { self.0.registers() };
+        let Some(first) = table.range(address, nb as i64) else {
+            return outside(rq, &[Range { address, nb }], table.start, diag);
+        };
+        registers_to_be(&table.data[first..first + nb as usize], &mut wire[..2 * nb as usize]);
+        Ok(())
+    }
+
+    #[inline]
     fn write_bits(&mut self, _rq: &Request, address: u16, src: &[u8]) -> Result<(), Refusal> {
         let table = self.0.bits();
         let first = table.range(address, src.len() as i64).ok_or(OUTSIDE)?;
@@ -380,12 +430,47 @@ impl Data for MappingData<'_> {
         Ok(())
     }
 
+    #[inline]
     fn write_registers(&mut self, _rq: &Request, address: u16, src: &[u16]) -> Result<(), Refusal> {
         let table = self.0.registers();
         let first = table.range(address, src.len() as i64).ok_or(OUTSIDE)?;
         table.data[first..first + src.len()].copy_from_slice(src);
         Ok(())
     }
+}
+
+/// The refusal of ranges outside a mapping's table (starting at `start`), with
+/// libmodbus's message.
+#[cold]
+#[inline(never)]
+fn outside(rq: &Request, ranges: &[Range], start: i32, diag: &mut dyn Diag) -> Result<(), Refusal> {
+    // libmodbus shows the address when it lies below the table, else the end.
+    let shown = |r: &Range| {
+        if (r.address as i64) < start as i64 { r.address as i64 } else { r.address as i64 + r.nb as i64 }
+    };
+    let first = ranges.first().copied().unwrap_or(Range { address: 0, nb: 0 });
+    let (address, what) = match rq.function {
+        fc::READ_COILS => (shown(&first), "read_bits"),
+        fc::READ_DISCRETE_INPUTS => (shown(&first), "read_input_bits"),
+        fc::READ_HOLDING_REGISTERS => (shown(&first), "read_registers"),
+        fc::READ_INPUT_REGISTERS => (shown(&first), "read_input_registers"),
+        fc::WRITE_SINGLE_COIL => (first.address as i64, "write bit"),
+        fc::WRITE_MULTIPLE_COILS => (shown(&first), "write_bits"),
+        fc::WRITE_MULTIPLE_REGISTERS => (shown(&first), "write_registers"),
+        fc::WRITE_AND_READ_REGISTERS => {
+            let write = ranges.get(1).copied().unwrap_or(first);
+            diag.err(format_args!(
+                "Illegal data read address 0x{:X} or write address 0x{:X} write_and_read_registers\n",
+                shown(&first),
+                shown(&write)
+            ));
+            return Err(OUTSIDE);
+        }
+        // 06 and 16 (mask write).
+        _ => (first.address as i64, "write_register"),
+    };
+    diag.err(format_args!("Illegal data address 0x{address:X} in {what}\n"));
+    Err(OUTSIDE)
 }
 
 /// Nothing sent, 0 returned: an answer withheld.
@@ -422,12 +507,14 @@ impl Server {
     /// Answers `req` from `data`, in libmodbus's order of checks: the request's
     /// quantities, then its ranges ([`Data::check`]), then its lengths and values,
     /// then the accesses; FC 16 (mask write) reads then writes the register, FC 17
-    /// writes then reads.
-    pub fn answer(
+    /// writes then reads. Inlined: where `data` is a known type (the mapping of
+    /// `modbus_reply`), its accesses are direct calls.
+    #[inline(always)]
+    pub fn answer<D: Data + ?Sized>(
         &self,
         req: &[u8],
         req_length: i32,
-        data: &mut dyn Data,
+        data: &mut D,
         diag: &mut dyn Diag,
         out: &mut [u8; MAX_ADU_LENGTH],
     ) -> Outcome {
@@ -449,14 +536,13 @@ impl Server {
                 Ok((exception_response(framing, req, $code, out), Some($code), $flush))
             }};
         }
-        // The response to a read: `[header][byte count]`, then `fill` writes the
-        // values after it and gives their length.
-        macro_rules! respond_read {
-            ($count:expr, $fill:expr) => {{
+        // The response to a read of registers: `[header][byte count][values]`.
+        macro_rules! respond_registers {
+            ($address:expr, $nb:expr) => {{
                 let n = response_basis(framing, tid, slave, function, out);
-                out[n] = $count as u8;
-                let values: usize = $fill(&mut out[n + 1..]);
-                Ok((n + 1 + values, None, false))
+                out[n] = ($nb * 2) as u8;
+                data.read_registers_wire(&rq, $address, $nb, &mut out[n + 1..], diag)?;
+                Ok((n + 1 + 2 * $nb as usize, None, false))
             }};
         }
         // A multiple write's response: its header, then the request's address and
@@ -489,11 +575,15 @@ impl Server {
                         "Illegal nb of values {nb} in {name} (max {MAX_READ_BITS})\n"
                     )
                 } else {
-                    let mut bits = [0u8; MAX_READ_BITS as usize];
-                    let bits = &mut bits[..nb as usize];
-                    data.check(&rq, &[Range { address, nb }], diag)
-                        .and_then(|()| data.read_bits(&rq, address, bits))
-                        .and_then(|()| respond_read!(nb.div_ceil(8), |o: &mut [u8]| pack_bits(bits, o)))
+                    data.check(&rq, &[Range { address, nb }], diag).and_then(
+                        #[inline(always)]
+                        |()| {
+                            let n = response_basis(framing, tid, slave, function, out);
+                            out[n] = nb.div_ceil(8) as u8;
+                            let packed = data.read_bits_wire(&rq, address, nb, &mut out[n + 1..], diag)?;
+                            Ok((n + 1 + packed, None, false))
+                        },
+                    )
                 }
             }
             fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS => {
@@ -507,47 +597,53 @@ impl Server {
                         "Illegal nb of values {nb} in {name} (max {MAX_READ_REGISTERS})\n"
                     )
                 } else {
-                    let mut regs = [0u16; MAX_READ_REGISTERS as usize];
-                    let regs = &mut regs[..nb as usize];
-                    data.check(&rq, &[Range { address, nb }], diag)
-                        .and_then(|()| data.read_registers(&rq, address, regs))
-                        .and_then(|()| {
-                            respond_read!(nb * 2, |o: &mut [u8]| {
-                                registers_to_be(regs, &mut o[..2 * regs.len()]);
-                                2 * regs.len()
-                            })
-                        })
+                    data.check(&rq, &[Range { address, nb }], diag).and_then(
+                        #[inline(always)]
+                        |()| respond_registers!(address, nb),
+                    )
                 }
             }
-            fc::WRITE_SINGLE_COIL => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(|()| {
-                let value = r.u16(h + 3);
-                if req_length as i64 != fixed_request_length(framing, 5) {
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        false,
-                        "Invalid request length in modbus_reply to write bit ({req_length})\n"
-                    )
-                } else if value != 0xFF00 && value != 0 {
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        false,
-                        "Illegal data value 0x{value:X} in write_bit request at address {address:X}\n"
-                    )
-                } else {
-                    data.write_bits(&rq, address, &[(value != 0) as u8]).and_then(|()| copy!(h + 5))
-                }
-            }),
-            fc::WRITE_SINGLE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(|()| {
-                if req_length as i64 != fixed_request_length(framing, 5) {
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        false,
-                        "Invalid request length in modbus_reply to write register ({req_length})\n"
-                    )
-                } else {
-                    data.write_registers(&rq, address, &[r.u16(h + 3)]).and_then(|()| copy!(h + 5))
-                }
-            }),
+            fc::WRITE_SINGLE_COIL => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
+                #[inline(always)]
+                |()| {
+                    let value = r.u16(h + 3);
+                    if req_length as i64 != fixed_request_length(framing, 5) {
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            false,
+                            "Invalid request length in modbus_reply to write bit ({req_length})\n"
+                        )
+                    } else if value != 0xFF00 && value != 0 {
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            false,
+                            "Illegal data value 0x{value:X} in write_bit request at address {address:X}\n"
+                        )
+                    } else {
+                        data.write_bits(&rq, address, &[(value != 0) as u8]).and_then(
+                            #[inline(always)]
+                            |()| copy!(h + 5),
+                        )
+                    }
+                },
+            ),
+            fc::WRITE_SINGLE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
+                #[inline(always)]
+                |()| {
+                    if req_length as i64 != fixed_request_length(framing, 5) {
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            false,
+                            "Invalid request length in modbus_reply to write register ({req_length})\n"
+                        )
+                    } else {
+                        data.write_registers(&rq, address, &[r.u16(h + 3)]).and_then(
+                            #[inline(always)]
+                            |()| copy!(h + 5),
+                        )
+                    }
+                },
+            ),
             fc::WRITE_MULTIPLE_COILS => {
                 let nb = r.u16(h + 3);
                 let byte_count = r.u8(h + 5) as i64;
@@ -559,19 +655,25 @@ impl Server {
                         "Illegal number of values {nb} in write_bits (max {MAX_WRITE_BITS})\n"
                     )
                 } else {
-                    data.check(&rq, &[Range { address, nb }], diag).and_then(|()| {
-                        let mut bits = [0u8; MAX_WRITE_BITS as usize];
-                        let bits = &mut bits[..nb as usize];
-                        match req.get(h + 6..h + 6 + bits.len().div_ceil(8)) {
-                            Some(packed) => crate::data::set_bits_from_bytes(bits, packed),
-                            None => {
-                                for (k, bit) in bits.iter_mut().enumerate() {
-                                    *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
+                    data.check(&rq, &[Range { address, nb }], diag).and_then(
+                        #[inline(always)]
+                        |()| {
+                            let mut bits = [0u8; MAX_WRITE_BITS as usize];
+                            let bits = &mut bits[..nb as usize];
+                            match req.get(h + 6..h + 6 + bits.len().div_ceil(8)) {
+                                Some(packed) => crate::data::set_bits_from_bytes(bits, packed),
+                                None => {
+                                    for (k, bit) in bits.iter_mut().enumerate() {
+                                        *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
+                                    }
                                 }
                             }
-                        }
-                        data.write_bits(&rq, address, bits).and_then(|()| echo!())
-                    })
+                            data.write_bits(&rq, address, bits).and_then(
+                                #[inline(always)]
+                                |()| echo!(),
+                            )
+                        },
+                    )
                 }
             }
             fc::WRITE_MULTIPLE_REGISTERS => {
@@ -585,12 +687,18 @@ impl Server {
                         "Illegal number of values {nb} in write_registers (max {MAX_WRITE_REGISTERS})\n"
                     )
                 } else {
-                    data.check(&rq, &[Range { address, nb }], diag).and_then(|()| {
-                        let mut regs = [0u16; MAX_WRITE_REGISTERS as usize];
-                        let regs = &mut regs[..nb as usize];
-                        r.registers_to(h + 6, regs);
-                        data.write_registers(&rq, address, regs).and_then(|()| echo!())
-                    })
+                    data.check(&rq, &[Range { address, nb }], diag).and_then(
+                        #[inline(always)]
+                        |()| {
+                            let mut regs = [0u16; MAX_WRITE_REGISTERS as usize];
+                            let regs = &mut regs[..nb as usize];
+                            r.registers_to(h + 6, regs);
+                            data.write_registers(&rq, address, regs).and_then(
+                                #[inline(always)]
+                                |()| echo!(),
+                            )
+                        },
+                    )
                 }
             }
             fc::REPORT_SLAVE_ID => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
@@ -618,23 +726,26 @@ impl Server {
                     return Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT));
                 }
             },
-            fc::MASK_WRITE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(|()| {
-                // libmodbus modifies the register before checking the length.
-                let mut value = [0u16];
-                data.read_registers(&rq, address, &mut value)?;
-                let and = r.u16(h + 3);
-                let or = r.u16(h + 5);
-                data.write_registers(&rq, address, &[(value[0] & and) | (or & !and)])?;
-                if req_length as i64 != fixed_request_length(framing, 7) {
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        false,
-                        "Invalid request length in modbus_reply to mask write register ({req_length})\n"
-                    )
-                } else {
-                    copy!(h + 7)
-                }
-            }),
+            fc::MASK_WRITE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
+                #[inline(always)]
+                |()| {
+                    // libmodbus modifies the register before checking the length.
+                    let mut value = [0u16];
+                    data.read_registers(&rq, address, &mut value)?;
+                    let and = r.u16(h + 3);
+                    let or = r.u16(h + 5);
+                    data.write_registers(&rq, address, &[(value[0] & and) | (or & !and)])?;
+                    if req_length as i64 != fixed_request_length(framing, 7) {
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            false,
+                            "Invalid request length in modbus_reply to mask write register ({req_length})\n"
+                        )
+                    } else {
+                        copy!(h + 7)
+                    }
+                },
+            ),
             fc::WRITE_AND_READ_REGISTERS => {
                 let nb = r.u16(h + 3);
                 let address_write = r.u16(h + 5);
@@ -652,20 +763,17 @@ impl Server {
                     )
                 } else {
                     let ranges = [Range { address, nb }, Range { address: address_write, nb: nb_write }];
-                    data.check(&rq, &ranges, diag).and_then(|()| {
-                        // CVE-2022-0367: both ranges are checked. Write first, then read.
-                        let mut written = [0u16; MAX_WR_WRITE_REGISTERS as usize];
-                        let written = &mut written[..nb_write as usize];
-                        r.registers_to(h + 10, written);
-                        data.write_registers(&rq, address_write, written)?;
-                        let mut regs = [0u16; MAX_WR_READ_REGISTERS as usize];
-                        let regs = &mut regs[..nb as usize];
-                        data.read_registers(&rq, address, regs)?;
-                        respond_read!(nb * 2, |o: &mut [u8]| {
-                            registers_to_be(regs, &mut o[..2 * regs.len()]);
-                            2 * regs.len()
-                        })
-                    })
+                    data.check(&rq, &ranges, diag).and_then(
+                        #[inline(always)]
+                        |()| {
+                            // CVE-2022-0367: both ranges are checked. Write first, then read.
+                            let mut written = [0u16; MAX_WR_WRITE_REGISTERS as usize];
+                            let written = &mut written[..nb_write as usize];
+                            r.registers_to(h + 10, written);
+                            data.write_registers(&rq, address_write, written)?;
+                            respond_registers!(address, nb)
+                        },
+                    )
                 }
             }
             _ => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {

@@ -39,8 +39,8 @@ use rustls::{
 
 use super::{Ready, now, to_timespec, wait_or_wake};
 use crate::error::{
-    EMBTLS, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSPASSWORD, EMBTLSUNKNOWNCA, EMBTLSVERSION,
-    Error, Result, errno,
+    EMBTLS, EMBTLSCACERT, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSPASSWORD, EMBTLSUNKNOWNCA,
+    EMBTLSVERSION, Error, Result, errno,
 };
 use crate::proto::security;
 pub use crate::proto::security::RecordCut;
@@ -67,6 +67,10 @@ pub fn error_of(e: &rustls::Error) -> Error {
         | E::AlertReceived(AlertDescription::CertificateExpired) => EMBTLSEXPIRED,
         E::InvalidCertificate(CertificateError::NotValidForName | CertificateError::NotValidForNameContext { .. }) => {
             EMBTLSNAME
+        }
+        // webpki's reason has no variant of rustls' own; its name is its text.
+        E::InvalidCertificate(CertificateError::Other(other)) if other.to_string() == "CaUsedAsEndEntity" => {
+            EMBTLSCACERT
         }
         E::InvalidCertificate(CertificateError::UnknownIssuer | CertificateError::BadSignature)
         | E::AlertReceived(AlertDescription::UnknownCA | AlertDescription::BadCertificate) => EMBTLSUNKNOWNCA,

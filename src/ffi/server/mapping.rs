@@ -174,6 +174,7 @@ unsafe fn c_table<'a, T>(start: c_int, nb: c_int, p: *mut T) -> Table<'a, T> {
 
 impl CMapping {
     /// Reads the mapping's header (a copy: the tables are borrowed separately).
+    #[inline]
     fn fields(&self) -> Option<modbus_mapping_t> {
         // SAFETY: `self.0` is NULL or a live mapping (contract of modbus_reply); the
         // struct is plain data, copied out field by field.
@@ -184,6 +185,7 @@ impl CMapping {
 // SAFETY (for every method): modbus_reply's contract makes each non-NULL table valid
 // for its `nb` items; the trait lends one table at a time, so no two slices coexist.
 impl Mapping for CMapping {
+    #[inline]
     fn bits(&mut self) -> Table<'_, u8> {
         match self.fields() {
             // SAFETY: see the impl comment.
@@ -191,6 +193,7 @@ impl Mapping for CMapping {
             None => Table { start: 0, data: &mut [] },
         }
     }
+    #[inline]
     fn input_bits(&mut self) -> Table<'_, u8> {
         match self.fields() {
             // SAFETY: see the impl comment.
@@ -198,6 +201,7 @@ impl Mapping for CMapping {
             None => Table { start: 0, data: &mut [] },
         }
     }
+    #[inline]
     fn registers(&mut self) -> Table<'_, u16> {
         match self.fields() {
             // SAFETY: see the impl comment.
@@ -205,6 +209,7 @@ impl Mapping for CMapping {
             None => Table { start: 0, data: &mut [] },
         }
     }
+    #[inline]
     fn input_registers(&mut self) -> Table<'_, u16> {
         match self.fields() {
             // SAFETY: see the impl comment.
