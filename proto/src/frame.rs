@@ -57,6 +57,7 @@ impl Framing {
 
     /// Writes the header of a request: slave (RTU) or MBAP with transaction id and
     /// unit (TCP; the length field is filled by [`Framing::seal`]). Returns its length.
+    #[inline]
     pub fn write_header(self, out: &mut [u8], unit: u8, tid: u16) -> usize {
         match self {
             Framing::Rtu | Framing::Ascii => {
