@@ -47,6 +47,15 @@ impl<T> Table<'_, T> {
     }
 }
 
+impl<'a, T> Table<'a, T> {
+    /// The `nb` items from `address`, when all of them are in the table.
+    #[inline]
+    fn items(self, address: u16, nb: usize) -> Option<&'a mut [T]> {
+        let first = self.range(address, nb as i64)?;
+        Some(&mut self.data[first..first + nb])
+    }
+}
+
 /// Access to a server's four tables. Each call lends one table; the reply logic
 /// never holds two at once, so a C mapping whose tables overlap is still sound.
 pub trait Mapping {
@@ -327,25 +336,29 @@ pub trait Data {
 pub struct MappingData<'a, M: Mapping + ?Sized>(pub &'a mut M);
 
 impl<M: Mapping + ?Sized> MappingData<'_, M> {
+    /// The bit table a function code reads or writes: discrete inputs for 02, else coils.
+    #[inline]
+    fn bit_table(&mut self, function: u8) -> Table<'_, u8> {
+        if function == fc::READ_DISCRETE_INPUTS { self.0.input_bits() } else { self.0.bits() }
+    }
+
+    /// The register table a function code reads or writes: input registers for 04,
+    /// else holding registers.
+    #[inline]
+    fn register_table(&mut self, function: u8) -> Table<'_, u16> {
+        if function == fc::READ_INPUT_REGISTERS { self.0.input_registers() } else { self.0.registers() }
+    }
+
     /// The table a function code reads or writes (`check`'s start and size).
     #[inline]
     fn bounds(&mut self, function: u8) -> (i32, i64) {
-        let m = &mut *self.0;
         match function {
-            fc::READ_COILS | fc::WRITE_SINGLE_COIL | fc::WRITE_MULTIPLE_COILS => {
-                let t = m.bits();
-                (t.start, t.nb())
-            }
-            fc::READ_DISCRETE_INPUTS => {
-                let t = m.input_bits();
-                (t.start, t.nb())
-            }
-            fc::READ_INPUT_REGISTERS => {
-                let t = m.input_registers();
+            fc::READ_COILS | fc::READ_DISCRETE_INPUTS | fc::WRITE_SINGLE_COIL | fc::WRITE_MULTIPLE_COILS => {
+                let t = self.bit_table(function);
                 (t.start, t.nb())
             }
             _ => {
-                let t = m.registers();
+                let t = self.register_table(function);
                 (t.start, t.nb())
             }
         }
@@ -375,17 +388,13 @@ impl<M: Mapping + ?Sized> Data for MappingData<'_, M> {
 
     #[inline]
     fn read_bits(&mut self, rq: &Request, address: u16, dest: &mut [u8]) -> Result<(), Refusal> {
-        let table = if rq.function == fc::READ_DISCRETE_INPUTS { self.0.input_bits() } else { self.0.bits() };
-        let first = table.range(address, dest.len() as i64).ok_or(OUTSIDE)?;
-        dest.copy_from_slice(&table.data[first..first + dest.len()]);
+        dest.copy_from_slice(self.bit_table(rq.function).items(address, dest.len()).ok_or(OUTSIDE)?);
         Ok(())
     }
 
     #[inline]
     fn read_registers(&mut self, rq: &Request, address: u16, dest: &mut [u16]) -> Result<(), Refusal> {
-        let table = if rq.function == fc::READ_INPUT_REGISTERS { self.0.input_registers() } else { self.0.registers() };
-        let first = table.range(address, dest.len() as i64).ok_or(OUTSIDE)?;
-        dest.copy_from_slice(&table.data[first..first + dest.len()]);
+        dest.copy_from_slice(self.register_table(rq.function).items(address, dest.len()).ok_or(OUTSIDE)?);
         Ok(())
     }
 
@@ -398,11 +407,12 @@ impl<M: Mapping + ?Sized> Data for MappingData<'_, M> {
         wire: &mut [u8],
         diag: &mut dyn Diag,
     ) -> Result<usize, Refusal> {
-        let table = if rq.function == fc::READ_DISCRETE_INPUTS { self.0.input_bits() } else { self.0.bits() };
-        let Some(first) = table.range(address, nb as i64) else {
-            return outside(rq, &[Range { address, nb }], table.start, diag).map(|()| 0);
-        };
-        Ok(pack_bits(&table.data[first..first + nb as usize], wire))
+        let table = self.bit_table(rq.function);
+        let start = table.start;
+        match table.items(address, nb as usize) {
+            Some(bits) => Ok(pack_bits(bits, wire)),
+            None => outside(rq, &[Range { address, nb }], start, diag).map(|()| 0),
+        }
     }
 
     #[inline(always)]
@@ -414,27 +424,26 @@ impl<M: Mapping + ?Sized> Data for MappingData<'_, M> {
         wire: &mut [u8],
         diag: &mut dyn Diag,
     ) -> Result<(), Refusal> {
-        let table = if rq.function == fc::READ_INPUT_REGISTERS { self.0.input_registers() } else { self.0.registers() };
-        let Some(first) = table.range(address, nb as i64) else {
-            return outside(rq, &[Range { address, nb }], table.start, diag);
-        };
-        registers_to_be(&table.data[first..first + nb as usize], &mut wire[..2 * nb as usize]);
-        Ok(())
+        let table = self.register_table(rq.function);
+        let start = table.start;
+        match table.items(address, nb as usize) {
+            Some(regs) => {
+                registers_to_be(regs, &mut wire[..2 * nb as usize]);
+                Ok(())
+            }
+            None => outside(rq, &[Range { address, nb }], start, diag),
+        }
     }
 
     #[inline]
     fn write_bits(&mut self, _rq: &Request, address: u16, src: &[u8]) -> Result<(), Refusal> {
-        let table = self.0.bits();
-        let first = table.range(address, src.len() as i64).ok_or(OUTSIDE)?;
-        table.data[first..first + src.len()].copy_from_slice(src);
+        self.0.bits().items(address, src.len()).ok_or(OUTSIDE)?.copy_from_slice(src);
         Ok(())
     }
 
     #[inline]
     fn write_registers(&mut self, _rq: &Request, address: u16, src: &[u16]) -> Result<(), Refusal> {
-        let table = self.0.registers();
-        let first = table.range(address, src.len() as i64).ok_or(OUTSIDE)?;
-        table.data[first..first + src.len()].copy_from_slice(src);
+        self.0.registers().items(address, src.len()).ok_or(OUTSIDE)?.copy_from_slice(src);
         Ok(())
     }
 }
