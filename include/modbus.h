@@ -384,6 +384,9 @@ typedef struct {
                  int pdu_length, uint8_t *rsp_pdu, int rsp_max);
 } modbus_server_callbacks_t;
 
+/* A server that runs itself: every client from one thread (modbus_server_new(3)). */
+typedef struct _modbus_server modbus_server_t;
+
 /**
  * rsmodbus extension: the error recovery mode of `ctx`, as `modbus_set_error_recovery`
  * left it: 0 (`MODBUS_ERROR_RECOVERY_NONE`) or the OR of `MODBUS_ERROR_RECOVERY_LINK`
@@ -1149,6 +1152,99 @@ int modbus_set_report_slave_id(modbus_t *ctx,
                                int run_status,
                                const uint8_t *data,
                                int length);
+
+/**
+ * Makes a server that runs itself over `ctx` for up to `max_clients` clients at
+ * once: a TCP, TCP-PI, RTU-over-TCP or Modbus/TCP Security context (its listening
+ * socket when `modbus_set_socket` gave it one, else one the server opens on the
+ * context's address and closes with it), or a serial context (its line, opened
+ * if it is not; `max_clients` is then not used). Each client is answered as
+ * `modbus_reply` answers on `ctx`, with `ctx`'s settings (debug, timeouts, TLS
+ * configuration and authorization) as they are when the client connects.
+ * `ctx` must outlive the server. Returns NULL with errno EINVAL (NULL context,
+ * `max_clients` < 1), EMBTLSCONFIG (TLS settings missing), or the error of the
+ * listen or open.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API modbus_server_t *modbus_server_new(modbus_t *ctx, int max_clients);
+
+/**
+ * Answers the requests through the callbacks `cb` (copied; see
+ * `modbus_reply_callbacks`), with `user_data`, in place of a mapping. With
+ * `accept_unit` set, a serial server answers the units it accepts (broadcasts
+ * too), whatever the context's slave.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner; `cb` NULL or valid for `cb->struct_size` bytes.
+ */
+MODBUS_API
+int modbus_server_set_callbacks(modbus_server_t *s,
+                                const modbus_server_callbacks_t *cb,
+                                void *user_data);
+
+/**
+ * Answers the requests from `map` (which must outlive the server's runs), as
+ * `modbus_reply` does, in place of callbacks.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner; `map` NULL or a mapping whose tables hold
+ * their `nb_*` items.
+ */
+MODBUS_API int modbus_server_set_mapping(modbus_server_t *s, modbus_mapping_t *map);
+
+/**
+ * A client from which no whole request came for this long is closed (a client
+ * that sends a byte now and then, or never ends its TLS handshake, too). 0, 0:
+ * never. The default is 60 s. EINVAL: `usec` above 999999.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner.
+ */
+MODBUS_API int modbus_server_set_idle_timeout(modbus_server_t *s, uint32_t sec, uint32_t usec);
+
+/**
+ * The server's epoll descriptor, for the application's own loop: readable when
+ * `modbus_server_run(s, 0)` has work (a client, a request, a deadline).
+ *
+ * # Safety
+ * `s` must be NULL or a live runner.
+ */
+MODBUS_API int modbus_server_get_fd(modbus_server_t *s);
+
+/**
+ * Accepts clients, carries their TLS handshakes on, reads their requests and
+ * answers them, closes the idle ones, for up to `timeout_ms` milliseconds (0:
+ * what is ready now, without waiting; -1: until `modbus_server_stop`). Several
+ * requests that come together are all answered, their answers sent together. The
+ * callbacks run on this thread and must not block. Returns the requests answered,
+ * or -1 with errno: EINVAL (no mapping or callbacks set, `timeout_ms` below -1),
+ * EBUSY (a run is under way), or the error of the wait.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner.
+ */
+MODBUS_API int modbus_server_run(modbus_server_t *s, int timeout_ms);
+
+/**
+ * Ends the run under way (or the next) as soon as the request being answered is.
+ * Safe from a callback, another thread, or a signal handler.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner.
+ */
+MODBUS_API int modbus_server_stop(modbus_server_t *s);
+
+/**
+ * Closes every client (and the listening socket the server opened) and frees the
+ * server; the context stays as it was. From a callback, the server is freed when
+ * the run returns.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner, not used afterwards.
+ */
+MODBUS_API void modbus_server_free(modbus_server_t *s);
 
 /**
  * rsmodbus extension: a context that speaks RTU frames (slave id, PDU, CRC) over a

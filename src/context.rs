@@ -68,6 +68,9 @@ pub struct Context {
     /// The transaction ids of the last TCP requests whose answer did not come in
     /// time: a late answer is dropped, never taken for the next request's.
     pub timed_out: TimedOut,
+    /// A server runner drives this context (`crate::runner`): nothing may wait in
+    /// it (no sleep before a flush; writes are queued on the line).
+    pub runner: bool,
 }
 
 /// The transaction ids of the last few requests that timed out (see
@@ -128,8 +131,13 @@ impl SpareFrames {
 impl Context {
     fn common(framing: Framing, link: Link, slave: i32) -> Context {
         let stop = Arc::new(Stop::default());
+        Context::on_line(framing, Line::new(link, Arc::clone(&stop)), stop, slave)
+    }
+
+    /// A context over `line`, whose stop state is `stop`.
+    fn on_line(framing: Framing, line: Line, stop: Arc<Stop>, slave: i32) -> Context {
         Context {
-            line: Line::new(link, Arc::clone(&stop)),
+            line,
             session: Settings {
                 framing,
                 kind: MsgKind::Indication,
@@ -158,7 +166,22 @@ impl Context {
             stop,
             outstanding: None,
             timed_out: TimedOut::default(),
+            runner: false,
         }
+    }
+
+    /// The context of one client of this listening context, for a server runner
+    /// (see [`Line::serving`]): its framing, timeouts, recovery, slave, debug flag
+    /// and quirks, and a line of the same settings, not open yet.
+    pub fn serving(&mut self) -> Result<Context> {
+        let stop = Arc::new(Stop::default());
+        let line = self.line.serving(Arc::clone(&stop))?;
+        let mut c = Context::on_line(self.framing(), line, stop, -1);
+        c.session = self.session;
+        c.debug = self.debug;
+        c.quirks = self.quirks;
+        c.runner = true;
+        Ok(c)
     }
 
     /// `modbus_new_rtu`. The two messages are printed whatever the debug flag, as

@@ -38,6 +38,7 @@ pub mod event;
 pub mod ffi;
 pub mod handle;
 pub mod outstanding;
+pub mod runner;
 mod server;
 mod stdio;
 pub mod transport;

@@ -92,7 +92,12 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
     match outcome {
         Outcome::Fail(e) => (Err(e), Delivery::NotSent),
         Outcome::Respond { len, flush_first, suppressed, .. } => {
-            if flush_first {
+            if flush_first && g.runner {
+                // A runner waits for no one: a serial line drops what it holds; a
+                // socket's requests were framed whole (by their MBAP length).
+                g.rx.clear();
+                g.line.purge();
+            } else if flush_first {
                 // The rest of a request libmodbus could not frame may still be arriving.
                 if let Err(e) = engine::sleep_response_timeout(g) {
                     return (Err(e), Delivery::NotSent);

@@ -47,7 +47,7 @@ ASAN_BIN=$(c_build_dir address)
 LOGS=$WORK
 c_build_group TLS
 # The example programs print no LIBINFO line: the loader's choice, from ldd.
-for prog in tls-server tls-client; do
+for prog in tls-server tls-client server-many; do
     loaded=$(ldd "$BIN/$prog" 2>/dev/null | awk '/libmodbus\.so\.5/ {print $3}')
     if [ "$(readlink -f "$loaded")" = "$(readlink -f "$LIB/libmodbus.so")" ]; then
         ok "$prog loads target/release/libmodbus.so ($loaded)"
@@ -61,12 +61,13 @@ if ! check "make the test certificates with openssl" c-tests/tls/make-certs.sh "
 fi
 C=$WORK/certs
 
-# start_server NAME CERT [PORT_ENV]: starts tls-server on a free port with the
-# server certificate CERT; sets PORT and SERVER_PID
+# start_server NAME CERT [PROGRAM]: starts tls-server (or PROGRAM, which takes the
+# same arguments: examples/server-many.c) on a free port with the server
+# certificate CERT; sets PORT and SERVER_PID
 start_server() {
-    local name=$1 cert=$2
+    local name=$1 cert=$2 prog=${3:-tls-server}
     PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
-    "$BIN/tls-server" "$C/ca.pem" "$C/$cert.pem" "$C/$cert.key" "$PORT" >"$WORK/$name.out" 2>"$WORK/$name.err" &
+    "$BIN/$prog" "$C/ca.pem" "$C/$cert.pem" "$C/$cert.key" "$PORT" >"$WORK/$name.out" 2>"$WORK/$name.err" &
     SERVER_PID=$!
     for _ in $(seq 100); do
         grep -q serving "$WORK/$name.out" 2>/dev/null && return 0
@@ -189,7 +190,8 @@ server_reported "client refused: Connection timed out" "server: a handshake stal
 # Three requests in one TLS record (one SSL_write): the poll-loop server answers all
 # three at once (modbus_get_tls_pending), not the later ones only when the client
 # sends more.
-python3 - "$PORT" "$C" <<'PY' >"$WORK/pipelined.out" 2>&1
+pipelined_record() { # pipelined_record NAME: against the server on $PORT
+    python3 - "$PORT" "$C" <<'PY' >"$WORK/pipelined-$1.out" 2>&1
 import socket, ssl, struct, sys
 port, certs = int(sys.argv[1]), sys.argv[2]
 ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
@@ -212,12 +214,30 @@ ok = [(a[0], a[6]) for a in answers] == [(1, 1005), (2, 1006), (3, 1007)]
 print(f"{'PASS' if ok else 'FAIL'} three requests in one TLS record, three answers within 5 s: {answers}")
 s.close()
 PY
-count_lines "$WORK/pipelined.out"
+    count_lines "$WORK/pipelined-$1.out" "$1"
+}
+pipelined_record tls-server
 scenario operator
 scenario many 64
 scenario threads 8
 if kill -0 "$SERVER_PID" 2>/dev/null; then ok "server alive after the faults"; else bad "server alive" ""; fi
 stop_server
+
+# The server that runs itself (examples/server-many.c, modbus_server_new(3)): the same
+# role policy through the authorization callback, handshakes without waiting, three
+# requests in one TLS record answered at once.
+start_server server-many server server-many && {
+    scenario operator
+    scenario reader
+    scenario norole
+    scenario nocert
+    scenario rogue
+    scenario resume
+    scenario many 64
+    pipelined_record server-many
+    if kill -0 "$SERVER_PID" 2>/dev/null; then ok "server-many alive after the refusals"; else bad "server-many alive" ""; fi
+    stop_server
+}
 
 # A server whose certificate names another host.
 start_server wrongname wrongname && {

@@ -72,8 +72,13 @@ struct Held {
     session: Option<Box<Session>>,
     /// A connect under way (the event-driven client's): [`Line::connect_done`] ends it.
     connecting: bool,
-    /// A TLS client handshake under way without waiting ([`Line::handshake_step`]).
+    /// A TLS handshake under way without waiting ([`Line::handshake_step`]): a
+    /// client's, or a runner's accepted client's.
     handshake: Option<Box<Handshake>>,
+    /// Writes are queued here, to go out together in [`Line::send_queued`] (a
+    /// server runner's client: the answers to every request of one read leave in
+    /// one system call, and a client that does not read blocks nobody).
+    queue: Option<Vec<u8>>,
 }
 
 /// A TLS handshake: the connection, and a server's record cut.
@@ -442,7 +447,13 @@ impl Line {
         if self.kind != Kind::Tls {
             return Ok(());
         }
-        match self.begin_handshake(Side::Client) {
+        self.start_handshake(Side::Client)
+    }
+
+    /// A handshake of `side` starts on the line's socket, to be carried on by
+    /// [`Line::handshake_step`]; a failure to start it closes the socket.
+    fn start_handshake(&mut self, side: Side) -> Result<()> {
+        match self.begin_handshake(side) {
             Ok(h) => {
                 self.held.handshake = Some(Box::new(h));
                 Ok(())
@@ -455,7 +466,74 @@ impl Line {
         }
     }
 
-    /// A client handshake is under way without waiting (the event-driven client's).
+    /// A line for one client of this listening line (a server runner's): the same
+    /// link settings and, on a Modbus/TCP Security line, the server configuration
+    /// (EMBTLSCONFIG without a certificate, key and CA) and the authorization
+    /// callback. Not open: [`Line::accept_started`] gives it its socket.
+    pub fn serving(&mut self, stop: Arc<Stop>) -> Result<Line> {
+        let settings = match &self.settings {
+            Link::Tcp(l) => Link::Tcp(super::link::TcpLink { ip: l.ip.clone(), port: l.port }),
+            Link::TcpPi(l) => Link::TcpPi(super::link::TcpPiLink { node: l.node.clone(), service: l.service.clone() }),
+            Link::Rtu(_) => return Err(Error::INVALID),
+        };
+        let mut line = Line::new(settings, stop);
+        if let Some(security) = self.security.as_deref_mut() {
+            let config = security.settings.server_config()?;
+            let mut tls = Tls::default();
+            tls.settings = tls::TlsSettings::serving(config);
+            tls.authorize = security.authorize.clone();
+            line.security = Some(Box::new(tls));
+            line.kind = Kind::Tls;
+        }
+        Ok(line)
+    }
+
+    /// A socket just accepted (non-blocking) becomes the line's, with its writes
+    /// queued ([`Line::send_queued`]); on a Modbus/TCP Security line the server
+    /// handshake starts, carried on by [`Line::handshake_step`] without waiting. A
+    /// failure to start it closes the socket.
+    pub fn accept_started(&mut self, fd: i32) -> Result<()> {
+        self.install(fd, Held { queue: Some(Vec::new()), ..Held::default() });
+        if self.kind != Kind::Tls {
+            return Ok(());
+        }
+        self.start_handshake(Side::Server)
+    }
+
+    /// Bytes queued and not sent yet (see [`Line::accept_started`]).
+    pub fn queued(&self) -> usize {
+        let plain = self.held.queue.as_ref().map_or(0, Vec::len);
+        plain + self.held.session.as_deref().map_or(0, |s| usize::from(s.wants_write()))
+    }
+
+    /// Sends what is queued, as far as the socket takes it without waiting: true when
+    /// all is out, false when the rest waits for the socket to be writable.
+    pub fn send_queued(&mut self) -> Result<bool> {
+        let fd = self.fd;
+        let Some(queue) = self.held.queue.as_mut() else { return Ok(true) };
+        if self.kind == Kind::Tls {
+            let Some(session) = self.held.session.as_deref_mut() else { return Err(no_session(fd)) };
+            return session.send_without_waiting(fd, queue);
+        }
+        while !queue.is_empty() {
+            match super::send(fd, queue, libc::MSG_DONTWAIT) {
+                Ok(n) => {
+                    queue.drain(..n);
+                }
+                Err(e) if e.0 == libc::EAGAIN => return Ok(false),
+                Err(e) if e.0 == libc::EINTR => {}
+                Err(e) => return Err(e),
+            }
+        }
+        if queue.capacity() > 4 * MAX_ADU_LENGTH {
+            // A burst's room is given back: an idle client holds little.
+            *queue = Vec::new();
+        }
+        Ok(true)
+    }
+
+    /// A handshake is under way without waiting (the event-driven client's, a
+    /// runner's client's).
     pub fn handshaking(&self) -> bool {
         self.held.handshake.is_some()
     }
@@ -571,6 +649,10 @@ impl Line {
     #[inline]
     pub fn write(&mut self, frame: &[u8], timeout: Timeout) -> Result<usize> {
         let fd = self.fd;
+        if let Some(queue) = &mut self.held.queue {
+            queue.extend_from_slice(frame);
+            return Ok(frame.len());
+        }
         match self.kind {
             Kind::Socket => super::send(fd, frame, if self.held.client.is_some() { libc::MSG_DONTWAIT } else { 0 }),
             Kind::Serial => super::write(fd, frame),
@@ -584,7 +666,7 @@ impl Line {
     #[inline]
     pub fn write_at_once(&mut self, frame: &[u8]) -> Option<Result<usize>> {
         match self.kind {
-            Kind::Socket => {
+            Kind::Socket if self.held.queue.is_none() => {
                 Some(super::send(self.fd, frame, if self.held.client.is_some() { libc::MSG_DONTWAIT } else { 0 }))
             }
             Kind::Serial if !self.rts_around_writes() => Some(super::write(self.fd, frame)),

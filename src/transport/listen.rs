@@ -202,6 +202,48 @@ pub fn accept(listen_fd: i32, wake: i32, closed: &dyn Fn() -> bool) -> Result<(i
     }
 }
 
+/// One client from the listening socket `listen_fd` without waiting (a server
+/// runner's): its socket, non-blocking, with TCP_NODELAY, and the peer's address
+/// text; `None` when no client is waiting.
+pub fn accept_now(listen_fd: i32) -> Result<Option<(i32, Option<String>)>> {
+    loop {
+        // SAFETY: all-zero is a valid sockaddr_storage.
+        let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
+        let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+        // SAFETY: `addr`/`len` are live locals describing a buffer of `len` bytes.
+        let fd = unsafe {
+            libc::accept4(
+                listen_fd,
+                (&mut addr as *mut libc::sockaddr_storage).cast(),
+                &mut len,
+                libc::SOCK_CLOEXEC | libc::SOCK_NONBLOCK,
+            )
+        };
+        if fd >= 0 {
+            let _ = super::set_option(fd, libc::IPPROTO_TCP, libc::TCP_NODELAY, 1 as libc::c_int);
+            return Ok(Some((fd, peer_text(&addr))));
+        }
+        let e = last_error();
+        match e.0 {
+            libc::EINTR => continue,
+            // Gone before it was taken: no client after all.
+            libc::EAGAIN | libc::ECONNABORTED => return Ok(None),
+            _ => return Err(e),
+        }
+    }
+}
+
+/// Whether `fd` is a listening socket (`SO_ACCEPTCONN`).
+pub fn is_listening(fd: i32) -> bool {
+    let mut value: libc::c_int = 0;
+    let mut len = size_of::<libc::c_int>() as libc::socklen_t;
+    // SAFETY: `value`/`len` are live locals describing a buffer of `len` bytes.
+    let rc = unsafe {
+        libc::getsockopt(fd, libc::SOL_SOCKET, libc::SO_ACCEPTCONN, (&mut value as *mut libc::c_int).cast(), &mut len)
+    };
+    rc == 0 && value != 0
+}
+
 /// Prints libmodbus 3.1.12's accept message.
 pub fn report_accept(diag: &mut dyn Diag, peer: Option<&str>) {
     match peer {

@@ -195,6 +195,12 @@ pub fn read_file(path: &std::path::Path) -> Result<Vec<u8>> {
 }
 
 impl TlsSettings {
+    /// The settings of one client's line of a server runner: the listening
+    /// context's server configuration, made already.
+    pub fn serving(server: Arc<ServerConfig>) -> Self {
+        TlsSettings { server: Some(server), ..TlsSettings::default() }
+    }
+
     fn changed(&mut self) {
         self.client = None;
         self.server = None;
@@ -627,6 +633,38 @@ impl Session {
         }
         write_pending(fd, &mut self.conn, deadline, stopping)?;
         Ok(data.len())
+    }
+
+    /// TLS data waits to go out.
+    pub fn wants_write(&self) -> bool {
+        self.conn.wants_write()
+    }
+
+    /// Sends `plain` (taken from the vector) as application data, as far as the
+    /// socket takes it without waiting: true when all is out.
+    pub fn send_without_waiting(&mut self, fd: i32, plain: &mut Vec<u8>) -> Result<bool> {
+        loop {
+            if !plain.is_empty() {
+                match self.conn.writer().write(plain) {
+                    Ok(n) => {
+                        plain.drain(..n);
+                    }
+                    Err(_) => return Err(Error(libc::EPIPE)),
+                }
+            }
+            if !self.conn.wants_write() {
+                if plain.is_empty() {
+                    return Ok(true);
+                }
+                continue;
+            }
+            match self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
+                Ok(_) => {}
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(false),
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(io_error(e)),
+            }
+        }
     }
 
     /// Sends close_notify, without waiting.

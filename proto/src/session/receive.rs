@@ -621,6 +621,13 @@ impl Receiver {
         });
     }
 
+    /// Some of the message came: a receive that waits with nothing of its message
+    /// may be dropped and started again when bytes come (an indication's first wait
+    /// has no end).
+    pub fn started(&self) -> bool {
+        self.traced() > 0
+    }
+
     /// Bytes of the message accepted so far (what the trace shows of it).
     fn traced(&self) -> usize {
         match &self.body {

@@ -119,6 +119,17 @@ impl Callbacks {
         Some(Callbacks { cb: copy, user_data, socket: -1, role: ptr::null() })
     }
 
+    /// The request comes from the client of `g` (its socket, its TLS role).
+    pub(crate) fn from(&mut self, g: &crate::engine::Guard<'_>) {
+        self.socket = g.fd();
+        self.role = g.line.peer_role().map_or(ptr::null(), |r| r.as_ptr());
+    }
+
+    /// The application chooses the units served (`accept_unit` is set).
+    pub(crate) fn chooses_units(&self) -> bool {
+        self.cb.accept_unit.is_some()
+    }
+
     fn info(&self, rq: &Request) -> modbus_request_info_t {
         modbus_request_info_t {
             unit_id: rq.unit as c_int,
@@ -259,8 +270,7 @@ pub unsafe extern "C" fn modbus_reply_callbacks(
             let len = if req_length < 0 { extent } else { extent.max(bound.min(framing.max_adu_length())) };
             // SAFETY: the same bytes, now as one slice.
             let req = slice::from_raw_parts(req, len);
-            data.socket = g.fd();
-            data.role = g.line.peer_role().map_or(ptr::null(), |r| r.as_ptr());
+            data.from(g);
             crate::server::reply(g, req, req_length, &mut data).map(|n| n as c_int)
         })
     }

@@ -15,9 +15,11 @@ mod extensions;
 mod listen;
 mod mapping;
 mod reply;
+mod runner;
 
 pub use callbacks::*;
 pub use extensions::*;
 pub use listen::*;
 pub use mapping::*;
 pub use reply::*;
+pub use runner::*;

@@ -1,0 +1,292 @@
+//! modbus.h extensions: a server that runs itself (`modbus_server_t`): one thread,
+//! one epoll descriptor, every client of a listening context, or a serial line
+//! (`crate::runner`). Its requests are answered on the one reply path, from a
+//! mapping or the application's callbacks, as `modbus_reply` and
+//! `modbus_reply_callbacks` answer them.
+
+use std::cell::UnsafeCell;
+use std::ffi::{c_int, c_void};
+use std::ptr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use super::callbacks::{Callbacks, modbus_server_callbacks_t};
+use super::mapping::{CMapping, modbus_mapping_t};
+use crate::context::Context;
+use crate::engine::Guard;
+use crate::error::{Error, Result};
+use crate::ffi::{Modbus, fail};
+use crate::handle;
+use crate::proto::reply::MappingData;
+use crate::runner::{Answer, Runner, Stopper};
+
+/// What the requests are answered from.
+enum Source {
+    Nothing,
+    Mapping(*mut modbus_mapping_t),
+    Callbacks(Callbacks),
+}
+
+impl Answer for Source {
+    fn any_unit(&self) -> bool {
+        matches!(self, Source::Callbacks(cb) if cb.chooses_units())
+    }
+
+    fn accept_unit(&mut self, unit: u8) -> bool {
+        use crate::proto::reply::Data;
+        match self {
+            Source::Callbacks(cb) => cb.accept_unit(unit),
+            _ => true,
+        }
+    }
+
+    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8]) -> Result<usize> {
+        let len = req.len() as i32;
+        match self {
+            Source::Callbacks(cb) => {
+                cb.from(g);
+                crate::server::reply(g, req, len, cb)
+            }
+            Source::Mapping(m) => {
+                let mut mapping = CMapping(*m);
+                crate::server::reply(g, req, len, &mut MappingData(&mut mapping))
+            }
+            Source::Nothing => Err(Error::INVALID),
+        }
+    }
+}
+
+/// A server runner as C holds it (`modbus_server_t`).
+pub struct ServerRunner {
+    /// Reachable while a run is under way (`modbus_server_stop` from another thread
+    /// or a signal handler).
+    stopper: Arc<Stopper>,
+    /// A run is under way: the calls that change the runner wait for its end
+    /// (EBUSY), a free from a callback is done when it ends.
+    running: AtomicBool,
+    doomed: AtomicBool,
+    inner: UnsafeCell<Inner>,
+}
+
+struct Inner {
+    runner: Runner,
+    ctx: *mut Modbus,
+    source: Source,
+}
+
+/// The runner behind `s` for a call that changes it: EINVAL for NULL, EBUSY while
+/// it runs.
+///
+/// # Safety
+/// `s` must be NULL or a live runner.
+unsafe fn inner<'a>(s: *mut ServerRunner) -> Result<&'a mut Inner> {
+    // SAFETY: the caller's pointer, NULL or live.
+    let Some(server) = (unsafe { s.as_ref() }) else { return Err(Error::INVALID) };
+    if server.running.load(Ordering::SeqCst) {
+        return Err(Error(libc::EBUSY));
+    }
+    // SAFETY: no run is under way, and the application calls these from one thread
+    // at a time (the documented contract), so this is the only reference.
+    Ok(unsafe { &mut *server.inner.get() })
+}
+
+/// Makes a server that runs itself over `ctx` for up to `max_clients` clients at
+/// once: a TCP, TCP-PI, RTU-over-TCP or Modbus/TCP Security context (its listening
+/// socket when `modbus_set_socket` gave it one, else one the server opens on the
+/// context's address and closes with it), or a serial context (its line, opened
+/// if it is not; `max_clients` is then not used). Each client is answered as
+/// `modbus_reply` answers on `ctx`, with `ctx`'s settings (debug, timeouts, TLS
+/// configuration and authorization) as they are when the client connects.
+/// `ctx` must outlive the server. Returns NULL with errno EINVAL (NULL context,
+/// `max_clients` < 1), EMBTLSCONFIG (TLS settings missing), or the error of the
+/// listen or open.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_new(ctx: *mut Modbus, max_clients: c_int) -> *mut ServerRunner {
+    if ctx.is_null() || max_clients < 1 {
+        fail(Error::INVALID);
+        return ptr::null_mut();
+    }
+    // SAFETY: forwarded caller contract.
+    let made = unsafe { handle::call(ctx, |g| Runner::new(g, max_clients as usize)) };
+    match made {
+        Ok(runner) => Box::into_raw(Box::new(ServerRunner {
+            stopper: runner.stopper(),
+            running: AtomicBool::new(false),
+            doomed: AtomicBool::new(false),
+            inner: UnsafeCell::new(Inner { runner, ctx, source: Source::Nothing }),
+        })),
+        Err(e) => {
+            fail(e);
+            ptr::null_mut()
+        }
+    }
+}
+
+/// Answers the requests through the callbacks `cb` (copied; see
+/// `modbus_reply_callbacks`), with `user_data`, in place of a mapping. With
+/// `accept_unit` set, a serial server answers the units it accepts (broadcasts
+/// too), whatever the context's slave.
+///
+/// # Safety
+/// `s` must be NULL or a live runner; `cb` NULL or valid for `cb->struct_size` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_set_callbacks(
+    s: *mut ServerRunner,
+    cb: *const modbus_server_callbacks_t,
+    user_data: *mut c_void,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    let inner = match unsafe { inner(s) } {
+        Ok(i) => i,
+        Err(e) => return fail(e),
+    };
+    // SAFETY: forwarded caller contract.
+    let Some(callbacks) = (unsafe { Callbacks::new(cb, user_data) }) else { return fail(Error::INVALID) };
+    inner.source = Source::Callbacks(callbacks);
+    0
+}
+
+/// Answers the requests from `map` (which must outlive the server's runs), as
+/// `modbus_reply` does, in place of callbacks.
+///
+/// # Safety
+/// `s` must be NULL or a live runner; `map` NULL or a mapping whose tables hold
+/// their `nb_*` items.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_set_mapping(s: *mut ServerRunner, map: *mut modbus_mapping_t) -> c_int {
+    // SAFETY: forwarded caller contract.
+    let inner = match unsafe { inner(s) } {
+        Ok(i) => i,
+        Err(e) => return fail(e),
+    };
+    if map.is_null() {
+        return fail(Error::INVALID);
+    }
+    inner.source = Source::Mapping(map);
+    0
+}
+
+/// A client from which no whole request came for this long is closed (a client
+/// that sends a byte now and then, or never ends its TLS handshake, too). 0, 0:
+/// never. The default is 60 s. EINVAL: `usec` above 999999.
+///
+/// # Safety
+/// `s` must be NULL or a live runner.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_set_idle_timeout(s: *mut ServerRunner, sec: u32, usec: u32) -> c_int {
+    // SAFETY: forwarded caller contract.
+    let inner = match unsafe { inner(s) } {
+        Ok(i) => i,
+        Err(e) => return fail(e),
+    };
+    match Context::checked_timeout(sec, usec) {
+        Ok(t) => {
+            inner.runner.set_idle_timeout(t);
+            0
+        }
+        Err(e) => fail(e),
+    }
+}
+
+/// The server's epoll descriptor, for the application's own loop: readable when
+/// `modbus_server_run(s, 0)` has work (a client, a request, a deadline).
+///
+/// # Safety
+/// `s` must be NULL or a live runner.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_get_fd(s: *mut ServerRunner) -> c_int {
+    // SAFETY: forwarded caller contract.
+    match unsafe { s.as_ref() } {
+        // SAFETY: the descriptor never changes: read through the cell without a
+        // reference to the rest.
+        Some(server) => unsafe { (*server.inner.get()).runner.fd() },
+        None => fail(Error::INVALID),
+    }
+}
+
+/// Accepts clients, carries their TLS handshakes on, reads their requests and
+/// answers them, closes the idle ones, for up to `timeout_ms` milliseconds (0:
+/// what is ready now, without waiting; -1: until `modbus_server_stop`). Several
+/// requests that come together are all answered, their answers sent together. The
+/// callbacks run on this thread and must not block. Returns the requests answered,
+/// or -1 with errno: EINVAL (no mapping or callbacks set, `timeout_ms` below -1),
+/// EBUSY (a run is under way), or the error of the wait.
+///
+/// # Safety
+/// `s` must be NULL or a live runner.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_run(s: *mut ServerRunner, timeout_ms: c_int) -> c_int {
+    // SAFETY: forwarded caller contract.
+    let inner = match unsafe { inner(s) } {
+        Ok(i) => i,
+        Err(e) => return fail(e),
+    };
+    if timeout_ms < -1 || matches!(inner.source, Source::Nothing) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: `inner` succeeded: `s` is live.
+    let server = unsafe { &*s };
+    server.running.store(true, Ordering::SeqCst);
+    let ctx = inner.ctx;
+    let on_server = |f: &mut dyn FnMut(&mut Guard<'_>)| {
+        // SAFETY: the context outlives the server (its documented contract).
+        unsafe {
+            handle::call(ctx, |g| {
+                f(g);
+                Ok(())
+            })
+        }
+    };
+    let timeout = (timeout_ms >= 0).then(|| Duration::from_millis(timeout_ms as u64));
+    let r = inner.runner.run(timeout, &on_server, &mut inner.source);
+    server.running.store(false, Ordering::SeqCst);
+    if server.doomed.load(Ordering::SeqCst) {
+        // Freed by a callback meanwhile.
+        // SAFETY: the pointer of `modbus_server_new`, not used after this.
+        drop(unsafe { Box::from_raw(s) });
+    }
+    match r {
+        Ok(n) => n.min(c_int::MAX as usize) as c_int,
+        Err(e) => fail(e),
+    }
+}
+
+/// Ends the run under way (or the next) as soon as the request being answered is.
+/// Safe from a callback, another thread, or a signal handler.
+///
+/// # Safety
+/// `s` must be NULL or a live runner.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_stop(s: *mut ServerRunner) -> c_int {
+    // SAFETY: forwarded caller contract; only the stop, which is shared, is read.
+    match unsafe { s.as_ref() } {
+        Some(server) => {
+            server.stopper.stop();
+            0
+        }
+        None => fail(Error::INVALID),
+    }
+}
+
+/// Closes every client (and the listening socket the server opened) and frees the
+/// server; the context stays as it was. From a callback, the server is freed when
+/// the run returns.
+///
+/// # Safety
+/// `s` must be NULL or a live runner, not used afterwards.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_free(s: *mut ServerRunner) {
+    // SAFETY: forwarded caller contract.
+    let Some(server) = (unsafe { s.as_ref() }) else { return };
+    if server.running.load(Ordering::SeqCst) {
+        server.doomed.store(true, Ordering::SeqCst);
+        server.stopper.stop();
+        return;
+    }
+    // SAFETY: the pointer of `modbus_server_new`, not used after this.
+    drop(unsafe { Box::from_raw(s) });
+}

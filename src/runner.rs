@@ -1,0 +1,742 @@
+//! The server runner (`modbus_server_*`): one thread, one epoll descriptor, every
+//! client of a listening context (TCP, TCP-PI, RTU over TCP, Modbus/TCP Security),
+//! or the serial line of a serial one. It drives the receive machine of the
+//! blocking calls (`proto::session::receive`), on the same lines, by readiness, as
+//! the event-driven client does (`crate::event`), and answers each request on the
+//! one reply path (`crate::server::reply`, reached through the C layer's [`Answer`]).
+//!
+//! Each client is a context of its own, made from the listening one when it is
+//! accepted (`Context::serving`): its socket is non-blocking, its TLS handshake
+//! advances with readiness, its answers are queued on its line and leave together
+//! once the requests of a read are answered (one `send` for a pipelined burst); a
+//! client whose socket is full is read no more until it drains, so that it holds
+//! no one else. A receive holds its buffer only while a request is arriving in
+//! pieces; a client between requests holds its context and nothing else.
+//!
+//! Time: the runner's deadlines (a request's byte timeout, a client's idle
+//! timeout, a serial line's silence) are kept in a heap and arm a timerfd in the
+//! epoll set, so that the epoll descriptor alone says when there is work, for an
+//! application that puts it in its own loop. A client is idle when no whole
+//! request came from it for the idle timeout (bytes trickling in, or a handshake
+//! that does not end, do not count): it is closed.
+//!
+//! Stopping (`modbus_server_stop`): a flag and an eventfd in the epoll set, both
+//! safe to touch from a signal handler or another thread.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use crate::context::Context;
+use crate::engine::{self, Guard, Waiting};
+use crate::error::{Error, Result};
+use crate::handle::lock::OwnerMutex;
+use crate::outstanding::Receiving;
+use crate::proto::Diag;
+use crate::proto::frame::{MAX_ADU_LENGTH, MsgKind};
+use crate::proto::session::Timeout;
+use crate::proto::session::receive::{Finished, Outcome, Receiver, Step};
+use crate::transport::{self, epoll, listen};
+
+/// What the runner asks of the C layer for each request.
+pub trait Answer {
+    /// Serial lines: the units are the answerer's to choose ([`Answer::accept_unit`]),
+    /// not the context's slave alone.
+    fn any_unit(&self) -> bool;
+    /// Whether a serial request for `unit` is served.
+    fn accept_unit(&mut self, unit: u8) -> bool;
+    /// Answers the request `req` on the client's context `g`; the answer is queued
+    /// on its line (a socket's) or sent (a serial line's).
+    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8]) -> Result<usize>;
+}
+
+/// Runs a function on the server's own context, locked (the C layer's handle).
+pub type OnServer<'a> = &'a dyn Fn(&mut dyn FnMut(&mut Guard<'_>)) -> Result<()>;
+
+/// The stop of a runner, reachable without the runner (see the module).
+pub struct Stopper {
+    stopping: AtomicBool,
+    wake: i32,
+}
+
+impl Stopper {
+    /// `modbus_server_stop`: the run under way (or the next) returns. Safe in a
+    /// signal handler: an atomic store and a `write`.
+    pub fn stop(&self) {
+        self.stopping.store(true, Ordering::SeqCst);
+        let one: u64 = 1;
+        // SAFETY: writes 8 bytes from a live local to the runner's eventfd.
+        unsafe { libc::write(self.wake, (&one as *const u64).cast(), 8) };
+    }
+}
+
+impl Drop for Stopper {
+    fn drop(&mut self) {
+        transport::close(self.wake);
+    }
+}
+
+/// epoll keys below the clients'.
+const KEY_WAKE: u64 = 0;
+const KEY_TIMER: u64 = 1;
+/// The listening socket, or the serial line.
+const KEY_LINE: u64 = 2;
+const FIRST_CLIENT: u64 = 3;
+
+/// The epoll key of the client in `slot`: its generation tells a stale event (of a
+/// client closed in the same batch, its slot taken again) from a current one.
+fn client_key(slot: u32, generation: u32) -> u64 {
+    (FIRST_CLIENT + slot as u64) | ((generation as u64) << 32)
+}
+
+/// Answers queued past this go out before more requests are read.
+const QUEUE_HIGH: usize = 16 * MAX_ADU_LENGTH;
+
+/// A client, or the serial line: where its receive stands.
+#[derive(Default)]
+struct Conn {
+    /// A request arriving in pieces (with its buffer), kept between readiness.
+    receiving: Option<Box<Receiving>>,
+    /// When it was accepted or its last whole request came.
+    last: Duration,
+    /// A serial line: the next frame is the answer of the slave a request for
+    /// another unit addressed; it is read and dropped.
+    ignore_next: bool,
+    /// The deadline a timer is set for (a receive's wait).
+    timer: Option<Duration>,
+}
+
+/// One accepted client.
+struct Client {
+    ctx: OwnerMutex<Context>,
+    conn: Conn,
+    generation: u32,
+    /// The events it is registered for.
+    events: i16,
+}
+
+/// What a timer entry is for.
+#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum Due {
+    /// A receive's wait (byte timeout, a serial frame's silence).
+    Wait,
+    /// The idle timeout.
+    Idle,
+}
+
+/// (deadline, slot (u32::MAX: the serial line), generation, what).
+type Timer = Reverse<(Duration, u32, u32, Due)>;
+
+const SERIAL_SLOT: u32 = u32::MAX;
+
+/// The runner (see the module).
+pub struct Runner {
+    epfd: i32,
+    timerfd: i32,
+    /// The timerfd's deadline as armed.
+    armed: Option<Duration>,
+    /// The listening socket (-1 on a serial context), and whether the runner
+    /// opened it (and closes it).
+    listen_fd: i32,
+    owns_listen: bool,
+    /// The listening socket is in the epoll set (it leaves while the clients are
+    /// at their maximum, or no descriptor is left for one more).
+    listening: bool,
+    /// A serial context's line (its descriptor), served on the context itself.
+    serial: Option<(i32, Conn)>,
+    clients: Vec<Option<Box<Client>>>,
+    free: Vec<u32>,
+    live: usize,
+    max_clients: usize,
+    generation: u32,
+    timers: BinaryHeap<Timer>,
+    idle: Option<Duration>,
+    /// A receive's state and buffer, kept for the next one.
+    spare: Option<Box<Receiving>>,
+    stopper: std::sync::Arc<Stopper>,
+}
+
+fn eventfd() -> Result<i32> {
+    // SAFETY: plain system call with integer arguments.
+    let fd = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
+    if fd < 0 { Err(transport::last_error()) } else { Ok(fd) }
+}
+
+fn timerfd() -> Result<i32> {
+    // SAFETY: plain system call with integer arguments.
+    let fd = unsafe { libc::timerfd_create(libc::CLOCK_MONOTONIC, libc::TFD_CLOEXEC | libc::TFD_NONBLOCK) };
+    if fd < 0 { Err(transport::last_error()) } else { Ok(fd) }
+}
+
+/// Arms `fd` for the monotonic time `at` (`None`: disarms).
+fn arm(fd: i32, at: Option<Duration>) {
+    let value = match at {
+        // A zero value would disarm: the earliest instant instead.
+        Some(t) => transport::to_timespec(t.max(Duration::from_nanos(1))),
+        None => libc::timespec { tv_sec: 0, tv_nsec: 0 },
+    };
+    let spec = libc::itimerspec { it_interval: libc::timespec { tv_sec: 0, tv_nsec: 0 }, it_value: value };
+    // SAFETY: `spec` is a live itimerspec; the old value is not asked for.
+    unsafe { libc::timerfd_settime(fd, libc::TFD_TIMER_ABSTIME, &spec, std::ptr::null_mut()) };
+}
+
+fn drain(fd: i32) {
+    let mut count = [0u8; 8];
+    let _ = transport::read(fd, &mut count);
+}
+
+impl Runner {
+    /// A runner for the context `g`, for up to `max_clients` clients: a listening
+    /// context's socket when it has one listening (`modbus_set_socket` with what
+    /// `modbus_tcp_listen` returned), else one it opens on the context's address; a
+    /// serial context's line, opened if it is not. EMBTLSCONFIG: a Modbus/TCP
+    /// Security context without its certificate, key and CA.
+    pub fn new(g: &mut Guard<'_>, max_clients: usize) -> Result<Runner> {
+        let wake = eventfd()?;
+        let stopper = std::sync::Arc::new(Stopper { stopping: AtomicBool::new(false), wake });
+        let epfd = epoll::create()?;
+        let mut r = Runner {
+            epfd,
+            timerfd: -1,
+            armed: None,
+            listen_fd: -1,
+            owns_listen: false,
+            listening: false,
+            serial: None,
+            clients: Vec::new(),
+            free: Vec::new(),
+            live: 0,
+            max_clients,
+            generation: 0,
+            timers: BinaryHeap::new(),
+            idle: Some(Duration::from_secs(60)),
+            spare: None,
+            stopper,
+        };
+        r.timerfd = timerfd()?;
+        epoll::control(epfd, libc::EPOLL_CTL_ADD, wake, libc::POLLIN, KEY_WAKE)?;
+        epoll::control(epfd, libc::EPOLL_CTL_ADD, r.timerfd, libc::POLLIN, KEY_TIMER)?;
+        if g.line.serial().is_some() {
+            if g.fd() < 0 {
+                engine::connect(g)?;
+            }
+            let fd = g.fd();
+            epoll::control(epfd, libc::EPOLL_CTL_ADD, fd, libc::POLLIN, KEY_LINE)?;
+            r.serial = Some((fd, Conn::default()));
+            return Ok(r);
+        }
+        // A client's line is made now once, so that a context that cannot serve
+        // (TLS settings missing) fails here rather than at each client.
+        drop(g.serving()?);
+        let fd = g.fd();
+        if fd >= 0 && listen::is_listening(fd) {
+            r.listen_fd = fd;
+        } else {
+            let backlog = max_clients.clamp(1, 4096) as i32;
+            let mut diag = g.diag();
+            r.listen_fd = match g.line.settings() {
+                crate::transport::link::Link::Tcp(_) => listen::listen_ipv4(g.line.settings(), backlog, &mut diag)?,
+                _ => listen::listen_pi(g.line.settings(), backlog, g.debug, &mut diag)?,
+            };
+            r.owns_listen = true;
+        }
+        // SAFETY: plain fcntl on a descriptor: a listener that never blocks.
+        unsafe {
+            let flags = libc::fcntl(r.listen_fd, libc::F_GETFL);
+            libc::fcntl(r.listen_fd, libc::F_SETFL, flags | libc::O_NONBLOCK);
+        }
+        epoll::control(epfd, libc::EPOLL_CTL_ADD, r.listen_fd, libc::POLLIN, KEY_LINE)?;
+        r.listening = true;
+        Ok(r)
+    }
+
+    /// The stop, for `modbus_server_stop`.
+    pub fn stopper(&self) -> std::sync::Arc<Stopper> {
+        std::sync::Arc::clone(&self.stopper)
+    }
+
+    /// The epoll descriptor: readable when [`Runner::run`] has work.
+    pub fn fd(&self) -> i32 {
+        self.epfd
+    }
+
+    /// Clients connected now.
+    pub fn clients(&self) -> usize {
+        self.live
+    }
+
+    /// `modbus_server_set_idle_timeout` (zero: none).
+    pub fn set_idle_timeout(&mut self, t: Timeout) {
+        self.idle = (!t.is_zero()).then(|| t.duration());
+        if let Some(idle) = self.idle {
+            // Every client is looked at again under the new timeout.
+            for (slot, c) in self.clients.iter().enumerate() {
+                if let Some(c) = c {
+                    self.timers.push(Reverse((c.conn.last + idle, slot as u32, c.generation, Due::Idle)));
+                }
+            }
+        }
+        self.rearm();
+    }
+
+    /// `modbus_server_run`: accepts, handshakes, reads and answers, closes idle
+    /// clients, for `timeout` (`None`: until stopped; zero: what is ready now).
+    /// Returns the requests answered.
+    pub fn run(&mut self, timeout: Option<Duration>, server: OnServer<'_>, answer: &mut dyn Answer) -> Result<usize> {
+        let end = timeout.map(|t| transport::now() + t);
+        let mut events = [libc::epoll_event { events: 0, u64: 0 }; 256];
+        let mut answered = 0;
+        loop {
+            if self.stopper.stopping.swap(false, Ordering::SeqCst) {
+                drain(self.stopper.wake);
+                return Ok(answered);
+            }
+            let wait_ms = match end {
+                None => -1,
+                Some(end) => {
+                    let left = end.saturating_sub(transport::now());
+                    // Rounded up: the wait never ends before `end`.
+                    left.as_nanos().div_ceil(1_000_000).min(i32::MAX as u128) as i32
+                }
+            };
+            let n = epoll::wait(self.epfd, &mut events, wait_ms)?;
+            for ev in &events[..n] {
+                let key = ev.u64;
+                let revents = { ev.events } as u16 as i16;
+                match key {
+                    KEY_WAKE => {}
+                    KEY_TIMER => drain(self.timerfd),
+                    KEY_LINE if self.serial.is_some() => answered += self.serial_ready(server, answer, true),
+                    KEY_LINE => self.accept(server),
+                    _ => answered += self.client_ready(key, revents, answer),
+                }
+            }
+            answered += self.fire_timers(server, answer);
+            if end.is_some_and(|e| transport::now() >= e) && !self.stopper.stopping.load(Ordering::SeqCst) {
+                return Ok(answered);
+            }
+        }
+    }
+
+    /// Accepts the clients waiting, up to the maximum.
+    fn accept(&mut self, server: OnServer<'_>) {
+        while self.live < self.max_clients {
+            let (fd, peer) = match listen::accept_now(self.listen_fd) {
+                Ok(Some(accepted)) => accepted,
+                Ok(None) => return,
+                Err(e) => {
+                    // Out of descriptors or memory: the listener rests until a client
+                    // leaves (a level-triggered listener would report at once again).
+                    let _ = server(&mut |g| engine::error_print(g, e, Some("accept")));
+                    self.pause_listening();
+                    return;
+                }
+            };
+            let mut made = None;
+            let _ = server(&mut |g| {
+                if g.debug {
+                    listen::report_accept(&mut g.diag(), peer.as_deref());
+                }
+                made = Some(g.serving());
+            });
+            let mut ctx = match made {
+                Some(Ok(ctx)) => ctx,
+                _ => {
+                    transport::close(fd);
+                    continue;
+                }
+            };
+            if ctx.line.accept_started(fd).is_err() {
+                continue;
+            }
+            // (A server's handshake starts with the client's hello: POLLIN too.)
+            let events = libc::POLLIN;
+            let slot = match self.free.pop() {
+                Some(s) => s,
+                None => {
+                    self.clients.push(None);
+                    (self.clients.len() - 1) as u32
+                }
+            };
+            self.generation = self.generation.wrapping_add(1);
+            let generation = self.generation;
+            let key = client_key(slot, generation);
+            if epoll::control(self.epfd, libc::EPOLL_CTL_ADD, fd, events, key).is_err() {
+                ctx.line.close();
+                self.free.push(slot);
+                continue;
+            }
+            let now = transport::now();
+            let conn = Conn { last: now, ..Conn::default() };
+            self.clients[slot as usize] =
+                Some(Box::new(Client { ctx: OwnerMutex::new(ctx), conn, generation, events }));
+            self.live += 1;
+            if let Some(idle) = self.idle {
+                self.timers.push(Reverse((now + idle, slot, generation, Due::Idle)));
+                self.rearm();
+            }
+        }
+        self.pause_listening();
+    }
+
+    fn pause_listening(&mut self) {
+        if self.listening {
+            let _ = epoll::control(self.epfd, libc::EPOLL_CTL_DEL, self.listen_fd, 0, KEY_LINE);
+            self.listening = false;
+        }
+    }
+
+    fn resume_listening(&mut self) {
+        if !self.listening && self.listen_fd >= 0 && self.live < self.max_clients {
+            self.listening =
+                epoll::control(self.epfd, libc::EPOLL_CTL_ADD, self.listen_fd, libc::POLLIN, KEY_LINE).is_ok();
+        }
+    }
+
+    /// A client's socket is ready.
+    fn client_ready(&mut self, key: u64, revents: i16, answer: &mut dyn Answer) -> usize {
+        let slot = (key & 0xFFFF_FFFF) - FIRST_CLIENT;
+        let generation = (key >> 32) as u32;
+        let readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
+        self.drive_client(slot as u32, generation, readable, answer)
+    }
+
+    /// Drives the client in `slot` (if it is still the one of `generation`).
+    fn drive_client(&mut self, slot: u32, generation: u32, readable: bool, answer: &mut dyn Answer) -> usize {
+        let Some(Some(c)) = self.clients.get_mut(slot as usize) else { return 0 };
+        if c.generation != generation {
+            return 0;
+        }
+        let mut answered = 0;
+        let result = {
+            let mut g = c.ctx.lock();
+            drive(&mut g, &mut c.conn, readable, &mut self.spare, answer, &mut answered)
+        };
+        match result {
+            Ok((events, until)) => {
+                if events != c.events {
+                    let fd = c.ctx.lock().fd();
+                    let key = client_key(slot, generation);
+                    if epoll::control(self.epfd, libc::EPOLL_CTL_MOD, fd, events, key).is_ok() {
+                        c.events = events;
+                    }
+                }
+                if let Some(t) = until {
+                    if c.conn.timer != Some(t) {
+                        c.conn.timer = Some(t);
+                        self.timers.push(Reverse((t, slot, generation, Due::Wait)));
+                        self.rearm();
+                    }
+                }
+            }
+            Err(_) => self.close_client(slot),
+        }
+        answered
+    }
+
+    /// The serial line is ready (or a deadline of its receive came).
+    fn serial_ready(&mut self, server: OnServer<'_>, answer: &mut dyn Answer, readable: bool) -> usize {
+        let Some((_, conn)) = self.serial.as_mut() else { return 0 };
+        let spare = &mut self.spare;
+        let mut answered = 0;
+        let mut until = None;
+        let _ = server(&mut |g| {
+            if let Ok((_, u)) = drive(g, conn, readable, spare, answer, &mut answered) {
+                until = u;
+            }
+        });
+        if let Some(t) = until {
+            if conn.timer != Some(t) {
+                conn.timer = Some(t);
+                self.timers.push(Reverse((t, SERIAL_SLOT, 0, Due::Wait)));
+                self.rearm();
+            }
+        }
+        answered
+    }
+
+    /// Closes the client in `slot`.
+    fn close_client(&mut self, slot: u32) {
+        let Some(c) = self.clients.get_mut(slot as usize).and_then(Option::take) else { return };
+        let mut c = c;
+        let ctx = c.ctx.get_mut();
+        let fd = ctx.fd();
+        let _ = epoll::control(self.epfd, libc::EPOLL_CTL_DEL, fd, 0, 0);
+        if ctx.debug {
+            ctx.diag().out(format_args!("Connection closed on socket {fd}\n"));
+        }
+        // What is still queued goes if the socket takes it at once.
+        let _ = ctx.line.send_queued();
+        ctx.line.close();
+        drop(c);
+        self.free.push(slot);
+        self.live -= 1;
+        self.resume_listening();
+    }
+
+    /// Runs the deadlines that came; re-arms the timer for the next.
+    fn fire_timers(&mut self, server: OnServer<'_>, answer: &mut dyn Answer) -> usize {
+        let mut answered = 0;
+        let now = transport::now();
+        while let Some(&Reverse((at, slot, generation, due))) = self.timers.peek() {
+            if at > now {
+                break;
+            }
+            self.timers.pop();
+            if slot == SERIAL_SLOT {
+                if let Some((_, conn)) = self.serial.as_mut() {
+                    if conn.timer == Some(at) {
+                        conn.timer = None;
+                        answered += self.serial_ready(server, answer, false);
+                    }
+                }
+                continue;
+            }
+            let Some(Some(c)) = self.clients.get_mut(slot as usize) else { continue };
+            if c.generation != generation {
+                continue;
+            }
+            match due {
+                Due::Wait => {
+                    if c.conn.timer == Some(at) {
+                        c.conn.timer = None;
+                        answered += self.drive_client(slot, generation, false, answer);
+                    }
+                }
+                Due::Idle => {
+                    let Some(idle) = self.idle else { continue };
+                    let next = c.conn.last + idle;
+                    if next > now {
+                        self.timers.push(Reverse((next, slot, generation, Due::Idle)));
+                    } else {
+                        if c.ctx.get_mut().debug {
+                            c.ctx.get_mut().diag().out(format_args!("Idle client closed\n"));
+                        }
+                        self.close_client(slot);
+                    }
+                }
+            }
+        }
+        self.rearm();
+        answered
+    }
+
+    /// Arms the timerfd for the earliest deadline.
+    fn rearm(&mut self) {
+        let next = self.timers.peek().map(|Reverse((at, ..))| *at);
+        if next != self.armed {
+            self.armed = next;
+            arm(self.timerfd, next);
+        }
+    }
+}
+
+impl Drop for Runner {
+    fn drop(&mut self) {
+        for slot in 0..self.clients.len() as u32 {
+            self.close_client(slot);
+        }
+        if self.owns_listen {
+            transport::close(self.listen_fd);
+        }
+        transport::close(self.timerfd);
+        transport::close(self.epfd);
+    }
+}
+
+/// Drives one client (or the serial line): the handshake, the queued answers, the
+/// requests that came. Returns what to wait for next (the events, and a receive's
+/// deadline), or an error that ends the client.
+fn drive(
+    g: &mut Guard<'_>,
+    c: &mut Conn,
+    mut readable: bool,
+    spare: &mut Option<Box<Receiving>>,
+    answer: &mut dyn Answer,
+    answered: &mut usize,
+) -> Result<(i16, Option<Duration>)> {
+    if g.line.handshaking() {
+        let debug = g.debug;
+        let mut diag = g.diag();
+        if let Some(events) = g.line.handshake_step(false, debug, &mut diag)? {
+            return Ok((events, None));
+        }
+    }
+    if g.line.queued() > 0 && !g.line.send_queued()? {
+        // The client does not read its answers: nothing more is read from it.
+        return Ok((libc::POLLOUT, None));
+    }
+    let socket = g.line.serial().is_none();
+    let mut until = None;
+    loop {
+        if c.receiving.is_none() {
+            // (The wait for the answer of another unit's slave starts at once, as
+            // libmodbus's next receive would start it.)
+            if !readable && g.line.pending() == 0 && g.rx.available().is_empty() && !c.ignore_next {
+                break;
+            }
+            c.receiving = Some(start(g, c, spare, answer.any_unit(), socket));
+        }
+        let r = c.receiving.as_mut().expect("made above");
+        let ctx: &mut Context = g;
+        let mut waiting = Waiting::Ready(&mut readable);
+        let finished = loop {
+            match r.step {
+                Step::Frame(len) => break Some(Finished::frame(len)),
+                Step::Done(f) => break Some(f),
+                step => {
+                    match engine::execute(&mut ctx.line, &mut ctx.rx, &mut r.msg[..], step, ctx.debug, &mut waiting) {
+                        Some(result) => {
+                            r.step = r.machine.next(&r.settings, result, &mut r.msg[..], &mut ctx.rx, transport::now);
+                        }
+                        None => break None,
+                    }
+                }
+            }
+        };
+        let Some(f) = finished else {
+            // Waiting: a receive with nothing of its message is dropped (it starts
+            // again when bytes come); one under way keeps its buffer and deadline.
+            let r = c.receiving.take().expect("under way");
+            if r.machine.started() || c.ignore_next {
+                if let Step::Wait { until: Some(t) } = r.step {
+                    until = Some(t);
+                }
+                c.receiving = Some(r);
+            } else {
+                *spare = Some(r);
+            }
+            break;
+        };
+        let r = c.receiving.take().expect("ended");
+        let end = finish(g, c, f, &r.msg[..], answer, answered);
+        *spare = Some(r);
+        end?;
+        if g.line.queued() > QUEUE_HIGH && !g.line.send_queued()? {
+            return Ok((libc::POLLOUT, None));
+        }
+    }
+    if g.line.queued() > 0 && !g.line.send_queued()? {
+        return Ok((libc::POLLOUT, until));
+    }
+    Ok((libc::POLLIN, until))
+}
+
+/// A receive that starts now on `g`'s line.
+fn start(
+    g: &mut Guard<'_>,
+    c: &Conn,
+    spare: &mut Option<Box<Receiving>>,
+    any_unit: bool,
+    socket: bool,
+) -> Box<Receiving> {
+    let now = transport::now();
+    let mut s = g.session;
+    s.kind = if c.ignore_next { MsgKind::Confirmation } else { MsgKind::Indication };
+    s.line = g.line.caps(s.kind, s.timeouts.response);
+    // Never a peek, never a read under a kernel timeout: read what is there, and on
+    // a socket keep what lies past a request for the next (several requests in one
+    // read); a serial line is never read past its frame, as libmodbus reads it.
+    s.line.socket = false;
+    s.line.timed_reads = false;
+    s.read_ahead = socket;
+    s.expecting = None;
+    // Unknown function codes are framed whole (MBAP length, ASCII frame), for the
+    // answerer's `other`.
+    s.extended = true;
+    s.any_unit = any_unit;
+    // The first wait has no end: the idle timeout governs a quiet client.
+    s.timeouts.indication = Timeout::new(0, 0);
+    let machine = Receiver::new(&s, || now);
+    let mut r = match spare.take() {
+        Some(mut r) => {
+            r.machine = machine;
+            r.settings = s;
+            r
+        }
+        None => {
+            Box::new(Receiving { machine, settings: s, step: Step::Wait { until: None }, msg: [0; MAX_ADU_LENGTH] })
+        }
+    };
+    let started = &mut *r;
+    started.step = started.machine.start(&s, &mut started.msg[..], &mut g.rx, || now);
+    r
+}
+
+/// A receive ended: a request is answered; a serial frame for another unit makes
+/// the next frame one to drop; a failure ends a client (a serial line recovers).
+fn finish(
+    g: &mut Guard<'_>,
+    c: &mut Conn,
+    f: Finished,
+    msg: &[u8],
+    answer: &mut dyn Answer,
+    answered: &mut usize,
+) -> Result<()> {
+    if g.debug {
+        engine::trace_received(&msg[..f.traced], f.ended);
+    }
+    let serial = g.line.serial().is_some();
+    if std::mem::take(&mut c.ignore_next) {
+        // The other slave's answer (or whatever came instead): dropped.
+        if g.debug {
+            g.diag().out(format_args!("Confirmation to ignore\n"));
+        }
+        return Ok(());
+    }
+    match f.outcome {
+        Outcome::Frame(len) => {
+            c.last = transport::now();
+            let req = &msg[..len];
+            if serial && req[0] != 0 && answer.any_unit() && !answer.accept_unit(req[0]) {
+                if g.debug {
+                    g.diag().out(format_args!("Request for slave {} ignored (not served)\n", req[0]));
+                }
+                c.ignore_next = g.line.shared_bus();
+                return Ok(());
+            }
+            match answer.answer(g, req) {
+                Ok(_) => *answered += 1,
+                Err(e) if !serial && is_lost(e) => return Err(e),
+                Err(_) => {}
+            }
+            Ok(())
+        }
+        Outcome::Ignored { theirs, ours, .. } => {
+            if g.debug {
+                g.diag().out(format_args!("Request for slave {theirs} ignored (not {ours})\n"));
+            }
+            c.ignore_next = g.line.shared_bus();
+            Ok(())
+        }
+        Outcome::BadChecksum { lrc, received, computed } => {
+            if g.debug {
+                let what = if lrc { "LRC" } else { "CRC" };
+                g.diag()
+                    .err(format_args!("ERROR {what} received 0x{received:0X} != {what} calculated 0x{computed:0X}\n"));
+            }
+            g.rx.clear();
+            g.line.purge();
+            Ok(())
+        }
+        Outcome::Failed { error, site } => {
+            // (A client that leaves is no error worth a line.)
+            if g.debug && site.is_some() && (serial || error != Error::CONN_RESET) {
+                engine::error_print(g, error, site);
+            }
+            if serial {
+                g.rx.clear();
+                g.line.purge();
+                Ok(())
+            } else {
+                Err(error)
+            }
+        }
+    }
+}
+
+/// A failure of the client's connection itself.
+fn is_lost(e: Error) -> bool {
+    matches!(e.0, libc::ECONNRESET | libc::EPIPE | libc::ENOTCONN | libc::EBADF | libc::ECONNABORTED)
+}
