@@ -1268,6 +1268,28 @@ MODBUS_API modbus_t *modbus_new_rtu_tcp(const char *ip_address, int port);
 MODBUS_API modbus_t *modbus_new_rtu_tcp_pi(const char *node, const char *service);
 
 /**
+ * rsmodbus extension: Modbus/UDP, as pymodbus and j2mod speak it: each request and
+ * each answer is one datagram holding the MBAP header and the PDU. A client's
+ * `modbus_connect` makes a socket that talks to this address only; a lost datagram
+ * is a timeout, an answer that is not the one awaited (a duplicate) is dropped. A
+ * server runs with modbus_server_new(3), or binds with `modbus_tcp_listen` and gives
+ * the socket to `modbus_set_socket`, then answers each request to its sender.
+ *
+ * # Safety
+ * `ip_address` must be NULL or a NUL-terminated string.
+ */
+MODBUS_API modbus_t *modbus_new_udp(const char *ip_address, int port);
+
+/**
+ * rsmodbus extension: Modbus/UDP over any address family (names resolved with
+ * getaddrinfo), like `modbus_new_tcp_pi`; `modbus_tcp_pi_listen` binds.
+ *
+ * # Safety
+ * `node` and `service` must each be NULL or a NUL-terminated string.
+ */
+MODBUS_API modbus_t *modbus_new_udp_pi(const char *node, const char *service);
+
+/**
  * rsmodbus extension: the version of this library (e.g. "0.1.0"). A program can
  * look this symbol up to tell rsmodbus from libmodbus at run time.
  */

@@ -257,6 +257,20 @@ impl Context {
         Ok(Context::common(Framing::Tcp, TcpPiLink { node, service }.into(), TCP_SLAVE))
     }
 
+    /// `modbus_new_udp`: Modbus/UDP over IPv4 (one ADU per datagram).
+    pub fn new_udp(ip: Option<&CStr>, port: i32) -> Result<Context> {
+        let mut ctx = Context::new_tcp(ip, port)?;
+        ctx.line.datagrams();
+        Ok(ctx)
+    }
+
+    /// `modbus_new_udp_pi`: Modbus/UDP over any address family.
+    pub fn new_udp_pi(node: Option<&CStr>, service: Option<&CStr>) -> Result<Context> {
+        let mut ctx = Context::new_tcp_pi(node, service)?;
+        ctx.line.datagrams();
+        Ok(ctx)
+    }
+
     /// `modbus_new_tcp_tls`: Modbus/TCP Security, TLS over TCP/IPv4.
     pub fn new_tcp_tls(ip: Option<&CStr>, port: i32) -> Result<Context> {
         let mut ctx = Context::new_tcp(ip, port)?;

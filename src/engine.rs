@@ -627,6 +627,12 @@ fn receive_answer(g: &mut Guard<'_>, rsp: &mut AduBuf, req: &[u8]) -> Result<Rec
         match receive_msg(g, rsp, MsgKind::Confirmation) {
             Ok(Received::Frame(len)) if tcp && len >= 2 && rsp[..2] != req[..2] => {
                 let tid = u16::from_be_bytes([rsp[0], rsp[1]]);
+                if g.line.is_datagram() {
+                    // Modbus/UDP: a datagram repeated or late on the way is another
+                    // request's answer, never this one's.
+                    g.diag().err(format_args!("Answer with transaction ID 0x{tid:X} dropped (not awaited)\n"));
+                    continue;
+                }
                 if !g.timed_out.take(tid) {
                     return Ok(Received::Frame(len));
                 }

@@ -1,6 +1,6 @@
 //! The server runner (`modbus_server_*`): one thread, one epoll descriptor, every
 //! client of a listening context (TCP, TCP-PI, RTU over TCP, Modbus/TCP Security),
-//! or the serial line of a serial one. It drives the receive machine of the
+//! or the own line of a serial or Modbus/UDP one. It drives the receive machine of the
 //! blocking calls (`proto::session::receive`), on the same lines, by readiness, as
 //! the event-driven client does (`crate::event`), and answers each request on the
 //! one reply path (`crate::server::reply`, reached through the C layer's [`Answer`]).
@@ -80,7 +80,7 @@ impl Drop for Stopper {
 /// epoll keys below the clients'.
 const KEY_WAKE: u64 = 0;
 const KEY_TIMER: u64 = 1;
-/// The listening socket, or the serial line.
+/// The listening socket, or the context's own line (serial, UDP).
 const KEY_LINE: u64 = 2;
 const FIRST_CLIENT: u64 = 3;
 
@@ -93,7 +93,7 @@ fn client_key(slot: u32, generation: u32) -> u64 {
 /// Answers queued past this go out before more requests are read.
 const QUEUE_HIGH: usize = 16 * MAX_ADU_LENGTH;
 
-/// A client, or the serial line: where its receive stands.
+/// A client, or the context's own line: where its receive stands.
 #[derive(Default)]
 struct Conn {
     /// A request arriving in pieces (with its buffer), kept between readiness.
@@ -125,10 +125,10 @@ enum Due {
     Idle,
 }
 
-/// (deadline, slot (u32::MAX: the serial line), generation, what).
+/// (deadline, slot (u32::MAX: the context's own line), generation, what).
 type Timer = Reverse<(Duration, u32, u32, Due)>;
 
-const SERIAL_SLOT: u32 = u32::MAX;
+const OWN_SLOT: u32 = u32::MAX;
 
 /// The runner (see the module).
 pub struct Runner {
@@ -136,15 +136,16 @@ pub struct Runner {
     timerfd: i32,
     /// The timerfd's deadline as armed.
     armed: Option<Duration>,
-    /// The listening socket (-1 on a serial context), and whether the runner
+    /// The listening socket (-1 on a serial or UDP context), and whether the runner
     /// opened it (and closes it).
     listen_fd: i32,
     owns_listen: bool,
     /// The listening socket is in the epoll set (it leaves while the clients are
     /// at their maximum, or no descriptor is left for one more).
     listening: bool,
-    /// A serial context's line (its descriptor), served on the context itself.
-    serial: Option<(i32, Conn)>,
+    /// A serial or UDP context's own line (its descriptor), served on the context
+    /// itself.
+    own_line: Option<(i32, Conn)>,
     clients: Vec<Option<Box<Client>>>,
     free: Vec<u32>,
     live: usize,
@@ -190,8 +191,9 @@ impl Runner {
     /// A runner for the context `g`, for up to `max_clients` clients: a listening
     /// context's socket when it has one listening (`modbus_set_socket` with what
     /// `modbus_tcp_listen` returned), else one it opens on the context's address; a
-    /// serial context's line, opened if it is not. EMBTLSCONFIG: a Modbus/TCP
-    /// Security context without its certificate, key and CA.
+    /// serial context's line, opened if it is not; a Modbus/UDP context's socket,
+    /// bound to its address if it has none. EMBTLSCONFIG: a Modbus/TCP Security
+    /// context without its certificate, key and CA.
     pub fn new(g: &mut Guard<'_>, max_clients: usize) -> Result<Runner> {
         let wake = eventfd()?;
         let stopper = std::sync::Arc::new(Stopper { stopping: AtomicBool::new(false), wake });
@@ -203,7 +205,7 @@ impl Runner {
             listen_fd: -1,
             owns_listen: false,
             listening: false,
-            serial: None,
+            own_line: None,
             clients: Vec::new(),
             free: Vec::new(),
             live: 0,
@@ -217,13 +219,18 @@ impl Runner {
         r.timerfd = timerfd()?;
         epoll::control(epfd, libc::EPOLL_CTL_ADD, wake, libc::POLLIN, KEY_WAKE)?;
         epoll::control(epfd, libc::EPOLL_CTL_ADD, r.timerfd, libc::POLLIN, KEY_TIMER)?;
-        if g.line.serial().is_some() {
-            if g.fd() < 0 {
+        if !g.line.is_stream() {
+            // A serial line, or a UDP socket: the context's own line, served on the
+            // context itself.
+            if g.fd() < 0 && g.line.is_datagram() {
+                let mut diag = g.diag();
+                g.line.bind(&mut diag)?;
+            } else if g.fd() < 0 {
                 engine::connect(g)?;
             }
             let fd = g.fd();
             epoll::control(epfd, libc::EPOLL_CTL_ADD, fd, libc::POLLIN, KEY_LINE)?;
-            r.serial = Some((fd, Conn::default()));
+            r.own_line = Some((fd, Conn::default()));
             return Ok(r);
         }
         // A client's line is made now once, so that a context that cannot serve
@@ -235,10 +242,8 @@ impl Runner {
         } else {
             let backlog = max_clients.clamp(1, 4096) as i32;
             let mut diag = g.diag();
-            r.listen_fd = match g.line.settings() {
-                crate::transport::link::Link::Tcp(_) => listen::listen_ipv4(g.line.settings(), backlog, &mut diag)?,
-                _ => listen::listen_pi(g.line.settings(), backlog, g.debug, &mut diag)?,
-            };
+            let pi = matches!(g.line.settings(), crate::transport::link::Link::TcpPi(_));
+            r.listen_fd = g.line.listen(pi, backlog, g.debug, &mut diag)?;
             r.owns_listen = true;
         }
         // SAFETY: plain fcntl on a descriptor: a listener that never blocks.
@@ -307,7 +312,7 @@ impl Runner {
                 match key {
                     KEY_WAKE => {}
                     KEY_TIMER => drain(self.timerfd),
-                    KEY_LINE if self.serial.is_some() => answered += self.serial_ready(server, answer, true),
+                    KEY_LINE if self.own_line.is_some() => answered += self.own_line_ready(server, answer, true),
                     KEY_LINE => self.accept(server),
                     _ => answered += self.client_ready(key, revents, answer),
                 }
@@ -435,9 +440,10 @@ impl Runner {
         answered
     }
 
-    /// The serial line is ready (or a deadline of its receive came).
-    fn serial_ready(&mut self, server: OnServer<'_>, answer: &mut dyn Answer, readable: bool) -> usize {
-        let Some((_, conn)) = self.serial.as_mut() else { return 0 };
+    /// The context's own line (serial, UDP) is ready (or a deadline of its receive
+    /// came).
+    fn own_line_ready(&mut self, server: OnServer<'_>, answer: &mut dyn Answer, readable: bool) -> usize {
+        let Some((_, conn)) = self.own_line.as_mut() else { return 0 };
         let spare = &mut self.spare;
         let mut answered = 0;
         let mut until = None;
@@ -449,7 +455,7 @@ impl Runner {
         if let Some(t) = until {
             if conn.timer != Some(t) {
                 conn.timer = Some(t);
-                self.timers.push(Reverse((t, SERIAL_SLOT, 0, Due::Wait)));
+                self.timers.push(Reverse((t, OWN_SLOT, 0, Due::Wait)));
                 self.rearm();
             }
         }
@@ -484,11 +490,11 @@ impl Runner {
                 break;
             }
             self.timers.pop();
-            if slot == SERIAL_SLOT {
-                if let Some((_, conn)) = self.serial.as_mut() {
+            if slot == OWN_SLOT {
+                if let Some((_, conn)) = self.own_line.as_mut() {
                     if conn.timer == Some(at) {
                         conn.timer = None;
-                        answered += self.serial_ready(server, answer, false);
+                        answered += self.own_line_ready(server, answer, false);
                     }
                 }
                 continue;
@@ -545,7 +551,7 @@ impl Drop for Runner {
     }
 }
 
-/// Drives one client (or the serial line): the handshake, the queued answers, the
+/// Drives one client (or the own line): the handshake, the queued answers, the
 /// requests that came. Returns what to wait for next (the events, and a receive's
 /// deadline), or an error that ends the client.
 fn drive(
@@ -567,7 +573,8 @@ fn drive(
         // The client does not read its answers: nothing more is read from it.
         return Ok((libc::POLLOUT, None));
     }
-    let socket = g.line.serial().is_none();
+    let stream = g.line.is_stream();
+    let datagrams = g.line.is_datagram();
     let mut until = None;
     loop {
         if c.receiving.is_none() {
@@ -576,7 +583,7 @@ fn drive(
             if !readable && g.line.pending() == 0 && g.rx.available().is_empty() && !c.ignore_next {
                 break;
             }
-            c.receiving = Some(start(g, c, spare, answer.any_unit(), socket));
+            c.receiving = Some(start(g, c, spare, answer.any_unit(), stream || datagrams));
         }
         let r = c.receiving.as_mut().expect("made above");
         let ctx: &mut Context = g;
@@ -599,7 +606,16 @@ fn drive(
             // Waiting: a receive with nothing of its message is dropped (it starts
             // again when bytes come); one under way keeps its buffer and deadline.
             let r = c.receiving.take().expect("under way");
-            if r.machine.started() || c.ignore_next {
+            if datagrams && r.machine.started() {
+                // A datagram holds a whole request: one cut short is dropped (its
+                // rest would be the next datagram's bytes).
+                if g.debug {
+                    g.diag().err(format_args!("ERROR Datagram shorter than its request: dropped\n"));
+                }
+                g.rx.clear();
+                g.line.discard();
+                *spare = Some(r);
+            } else if r.machine.started() || c.ignore_next {
                 if let Step::Wait { until: Some(t) } = r.step {
                     until = Some(t);
                 }
@@ -612,6 +628,11 @@ fn drive(
         let r = c.receiving.take().expect("ended");
         let end = finish(g, c, f, &r.msg[..], answer, answered);
         *spare = Some(r);
+        if datagrams {
+            // What followed the request in its datagram is no request.
+            g.rx.clear();
+            g.line.discard();
+        }
         end?;
         if g.line.queued() > QUEUE_HIGH && !g.line.send_queued()? {
             return Ok((libc::POLLOUT, None));
@@ -629,18 +650,19 @@ fn start(
     c: &Conn,
     spare: &mut Option<Box<Receiving>>,
     any_unit: bool,
-    socket: bool,
+    read_ahead: bool,
 ) -> Box<Receiving> {
     let now = transport::now();
     let mut s = g.session;
     s.kind = if c.ignore_next { MsgKind::Confirmation } else { MsgKind::Indication };
     s.line = g.line.caps(s.kind, s.timeouts.response);
     // Never a peek, never a read under a kernel timeout: read what is there, and on
-    // a socket keep what lies past a request for the next (several requests in one
-    // read); a serial line is never read past its frame, as libmodbus reads it.
+    // a stream keep what lies past a request for the next (several requests in one
+    // read); a datagram is read whole; a serial line is never read past its frame,
+    // as libmodbus reads it.
     s.line.socket = false;
     s.line.timed_reads = false;
-    s.read_ahead = socket;
+    s.read_ahead = read_ahead;
     s.expecting = None;
     // Unknown function codes are framed whole (MBAP length, ASCII frame), for the
     // answerer's `other`.
@@ -677,6 +699,9 @@ fn finish(
     if g.debug {
         engine::trace_received(&msg[..f.traced], f.ended);
     }
+    // The context's own line (serial, UDP) recovers from what a client's
+    // connection is closed for.
+    let own = !g.line.is_stream();
     let serial = g.line.serial().is_some();
     if std::mem::take(&mut c.ignore_next) {
         // The other slave's answer (or whatever came instead): dropped.
@@ -698,7 +723,7 @@ fn finish(
             }
             match answer.answer(g, req) {
                 Ok(_) => *answered += 1,
-                Err(e) if !serial && is_lost(e) => return Err(e),
+                Err(e) if !own && is_lost(e) => return Err(e),
                 Err(_) => {}
             }
             Ok(())
@@ -722,10 +747,10 @@ fn finish(
         }
         Outcome::Failed { error, site } => {
             // (A client that leaves is no error worth a line.)
-            if g.debug && site.is_some() && (serial || error != Error::CONN_RESET) {
+            if g.debug && site.is_some() && (own || error != Error::CONN_RESET) {
                 engine::error_print(g, error, site);
             }
-            if serial {
+            if own {
                 g.rx.clear();
                 g.line.purge();
                 Ok(())

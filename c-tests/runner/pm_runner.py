@@ -72,8 +72,13 @@ def main():
     sync_client(FramerType.RTU if mode == "rtutcp" else FramerType.SOCKET, port)
     if mode == "tcp":
         asyncio.run(many(port, n, 20))
+    finish()
+
+
+def finish():
     print("%d passed, %d failed" % (passed, failed))
     sys.exit(1 if failed else 0)
 
 
-main()
+if __name__ == "__main__":
+    main()

@@ -6,6 +6,7 @@
  *   runner-server rtutcp <port> [options]
  *   runner-server tls <port> <cert> <key> <ca> [options]
  *   runner-server rtu <device> [options]
+ *   runner-server udp <port> [options]
  *
  * options:
  *   --callbacks    answer through callbacks (units 1, 2 and 7, each its own data;
@@ -157,7 +158,7 @@ int main(int argc, char **argv)
     struct sigaction sa;
 
     if (argc < 3) {
-        fprintf(stderr, "usage: runner-server tcp|rtutcp|tls|rtu ADDR [...]\n");
+        fprintf(stderr, "usage: runner-server tcp|rtutcp|tls|rtu|udp ADDR [...]\n");
         return 2;
     }
     print_loaded_libmodbus();
@@ -211,6 +212,8 @@ int main(int argc, char **argv)
             fprintf(stderr, "TLS settings: %s\n", modbus_strerror(errno));
             return 1;
         }
+    } else if (strcmp(mode, "udp") == 0) {
+        ctx = modbus_new_udp("127.0.0.1", atoi(argv[2]));
     } else if (strcmp(mode, "rtu") == 0) {
         ctx = modbus_new_rtu(argv[2], 115200, 'N', 8, 1);
         if (ctx != NULL) {

@@ -3,12 +3,14 @@
 # runner-server.c, ours, against clients no one here wrote the library of: Debian's
 # libmodbus (c-tests/runner/runner-check.c, built against Debian's headers and run on
 # Debian's library, then on ours), pymodbus (c-tests/runner/pm_runner.py: MBAP and RTU
-# framing over TCP, asyncio clients at once), raw sockets that misbehave (pipelined
+# framing over TCP, asyncio clients at once; UDP both ways), raw sockets that misbehave (pipelined
 # requests, a byte at a time, a request stalled halfway, garbage, half-open, a client
 # that never reads, idle clients), Modbus/TCP Security clients beside 50 handshakes
 # that stall, an RTU line on a pty pair with three units, 10,000 clients at once, a
 # stop from a signal handler and from a callback, the server in the application's
-# own poll loop, and the server under AddressSanitizer.
+# own poll loop, Modbus/UDP (our client and runner against pymodbus' server and
+# client, and through a proxy that loses and repeats datagrams), and the server
+# under AddressSanitizer.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -175,6 +177,41 @@ if pymodbus_venv "$ROOT/target/interop/venv" "$ROOT/c-tests/interop/requirements
     done
 else
     bad "pymodbus" "no venv"
+fi
+
+section "Modbus/UDP: pymodbus both ways, a path that loses and repeats datagrams"
+if [ -x "${PY:-}" ]; then
+    serve udp udp port
+    rc=0
+    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/udp-check" "$PORT" basic >"$WORK/udp-ours.log" 2>&1 || rc=$?
+    program_checks "udp: our client, our runner" "$WORK/udp-ours.log" "$rc"
+    rc=0
+    timeout -k 5 120 "$PY" "$ROOT/c-tests/runner/pm_udp.py" client "$PORT" >"$WORK/udp-pm-client.log" 2>&1 || rc=$?
+    program_checks "udp: pymodbus' client, our runner" "$WORK/udp-pm-client.log" "$rc"
+    PROXY_PORT=$(free_port)
+    start udp-proxy "$PY" "$ROOT/c-tests/runner/pm_udp.py" proxy "$PROXY_PORT" "$PORT" 7 5
+    if wait_ready udp-proxy READY 10; then
+        rc=0
+        env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 300 "$BIN/udp-check" "$PROXY_PORT" lossy 300 \
+            >"$WORK/udp-lossy.log" 2>&1 || rc=$?
+        program_checks "udp: every 7th datagram lost, every 5th repeated" "$WORK/udp-lossy.log" "$rc"
+        grep '^#' "$WORK/udp-lossy.log" | tail -n 1
+    else
+        bad "udp: the proxy starts" "$(tail -n 3 "$WORK/udp-proxy.log")"
+    fi
+    stop udp-proxy
+    halt udp "stopped by a signal"
+    PM_PORT=$(free_port)
+    start udp-pm-server "$PY" "$ROOT/c-tests/runner/pm_udp.py" server "$PM_PORT"
+    if wait_ready udp-pm-server READY 20; then
+        rc=0
+        env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/udp-check" "$PM_PORT" basic >"$WORK/udp-vs-pm.log" 2>&1 ||
+            rc=$?
+        program_checks "udp: our client, pymodbus' server" "$WORK/udp-vs-pm.log" "$rc"
+    else
+        bad "udp: pymodbus' server starts" "$(tail -n 3 "$WORK/udp-pm-server.log")"
+    fi
+    stop udp-pm-server
 fi
 
 section "$MANY clients connected at once"

@@ -55,3 +55,31 @@ pub unsafe extern "C" fn modbus_new_rtu_tcp_pi(node: *const c_char, service: *co
     let (node, service) = unsafe { (opt_cstr(node), opt_cstr(service)) };
     into_handle(Context::new_rtu_tcp_pi(node, service))
 }
+
+/// rsmodbus extension: Modbus/UDP, as pymodbus and j2mod speak it: each request and
+/// each answer is one datagram holding the MBAP header and the PDU. A client's
+/// `modbus_connect` makes a socket that talks to this address only; a lost datagram
+/// is a timeout, an answer that is not the one awaited (a duplicate) is dropped. A
+/// server runs with modbus_server_new(3), or binds with `modbus_tcp_listen` and gives
+/// the socket to `modbus_set_socket`, then answers each request to its sender.
+///
+/// # Safety
+/// `ip_address` must be NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_new_udp(ip_address: *const c_char, port: c_int) -> *mut Modbus {
+    // SAFETY: forwarded caller contract.
+    let ip = unsafe { opt_cstr(ip_address) };
+    into_handle(Context::new_udp(ip, port))
+}
+
+/// rsmodbus extension: Modbus/UDP over any address family (names resolved with
+/// getaddrinfo), like `modbus_new_tcp_pi`; `modbus_tcp_pi_listen` binds.
+///
+/// # Safety
+/// `node` and `service` must each be NULL or a NUL-terminated string.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_new_udp_pi(node: *const c_char, service: *const c_char) -> *mut Modbus {
+    // SAFETY: forwarded caller contract.
+    let (node, service) = unsafe { (opt_cstr(node), opt_cstr(service)) };
+    into_handle(Context::new_udp_pi(node, service))
+}

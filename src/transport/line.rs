@@ -24,6 +24,7 @@ use std::time::Duration;
 use super::link::{Link, RTU_RTS_NONE, RTU_RTS_UP, RtsHook, RtuLink};
 use super::tcp::{self, ConnectError};
 use super::tls::{self, Session, Tls};
+use super::udp::{self, Datagram};
 use super::{Ready, rtu};
 use crate::error::{EMBTLS, Error, Result};
 use crate::proto::Diag;
@@ -59,6 +60,9 @@ enum Kind {
     /// [`Held::session`] (none: a socket handed over that this context did not
     /// connect or accept, which cannot carry Modbus/TCP Security: EMBTLS).
     Tls,
+    /// A UDP socket (Modbus/UDP): one message per datagram, read whole into
+    /// [`Held::datagram`].
+    Datagram,
 }
 
 /// What the line knows of its current descriptor beyond its kind.
@@ -79,6 +83,10 @@ struct Held {
     /// server runner's client: the answers to every request of one read leave in
     /// one system call, and a client that does not read blocks nobody).
     queue: Option<Vec<u8>>,
+    /// A UDP socket's datagram being read, and its sender.
+    datagram: Option<Box<Datagram>>,
+    /// A UDP socket connected to its one peer (a client's).
+    connected: bool,
 }
 
 /// A TLS handshake: the connection, and a server's record cut.
@@ -133,6 +141,54 @@ impl Line {
     pub fn secure(&mut self) {
         self.security = Some(Box::default());
         self.kind = Kind::Tls;
+    }
+
+    /// Makes the line one of Modbus/UDP (a new context's).
+    pub fn datagrams(&mut self) {
+        self.kind = Kind::Datagram;
+    }
+
+    /// A line of Modbus/UDP.
+    pub fn is_datagram(&self) -> bool {
+        self.kind == Kind::Datagram
+    }
+
+    /// Drops what is left of the datagram being read (a message ends with its
+    /// datagram); nothing on other lines.
+    pub fn discard(&mut self) {
+        if let Some(d) = self.held.datagram.as_deref_mut() {
+            d.discard();
+        }
+    }
+
+    /// A stream socket (plain or TLS): a connection of its own per client.
+    pub fn is_stream(&self) -> bool {
+        matches!(self.kind, Kind::Socket | Kind::Tls)
+    }
+
+    /// `modbus_tcp_listen` (`pi`: `modbus_tcp_pi_listen`): a socket listening on the
+    /// line's address for up to `nb_connection` pending clients, or, on a Modbus/UDP
+    /// line, a socket bound to it. The caller owns it.
+    pub fn listen(&self, pi: bool, nb_connection: i32, debug: bool, diag: &mut dyn Diag) -> Result<i32> {
+        if self.kind == Kind::Datagram {
+            if pi != matches!(self.settings, Link::TcpPi(_)) {
+                return Err(Error::INVALID);
+            }
+            return udp::open(&self.settings, true, diag);
+        }
+        if pi {
+            super::listen::listen_pi(&self.settings, nb_connection, debug, diag)
+        } else {
+            super::listen::listen_ipv4(&self.settings, nb_connection, diag)
+        }
+    }
+
+    /// A server's UDP socket, bound to the line's address, becomes the line's: it
+    /// answers each request to its sender.
+    pub fn bind(&mut self, diag: &mut dyn Diag) -> Result<i32> {
+        let fd = udp::open(&self.settings, true, diag)?;
+        self.install(fd, Held { datagram: Some(Box::default()), ..Held::default() });
+        Ok(fd)
     }
 
     /// The descriptor, -1 when none.
@@ -201,6 +257,9 @@ impl Line {
     /// Plaintext received on the current socket and not taken yet (0 without a
     /// session).
     pub fn pending(&self) -> usize {
+        if let Some(d) = self.held.datagram.as_deref() {
+            return d.pending();
+        }
         self.held.session.as_deref().map_or(0, Session::pending)
     }
 
@@ -211,7 +270,9 @@ impl Line {
         let socket = self.kind != Kind::Serial;
         LineCaps {
             socket,
-            reads_without_waiting: socket || self.held.nonblocking,
+            // A datagram holds a whole message: a read past its end would take the
+            // next datagram's bytes as this message's rest.
+            reads_without_waiting: (socket && self.kind != Kind::Datagram) || self.held.nonblocking,
             timed_reads: kind == MsgKind::Confirmation
                 && self.held.client.is_some()
                 && (response.sec > 0 || response.usec >= RCVTIMEO_MIN_RESPONSE_USEC),
@@ -254,6 +315,10 @@ impl Line {
                 held.session = current.or_else(|| security.unpark(fd));
             }
         }
+        if self.kind == Kind::Datagram && fd >= 0 {
+            held.datagram = Some(Box::default());
+            held.connected = udp::has_peer(fd);
+        }
         self.install(fd, held);
     }
 
@@ -281,6 +346,17 @@ impl Line {
     /// configure; TCP: connect within `timeout`, then the TLS handshake, bounded by
     /// it too, on a Modbus/TCP Security context).
     pub fn open(&mut self, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<()> {
+        if self.kind == Kind::Datagram {
+            let fd = udp::open(&self.settings, false, diag)?;
+            let held = Held {
+                client: Some(ClientSocket::default()),
+                datagram: Some(Box::default()),
+                connected: true,
+                ..Held::default()
+            };
+            self.install(fd, held);
+            return Ok(());
+        }
         let connected = match &mut self.settings {
             Link::Rtu(link) => {
                 let fd = rtu::open(link, diag)?;
@@ -317,6 +393,9 @@ impl Line {
     /// TCP connect is started and goes on without waiting (`Ok(false)`: writable
     /// when it has ended, then [`Line::connect_done`]).
     pub fn open_started(&mut self, timeout: Duration, debug: bool, diag: &mut dyn Diag) -> Result<bool> {
+        if self.kind == Kind::Datagram {
+            return self.open(timeout, debug, diag).map(|()| true);
+        }
         let started = match &mut self.settings {
             Link::Rtu(_) => return self.open(timeout, debug, diag).map(|()| true),
             Link::Tcp(link) => tcp::connect_ipv4(link, None, diag),
@@ -582,6 +661,9 @@ impl Line {
         if self.kind == Kind::Tls {
             return tls_peek(self.fd, &mut self.held.session, room, block);
         }
+        if self.kind == Kind::Datagram {
+            return datagram_peek(self.fd, &mut self.held, room, block);
+        }
         let flags = libc::MSG_PEEK | if block { 0 } else { libc::MSG_DONTWAIT };
         super::recv(self.fd, room, flags)
     }
@@ -604,6 +686,7 @@ impl Line {
             },
             Kind::Serial => super::read(fd, room),
             Kind::Tls => tls_read(fd, &mut self.held, room, how),
+            Kind::Datagram => datagram_read(fd, &mut self.held, room, how),
         }
     }
 
@@ -613,6 +696,12 @@ impl Line {
     pub fn take(&mut self, room: &mut [u8]) -> Result<usize> {
         match self.kind {
             Kind::Socket => super::recv(self.fd, room, 0),
+            Kind::Datagram => {
+                let n = self.read(room, ReadHow::Ready, false);
+                // The message is the datagram: what follows it in there is no message.
+                self.held.datagram.as_deref_mut().map(Datagram::discard);
+                n
+            }
             _ => self.read(room, ReadHow::Ready, false),
         }
     }
@@ -629,6 +718,8 @@ impl Line {
         match self.kind {
             Kind::Serial => wait_line(&self.stop, fd, self.stop.wake_fd(), until, debug),
             Kind::Socket => wait_line(&self.stop, fd, -1, until, debug),
+            Kind::Datagram if self.pending() > 0 => Ok(()),
+            Kind::Datagram => wait_line(&self.stop, fd, -1, until, debug),
             Kind::Tls => {
                 let Some(session) = self.held.session.as_deref_mut() else { return Err(no_session(fd)) };
                 while !session.readable() {
@@ -657,6 +748,7 @@ impl Line {
             Kind::Socket => super::send(fd, frame, if self.held.client.is_some() { libc::MSG_DONTWAIT } else { 0 }),
             Kind::Serial => super::write(fd, frame),
             Kind::Tls => tls_write(fd, &mut self.held.session, &self.stop, frame, timeout),
+            Kind::Datagram => datagram_write(fd, &self.held, frame),
         }
     }
 
@@ -670,6 +762,7 @@ impl Line {
                 Some(super::send(self.fd, frame, if self.held.client.is_some() { libc::MSG_DONTWAIT } else { 0 }))
             }
             Kind::Serial if !self.rts_around_writes() => Some(super::write(self.fd, frame)),
+            Kind::Datagram => Some(datagram_write(self.fd, &self.held, frame)),
             _ => None,
         }
     }
@@ -715,6 +808,9 @@ impl Line {
             return (rc, rc.err());
         }
         let mut buffered = held;
+        if let Some(d) = self.held.datagram.as_deref_mut() {
+            buffered += d.discard();
+        }
         if let Some(session) = self.held.session.as_deref_mut() {
             // Records queued on the socket are decrypted and dropped with the rest.
             while session.fill(fd, libc::MSG_DONTWAIT).is_ok() && !session.readable_end() {
@@ -837,6 +933,41 @@ fn no_session(fd: i32) -> Error {
 /// [`Line::peek`] on a TLS session: the plaintext, decrypted from the socket's
 /// records as needed.
 #[inline(never)]
+/// [`Line::peek`] on a UDP socket: the datagram being read (the next one when none is).
+fn datagram_peek(fd: i32, held: &mut Held, room: &mut [u8], block: bool) -> Result<usize> {
+    let Some(d) = held.datagram.as_deref_mut() else { return Err(Error(libc::EBADF)) };
+    if d.pending() == 0 {
+        d.fill(fd, if block { 0 } else { libc::MSG_DONTWAIT })?;
+    }
+    Ok(d.peek(room))
+}
+
+/// [`Line::read`] on a UDP socket: takes from the datagram being read; when none is
+/// left, reads the next one whole (within the kernel timeout of a client's response
+/// timeout, as a TCP client reads).
+fn datagram_read(fd: i32, held: &mut Held, room: &mut [u8], how: ReadHow) -> Result<usize> {
+    let Held { datagram, client, .. } = held;
+    let Some(d) = datagram.as_deref_mut() else { return Err(Error(libc::EBADF)) };
+    if d.pending() == 0 {
+        let flags = match how {
+            ReadHow::Queued => libc::MSG_DONTWAIT,
+            ReadHow::Ready => 0,
+            ReadHow::Within(timeout) if receive_timeout_set(fd, client, timeout) => 0,
+            ReadHow::Within(_) => libc::MSG_DONTWAIT,
+        };
+        d.fill(fd, flags)?;
+    }
+    Ok(d.take(room))
+}
+
+/// [`Line::write`] on a UDP socket: to its peer, or to the sender of the request.
+fn datagram_write(fd: i32, held: &Held, frame: &[u8]) -> Result<usize> {
+    match held.datagram.as_deref() {
+        Some(d) => d.send(fd, frame, held.connected),
+        None => Err(Error(libc::EBADF)),
+    }
+}
+
 fn tls_peek(fd: i32, session: &mut Option<Box<Session>>, room: &mut [u8], block: bool) -> Result<usize> {
     let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
     let flags = if block { 0 } else { libc::MSG_DONTWAIT };

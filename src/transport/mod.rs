@@ -10,6 +10,7 @@ pub mod listen;
 pub mod rtu;
 pub mod tcp;
 pub mod tls;
+pub mod udp;
 
 use std::time::Duration;
 

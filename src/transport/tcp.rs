@@ -140,11 +140,21 @@ pub struct AddrInfo(*mut libc::addrinfo);
 impl AddrInfo {
     /// Resolves `node`/`service` for stream sockets with the given flags.
     pub fn lookup(node: Option<&CStr>, service: &CStr, flags: i32) -> core::result::Result<AddrInfo, i32> {
+        AddrInfo::lookup_of(node, service, flags, libc::SOCK_STREAM)
+    }
+
+    /// Resolves `node`/`service` for sockets of `socktype` with the given flags.
+    pub fn lookup_of(
+        node: Option<&CStr>,
+        service: &CStr,
+        flags: i32,
+        socktype: i32,
+    ) -> core::result::Result<AddrInfo, i32> {
         // SAFETY: all-zero is a valid addrinfo hints value.
         let mut hints: libc::addrinfo = unsafe { zeroed() };
         hints.ai_flags = flags;
         hints.ai_family = libc::AF_UNSPEC;
-        hints.ai_socktype = libc::SOCK_STREAM;
+        hints.ai_socktype = socktype;
         let mut list = std::ptr::null_mut();
         let node_ptr = node.map_or(std::ptr::null(), CStr::as_ptr);
         // SAFETY: the strings are NUL-terminated or NULL; `list` receives the result.

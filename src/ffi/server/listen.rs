@@ -16,7 +16,7 @@ use crate::transport::listen;
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| listen::listen_ipv4(g.line.settings(), nb_connection, &mut g.diag())) }
+    unsafe { with_ctx(ctx, |g| g.line.listen(false, nb_connection, g.debug, &mut g.diag())) }
 }
 
 /// Accepts one client on `*s` and makes it the context's socket (TCP contexts, and RTU
@@ -76,7 +76,7 @@ pub unsafe extern "C" fn modbus_tcp_accept(ctx: *mut Modbus, s: *mut c_int) -> c
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_pi_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| listen::listen_pi(g.line.settings(), nb_connection, g.debug, &mut g.diag())) }
+    unsafe { with_ctx(ctx, |g| g.line.listen(true, nb_connection, g.debug, &mut g.diag())) }
 }
 
 /// Accepts one client (IPv4 or IPv6) on the listening socket `*s`; the new socket
