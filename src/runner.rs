@@ -105,6 +105,10 @@ struct Conn {
     ignore_next: bool,
     /// The deadline a timer is set for (a receive's wait).
     timer: Option<Duration>,
+    /// An accepted client of a server context configured beyond libmodbus
+    /// (`modbus_enable_diagnostics` and its siblings): that configuration, and its
+    /// counters, are the server context's, lent to the client for each answer.
+    shares_ext: bool,
 }
 
 /// One accepted client.
@@ -314,7 +318,7 @@ impl Runner {
                     KEY_TIMER => drain(self.timerfd),
                     KEY_LINE if self.own_line.is_some() => answered += self.own_line_ready(server, answer, true),
                     KEY_LINE => self.accept(server),
-                    _ => answered += self.client_ready(key, revents, answer),
+                    _ => answered += self.client_ready(key, revents, server, answer),
                 }
             }
             answered += self.fire_timers(server, answer);
@@ -343,10 +347,10 @@ impl Runner {
                 if g.debug {
                     listen::report_accept(&mut g.diag(), peer.as_deref());
                 }
-                made = Some(g.serving());
+                made = Some(g.serving().map(|c| (c, g.server_ext.is_some())));
             });
-            let mut ctx = match made {
-                Some(Ok(ctx)) => ctx,
+            let (mut ctx, shares_ext) = match made {
+                Some(Ok(made)) => made,
                 _ => {
                     transport::close(fd);
                     continue;
@@ -373,7 +377,7 @@ impl Runner {
                 continue;
             }
             let now = transport::now();
-            let conn = Conn { last: now, ..Conn::default() };
+            let conn = Conn { last: now, shares_ext, ..Conn::default() };
             self.clients[slot as usize] =
                 Some(Box::new(Client { ctx: OwnerMutex::new(ctx), conn, generation, events }));
             self.live += 1;
@@ -400,15 +404,22 @@ impl Runner {
     }
 
     /// A client's socket is ready.
-    fn client_ready(&mut self, key: u64, revents: i16, answer: &mut dyn Answer) -> usize {
+    fn client_ready(&mut self, key: u64, revents: i16, server: OnServer<'_>, answer: &mut dyn Answer) -> usize {
         let slot = (key & 0xFFFF_FFFF) - FIRST_CLIENT;
         let generation = (key >> 32) as u32;
         let readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
-        self.drive_client(slot as u32, generation, readable, answer)
+        self.drive_client(slot as u32, generation, readable, server, answer)
     }
 
     /// Drives the client in `slot` (if it is still the one of `generation`).
-    fn drive_client(&mut self, slot: u32, generation: u32, readable: bool, answer: &mut dyn Answer) -> usize {
+    fn drive_client(
+        &mut self,
+        slot: u32,
+        generation: u32,
+        readable: bool,
+        server: OnServer<'_>,
+        answer: &mut dyn Answer,
+    ) -> usize {
         let Some(Some(c)) = self.clients.get_mut(slot as usize) else { return 0 };
         if c.generation != generation {
             return 0;
@@ -416,7 +427,7 @@ impl Runner {
         let mut answered = 0;
         let result = {
             let mut g = c.ctx.lock();
-            drive(&mut g, &mut c.conn, readable, &mut self.spare, answer, &mut answered)
+            drive(&mut g, &mut c.conn, readable, &mut self.spare, Some(server), answer, &mut answered)
         };
         match result {
             Ok((events, until)) => {
@@ -448,7 +459,8 @@ impl Runner {
         let mut answered = 0;
         let mut until = None;
         let _ = server(&mut |g| {
-            if let Ok((_, u)) = drive(g, conn, readable, spare, answer, &mut answered) {
+            // (The context is the server's: nothing to lend.)
+            if let Ok((_, u)) = drive(g, conn, readable, spare, None, answer, &mut answered) {
                 until = u;
             }
         });
@@ -507,7 +519,7 @@ impl Runner {
                 Due::Wait => {
                     if c.conn.timer == Some(at) {
                         c.conn.timer = None;
-                        answered += self.drive_client(slot, generation, false, answer);
+                        answered += self.drive_client(slot, generation, false, server, answer);
                     }
                 }
                 Due::Idle => {
@@ -559,6 +571,7 @@ fn drive(
     c: &mut Conn,
     mut readable: bool,
     spare: &mut Option<Box<Receiving>>,
+    server: Option<OnServer<'_>>,
     answer: &mut dyn Answer,
     answered: &mut usize,
 ) -> Result<(i16, Option<Duration>)> {
@@ -626,7 +639,7 @@ fn drive(
             break;
         };
         let r = c.receiving.take().expect("ended");
-        let end = finish(g, c, f, &r.msg[..], answer, answered);
+        let end = finish(g, c, f, &r.msg[..], server, answer, answered);
         *spare = Some(r);
         if datagrams {
             // What followed the request in its datagram is no request.
@@ -693,6 +706,7 @@ fn finish(
     c: &mut Conn,
     f: Finished,
     msg: &[u8],
+    server: Option<OnServer<'_>>,
     answer: &mut dyn Answer,
     answered: &mut usize,
 ) -> Result<()> {
@@ -721,7 +735,16 @@ fn finish(
                 c.ignore_next = g.line.shared_bus();
                 return Ok(());
             }
-            match answer.answer(g, req) {
+            let lend = server.filter(|_| c.shares_ext);
+            let lent = |g: &mut Guard<'_>| {
+                if let Some(server) = lend {
+                    let _ = server(&mut |s| std::mem::swap(&mut s.server_ext, &mut g.server_ext));
+                }
+            };
+            lent(g);
+            let answered_now = answer.answer(g, req);
+            lent(g);
+            match answered_now {
                 Ok(_) => *answered += 1,
                 Err(e) if !own && is_lost(e) => return Err(e),
                 Err(_) => {}

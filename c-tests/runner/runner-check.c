@@ -24,6 +24,9 @@
  *   units           units 1, 2 and 7 answer with their own values, unit 5 gets exception
  *                   0B (TCP, callbacks)
  *   stop            writes 0xDEAD to register 999: the server stops (callbacks)
+ *   status V        FC 07 (read exception status) on a raw socket, twice on each of two
+ *                   connections: V each time (a server configured beyond libmodbus
+ *                   serves its clients with that configuration)
  *   rtu             over RTU: units 1, 2 and 7 answer with their own values (a read and
  *                   a write each), unit 5 is silent (timeout), and the next request
  *                   is answered; a broadcast write reaches every unit served
@@ -409,6 +412,30 @@ static void hold(int n, int secs)
     free(s);
 }
 
+static void status(int want)
+{
+    int k, j;
+    for (k = 0; k < 2; k++) {
+        int s = raw_connect();
+        if (!EXPECT(s >= 0, "raw connect %d", k)) {
+            return;
+        }
+        for (j = 0; j < 2; j++) {
+            uint8_t q[8] = {0, (uint8_t) (j + 1), 0, 0, 0, 2, 1, 0x07}, a[16];
+            struct pollfd p = {s, POLLIN, 0};
+            int n = -1;
+            send(s, q, sizeof q, 0);
+            if (poll(&p, 1, 5000) > 0) {
+                n = (int) recv(s, a, sizeof a, 0);
+            }
+            EXPECT(n == 9 && a[1] == j + 1 && a[7] == 0x07 && a[8] == want,
+                   "connection %d, request %d: read exception status answers 0x%02X (%d bytes, 0x%02X)", k, j, want,
+                   n, n == 9 ? a[8] : 0);
+        }
+        close(s);
+    }
+}
+
 static void rtu(const char *device)
 {
     modbus_t *ctx = modbus_new_rtu(device, 115200, 'N', 8, 1);
@@ -490,6 +517,8 @@ int main(int argc, char **argv)
         units();
     } else if (strcmp(what, "hold") == 0 && argc > 4) {
         hold(atoi(argv[3]), atoi(argv[4]));
+    } else if (strcmp(what, "status") == 0 && argc > 3) {
+        status(atoi(argv[3]));
     } else if (strcmp(what, "rtu") == 0) {
         rtu(argv[1]);
     } else if (strcmp(what, "stop") == 0) {

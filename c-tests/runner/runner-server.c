@@ -16,6 +16,8 @@
  *   --max N        at most N clients at once (default 1000)
  *   --nofile N     raise the descriptor limit to N first (to the hard limit at most,
  *                  when it cannot be raised)
+ *   --status V     configure the context beyond libmodbus first: FC 07 (read exception
+ *                  status) answers V (modbus_set_exception_status)
  *   --poll         run in steps of modbus_server_run(s, 0) after poll() on
  *                  modbus_server_get_fd(s), instead of modbus_server_run(s, -1)
  *
@@ -153,7 +155,7 @@ int main(int argc, char **argv)
     modbus_server_callbacks_t cb;
     modbus_t *ctx;
     const char *mode;
-    int callbacks = 0, idle_ms = -1, max = 1000, use_poll = 0, i, next;
+    int callbacks = 0, idle_ms = -1, max = 1000, use_poll = 0, status = -1, i, next;
     long total = 0;
     struct sigaction sa;
 
@@ -191,6 +193,8 @@ int main(int argc, char **argv)
                 perror("setrlimit");
                 return 1;
             }
+        } else if (strcmp(argv[i], "--status") == 0 && i + 1 < argc) {
+            status = atoi(argv[++i]);
         } else if (strcmp(argv[i], "--poll") == 0) {
             use_poll = 1;
         } else {
@@ -229,6 +233,10 @@ int main(int argc, char **argv)
     }
     if (getenv("RUNNER_DEBUG") != NULL) {
         modbus_set_debug(ctx, TRUE);
+    }
+    if (status >= 0 && modbus_set_exception_status(ctx, status) != 0) {
+        fprintf(stderr, "modbus_set_exception_status: %s\n", modbus_strerror(errno));
+        return 1;
     }
     for (i = 0; i <= UNITS; i++) {
         maps[i] = modbus_mapping_new(NB, NB, NB, NB);

@@ -127,6 +127,11 @@ client debian polled-many "$PORT" many 200
 client debian polled-idle "$PORT" idle 1000
 halt polled "stopped by a signal"
 
+section "a server context configured beyond libmodbus: its configuration serves every client"
+serve status tcp port --status 90
+client debian status "$PORT" status 90
+halt status "stopped by a signal"
+
 section "idle clients"
 serve idle tcp port --idle 500
 client debian idle "$PORT" idle 500
