@@ -4,8 +4,10 @@
 # (scripts/bench.sh --pipeline). Loopback only.
 #
 # The client is benches/pipeline-client.c (a read of 10 holding registers, each
-# answer checked), the servers benches/mb-server.c on rsmodbus (the profile-guided
-# build the packages ship, scripts/build-pgo.sh) and on Debian's libmodbus 3.1.6.
+# answer checked); the servers: rsmodbus' server that runs itself (modbus_server_new,
+# c-tests/runner/runner-server.c; BENCH_OURS_SERVER=mb-server: benches/mb-server.c's
+# blocking loop instead) on the profile-guided build the packages ship
+# (scripts/build-pgo.sh), and benches/mb-server.c on Debian's libmodbus 3.1.6.
 # Three figures, each a Markdown table with its ratios and targets:
 #  (a) Through benches/delay-proxy.c, which adds BENCH_DELAY_MS (5) each way (a round
 #      trip of about 10 ms): the async client at depth BENCH_DEPTH (16) against depth
@@ -74,6 +76,10 @@ mkdir -p "$OUT/ours"
 cp target/pgo/release/libmodbus.so "$OUT/ours/libmodbus.so.5"
 OURS=$(realpath "$OUT/ours")
 benches/build.sh "$OUT" # mb-server (and the other benchmark programs)
+OURS_SERVER=${BENCH_OURS_SERVER:-runner}
+make -s -C c-tests runner-server >/dev/null
+RUNNER=$(make -s -C c-tests print-CTEST_BUILD 2>/dev/null || true)
+RUNNER=${RUNNER:-target/c-tests-build}/bin/runner-server
 CFLAGS=(-std=gnu11 -O2 -g -Wall -Wextra -Werror)
 gcc "${CFLAGS[@]}" benches/delay-proxy.c -o "$OUT/delay-proxy"
 gcc "${CFLAGS[@]}" -shared -fPIC benches/nodelay-preload.c -o "$OUT/nodelay-preload.so" -ldl
@@ -127,13 +133,17 @@ start() {
     port=$(sed -n 's/^READY //p' "$OUT/$name.log")
     [ -n "$port" ] || { echo "pipeline.sh: $name did not start:" >&2; cat "$OUT/$name.log" >&2; exit 1; }
 }
-# server NAME ours|debian [VAR=VALUE...]: an mb-server on that library, with those
-# variables too, placed as PIN says; sets $port.
+# server NAME ours|debian [VAR=VALUE...]: the server on that library, with those
+# variables too, placed as PIN says; sets $port. Debian's: mb-server (a blocking
+# modbus_receive/modbus_reply loop); ours: the server that runs itself
+# (modbus_server_new: c-tests/runner/runner-server.c, the same data), or mb-server with
+# BENCH_OURS_SERVER=mb-server.
 server() {
-    local name=$1 lib=$2
+    local name=$1 lib=$2 prog=("$OUT/mb-server" tcp 0)
     shift 2
     lib_env "$lib"
-    start "$name" "${PIN[@]}" env "${LIBENV[@]}" "$@" "$OUT/mb-server" tcp 0
+    [ "$lib" = ours ] && [ "$OURS_SERVER" = runner ] && prog=("$RUNNER" tcp 0 --bench)
+    start "$name" "${PIN[@]}" env "${LIBENV[@]}" "$@" "${prog[@]}"
     check_lib "$OUT/$name.log" "$lib"
 }
 
@@ -345,6 +355,10 @@ placement_name() {
     if [ "$1" = one ]; then echo "one CPU (taskset -c $PIN_CPU)"; else echo "$(nproc) CPUs, scheduler's choice"; fi
 }
 server_name() { if [ "$1" = ours ]; then echo rsmodbus; else echo "libmodbus 3.1.6"; fi; }
+# server_prog ours|debian: which server program ran.
+server_prog() {
+    if [ "$1" = ours ] && [ "$OURS_SERVER" = runner ]; then echo "runner (modbus_server_new)"; else echo mb-server; fi
+}
 echo
 echo "## Pipelining, one connection, read of 10 holding registers ($(date -u +%F), $(nproc) CPUs)"
 echo
@@ -363,9 +377,9 @@ for set in "${sets[@]}"; do
     srv=${set#a-}
     srv=${srv%-nodelay}
     if [ "$set" = "a-$srv" ]; then
-        echo "| $(server_name "$srv") mb-server | $one ($rtt ms) | $many | $r | >= 12x | $(verdict "$r" '>=' 12) |"
+        echo "| $(server_name "$srv") $(server_prog "$srv") | $one ($rtt ms) | $many | $r | >= 12x | $(verdict "$r" '>=' 12) |"
     else
-        echo "| diagnostic: $(server_name "$srv") mb-server, TCP_NODELAY on its accepted socket |" \
+        echo "| diagnostic: $(server_name "$srv") $(server_prog "$srv"), TCP_NODELAY on its accepted socket |" \
             "$one ($rtt ms) | $many | $r | (not the figure) | |"
     fi
 done

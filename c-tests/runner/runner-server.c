@@ -18,8 +18,13 @@
  *                  when it cannot be raised)
  *   --status V     configure the context beyond libmodbus first: FC 07 (read exception
  *                  status) answers V (modbus_set_exception_status)
+ *   --bench        the benchmarks' data (benches/mb-server.c's: holding register i
+ *                  holds 3 * i)
  *   --poll         run in steps of modbus_server_run(s, 0) after poll() on
  *                  modbus_server_get_fd(s), instead of modbus_server_run(s, -1)
+ *
+ * With port 0 (TCP), the program listens itself (modbus_tcp_listen on an ephemeral
+ * port, given to the server with modbus_set_socket) and prints READY <port>.
  *
  * Register i of unit u holds 1000 * k + i (k: 0 for the mapping, the unit's index
  * + 1 for callbacks); coil i is i % 3 == 0. Writing 0xDEAD to holding register 999
@@ -35,7 +40,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <arpa/inet.h>
+#include <netinet/in.h>
 #include <sys/resource.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include <modbus.h>
@@ -155,7 +163,7 @@ int main(int argc, char **argv)
     modbus_server_callbacks_t cb;
     modbus_t *ctx;
     const char *mode;
-    int callbacks = 0, idle_ms = -1, max = 1000, use_poll = 0, status = -1, i, next;
+    int callbacks = 0, idle_ms = -1, max = 1000, use_poll = 0, status = -1, bench = 0, port = 0, i, next;
     long total = 0;
     struct sigaction sa;
 
@@ -195,6 +203,8 @@ int main(int argc, char **argv)
             }
         } else if (strcmp(argv[i], "--status") == 0 && i + 1 < argc) {
             status = atoi(argv[++i]);
+        } else if (strcmp(argv[i], "--bench") == 0) {
+            bench = 1;
         } else if (strcmp(argv[i], "--poll") == 0) {
             use_poll = 1;
         } else {
@@ -242,6 +252,23 @@ int main(int argc, char **argv)
         maps[i] = modbus_mapping_new(NB, NB, NB, NB);
         fill(maps[i], i);
     }
+    if (bench) {
+        for (i = 0; i < NB; i++) {
+            maps[0]->tab_registers[i] = (uint16_t) (3 * i);
+        }
+    }
+    if (strcmp(mode, "tcp") == 0 && atoi(argv[2]) == 0) {
+        /* An ephemeral port: listen here, and give the socket to the server. */
+        struct sockaddr_in a;
+        socklen_t len = sizeof a;
+        int s = modbus_tcp_listen(ctx, max);
+        if (s < 0 || getsockname(s, (struct sockaddr *) &a, &len) != 0) {
+            fprintf(stderr, "listen: %s\n", modbus_strerror(errno));
+            return 1;
+        }
+        port = ntohs(a.sin_port);
+        modbus_set_socket(ctx, s);
+    }
     server = modbus_server_new(ctx, max);
     if (server == NULL) {
         fprintf(stderr, "modbus_server_new: %s\n", modbus_strerror(errno));
@@ -268,7 +295,11 @@ int main(int argc, char **argv)
     sa.sa_handler = on_signal;
     sigaction(SIGTERM, &sa, NULL);
     sigaction(SIGINT, &sa, NULL);
-    printf("READY\n");
+    if (port > 0) {
+        printf("READY %d\n", port);
+    } else {
+        printf("READY\n");
+    }
     fflush(stdout);
     if (use_poll) {
         struct pollfd pfd = {modbus_server_get_fd(server), POLLIN, 0};

@@ -132,6 +132,17 @@ serve status tcp port --status 90
 client debian status "$PORT" status 90
 halt status "stopped by a signal"
 
+section "a listening socket the application made (modbus_tcp_listen, modbus_set_socket)"
+start given env LD_LIBRARY_PATH="$LIBDIR" "$BIN/runner-server" tcp 0
+if wait_ready given READY 10; then
+    PORT=$(sed -n 's/^READY //p' "$WORK/given.log")
+    client debian given-basic "$PORT" basic 0
+    client debian given-pipelined "$PORT" pipelined
+else
+    bad "given: the server starts" "$(tail -n 5 "$WORK/given.log")"
+fi
+halt given "stopped by a signal"
+
 section "idle clients"
 serve idle tcp port --idle 500
 client debian idle "$PORT" idle 500
