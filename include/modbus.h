@@ -362,11 +362,15 @@ typedef struct {
     int transaction_id;      /* of the request; 0 on a serial line */
     int socket;              /* the context's descriptor (the client's socket on TCP) */
     const char *tls_role;    /* the client's role; NULL on plain TCP and serial lines */
+    uint32_t request_id;     /* modbus_server_new(3)'s id, for modbus_server_answer(); else 0 */
 } modbus_request_info_t;
 
 /* Each data callback returns 0, a MODBUS_EXCEPTION_* code (sent as the exception
  * answer) or MODBUS_REPLY_NONE (no answer at all). */
 #define MODBUS_REPLY_NONE (-0x100)
+/* ... or, in a server that runs itself, MODBUS_REPLY_LATER: the answer comes with
+ * modbus_server_answer(). */
+#define MODBUS_REPLY_LATER (-0x101)
 
 typedef struct {
     size_t struct_size;      /* sizeof(modbus_server_callbacks_t): the struct may grow */
@@ -382,6 +386,9 @@ typedef struct {
     /* any other function code: the answer's PDU length, -exception or MODBUS_REPLY_NONE */
     int (*other)(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu,
                  int pdu_length, uint8_t *rsp_pdu, int rsp_max);
+    /* every request as it came, in place of all of the above (a gateway's); as other */
+    int (*raw)(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu,
+               int pdu_length, uint8_t *rsp_pdu, int rsp_max);
 } modbus_server_callbacks_t;
 
 /* A server that runs itself: every client from one thread (modbus_server_new(3)). */
@@ -1235,6 +1242,25 @@ MODBUS_API int modbus_server_run(modbus_server_t *s, int timeout_ms);
  * `s` must be NULL or a live runner.
  */
 MODBUS_API int modbus_server_stop(modbus_server_t *s);
+
+/**
+ * Answers request `request_id` (`ri->request_id` of a callback that returned
+ * `MODBUS_REPLY_LATER`) as that callback would have: `rc` > 0, the answer's PDU in
+ * `rsp_pdu` (function code first, `rc` bytes); -code, an exception answer;
+ * `MODBUS_REPLY_NONE`, no answer. May be called from any thread and from a
+ * callback; the answer goes out in the run under way (woken) or the next. An answer
+ * for a client that has left, or for an unknown id, is dropped. EINVAL: `s` NULL,
+ * `rc` none of those (a PDU longer than 253 bytes, an exception code out of range),
+ * `rsp_pdu` NULL with `rc` > 0.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner; `rsp_pdu` NULL or valid for `rc` bytes.
+ */
+MODBUS_API
+int modbus_server_answer(modbus_server_t *s,
+                         uint32_t request_id,
+                         const uint8_t *rsp_pdu,
+                         int rc);
 
 /**
  * Closes every client (and the listening socket the server opened) and frees the

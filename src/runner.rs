@@ -46,9 +46,52 @@ pub trait Answer {
     fn any_unit(&self) -> bool;
     /// Whether a serial request for `unit` is served.
     fn accept_unit(&mut self, unit: u8) -> bool;
-    /// Answers the request `req` on the client's context `g`; the answer is queued
-    /// on its line (a socket's) or sent (a serial line's).
-    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8]) -> Result<usize>;
+    /// Answers `req`, the runner's request `id`, on the client's context `g`; the
+    /// answer is queued on its line (a socket's) or sent (a serial line's). `None`:
+    /// the answer comes later ([`Answers::give`] with `id`).
+    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8], id: u32) -> Result<Option<usize>>;
+}
+
+/// An answer given later (`modbus_server_answer`): as a callback's `other` returns.
+pub enum Later {
+    /// The answer's PDU, function code first.
+    Pdu(Vec<u8>),
+    /// An exception answer with this code.
+    Exception(u8),
+    /// No answer: the request is forgotten.
+    Nothing,
+}
+
+/// The answers given later, from any thread, for the run to send.
+#[derive(Default)]
+pub struct Answers {
+    queue: std::sync::Mutex<Vec<(u32, Later)>>,
+    any: AtomicBool,
+}
+
+/// A request whose answer comes later: whose it is, and what its answer's header
+/// needs.
+struct Pending {
+    slot: u32,
+    generation: u32,
+    /// The request's header and function code.
+    head: [u8; 8],
+    head_len: u8,
+    /// A UDP request's sender.
+    peer: Option<crate::transport::udp::Peer>,
+}
+
+/// What a drive of one client needs besides the client, and what it reports.
+struct Serving<'s, 'a> {
+    /// The server's context (lent configuration); `None` when the client is it.
+    server: Option<OnServer<'s>>,
+    answer: &'a mut dyn Answer,
+    /// Requests answered.
+    answered: usize,
+    /// The last request id given.
+    next_id: &'a mut u32,
+    /// Requests whose answer comes later: (id, head, head length, UDP sender).
+    later: Vec<(u32, [u8; 8], u8, Option<crate::transport::udp::Peer>)>,
 }
 
 /// Runs a function on the server's own context, locked (the C layer's handle).
@@ -65,9 +108,31 @@ impl Stopper {
     /// signal handler: an atomic store and a `write`.
     pub fn stop(&self) {
         self.stopping.store(true, Ordering::SeqCst);
+        self.wake();
+    }
+
+    /// Wakes the run's wait (an answer given later is there to send).
+    fn wake(&self) {
         let one: u64 = 1;
         // SAFETY: writes 8 bytes from a live local to the runner's eventfd.
         unsafe { libc::write(self.wake, (&one as *const u64).cast(), 8) };
+    }
+}
+
+impl Answers {
+    /// `modbus_server_answer`: the answer to request `id`, sent by the run under way
+    /// (woken by `stopper`) or the next.
+    pub fn give(&self, stopper: &Stopper, id: u32, answer: Later) {
+        self.queue.lock().unwrap_or_else(|e| e.into_inner()).push((id, answer));
+        self.any.store(true, Ordering::SeqCst);
+        stopper.wake();
+    }
+
+    fn take(&self) -> Vec<(u32, Later)> {
+        if !self.any.swap(false, Ordering::SeqCst) {
+            return Vec::new();
+        }
+        std::mem::take(&mut *self.queue.lock().unwrap_or_else(|e| e.into_inner()))
     }
 }
 
@@ -160,6 +225,10 @@ pub struct Runner {
     /// A receive's state and buffer, kept for the next one.
     spare: Option<Box<Receiving>>,
     stopper: std::sync::Arc<Stopper>,
+    /// Requests whose answer comes later, by id, and the answers given.
+    pending: std::collections::HashMap<u32, Pending>,
+    next_id: u32,
+    answers: std::sync::Arc<Answers>,
 }
 
 fn eventfd() -> Result<i32> {
@@ -219,6 +288,9 @@ impl Runner {
             idle: Some(Duration::from_secs(60)),
             spare: None,
             stopper,
+            pending: std::collections::HashMap::new(),
+            next_id: 0,
+            answers: std::sync::Arc::default(),
         };
         r.timerfd = timerfd()?;
         epoll::control(epfd, libc::EPOLL_CTL_ADD, wake, libc::POLLIN, KEY_WAKE)?;
@@ -263,6 +335,11 @@ impl Runner {
     /// The stop, for `modbus_server_stop`.
     pub fn stopper(&self) -> std::sync::Arc<Stopper> {
         std::sync::Arc::clone(&self.stopper)
+    }
+
+    /// Where answers given later go (`modbus_server_answer`).
+    pub fn answers(&self) -> std::sync::Arc<Answers> {
+        std::sync::Arc::clone(&self.answers)
     }
 
     /// The epoll descriptor: readable when [`Runner::run`] has work.
@@ -322,6 +399,7 @@ impl Runner {
                 }
             }
             answered += self.fire_timers(server, answer);
+            answered += self.send_later(server);
             if end.is_some_and(|e| transport::now() >= e) && !self.stopper.stopping.load(Ordering::SeqCst) {
                 return Ok(answered);
             }
@@ -424,11 +502,16 @@ impl Runner {
         if c.generation != generation {
             return 0;
         }
-        let mut answered = 0;
+        let mut sv =
+            Serving { server: Some(server), answer, answered: 0, next_id: &mut self.next_id, later: Vec::new() };
         let result = {
             let mut g = c.ctx.lock();
-            drive(&mut g, &mut c.conn, readable, &mut self.spare, Some(server), answer, &mut answered)
+            drive(&mut g, &mut c.conn, readable, &mut self.spare, &mut sv)
         };
+        let answered = sv.answered;
+        for (id, head, head_len, peer) in sv.later {
+            self.pending.insert(id, Pending { slot, generation, head, head_len, peer });
+        }
         match result {
             Ok((events, until)) => {
                 if events != c.events {
@@ -456,14 +539,18 @@ impl Runner {
     fn own_line_ready(&mut self, server: OnServer<'_>, answer: &mut dyn Answer, readable: bool) -> usize {
         let Some((_, conn)) = self.own_line.as_mut() else { return 0 };
         let spare = &mut self.spare;
-        let mut answered = 0;
+        // (The context is the server's: nothing to lend.)
+        let mut sv = Serving { server: None, answer, answered: 0, next_id: &mut self.next_id, later: Vec::new() };
         let mut until = None;
         let _ = server(&mut |g| {
-            // (The context is the server's: nothing to lend.)
-            if let Ok((_, u)) = drive(g, conn, readable, spare, None, answer, &mut answered) {
+            if let Ok((_, u)) = drive(g, conn, readable, spare, &mut sv) {
                 until = u;
             }
         });
+        let answered = sv.answered;
+        for (id, head, head_len, peer) in sv.later {
+            self.pending.insert(id, Pending { slot: OWN_SLOT, generation: 0, head, head_len, peer });
+        }
         if let Some(t) = until {
             if conn.timer != Some(t) {
                 conn.timer = Some(t);
@@ -472,6 +559,52 @@ impl Runner {
             }
         }
         answered
+    }
+
+    /// Sends the answers given later (`modbus_server_answer`) to the clients whose
+    /// requests they answer; those of clients gone are dropped. Returns the answers
+    /// sent.
+    fn send_later(&mut self, server: OnServer<'_>) -> usize {
+        let mut sent_count = 0;
+        for (id, later) in self.answers.take() {
+            let counts = !matches!(later, Later::Nothing);
+            let Some(p) = self.pending.remove(&id) else { continue };
+            if p.slot == OWN_SLOT {
+                // The context's own line (serial, UDP): answered on the context.
+                let mut later = Some(later);
+                let _ = server(&mut |g| {
+                    if let Some(later) = later.take() {
+                        let _ = send_answer(g, &p, later);
+                    }
+                });
+                sent_count += usize::from(counts);
+                continue;
+            }
+            let Some(Some(c)) = self.clients.get_mut(p.slot as usize) else { continue };
+            if c.generation != p.generation {
+                continue;
+            }
+            let mut g = c.ctx.lock();
+            let sent = send_answer(&mut g, &p, later);
+            sent_count += usize::from(counts && sent.is_ok());
+            let events = match sent {
+                Ok(true) => libc::POLLIN,
+                Ok(false) => libc::POLLOUT,
+                Err(_) => {
+                    drop(g);
+                    self.close_client(p.slot);
+                    continue;
+                }
+            };
+            if events != c.events {
+                let fd = g.fd();
+                if epoll::control(self.epfd, libc::EPOLL_CTL_MOD, fd, events, client_key(p.slot, p.generation)).is_ok()
+                {
+                    c.events = events;
+                }
+            }
+        }
+        sent_count
     }
 
     /// Closes the client in `slot`.
@@ -571,9 +704,7 @@ fn drive(
     c: &mut Conn,
     mut readable: bool,
     spare: &mut Option<Box<Receiving>>,
-    server: Option<OnServer<'_>>,
-    answer: &mut dyn Answer,
-    answered: &mut usize,
+    sv: &mut Serving<'_, '_>,
 ) -> Result<(i16, Option<Duration>)> {
     if g.line.handshaking() {
         let debug = g.debug;
@@ -596,7 +727,7 @@ fn drive(
             if !readable && g.line.pending() == 0 && g.rx.available().is_empty() && !c.ignore_next {
                 break;
             }
-            c.receiving = Some(start(g, c, spare, answer.any_unit(), stream || datagrams));
+            c.receiving = Some(start(g, c, spare, sv.answer.any_unit(), stream || datagrams));
         }
         let r = c.receiving.as_mut().expect("made above");
         let ctx: &mut Context = g;
@@ -639,7 +770,7 @@ fn drive(
             break;
         };
         let r = c.receiving.take().expect("ended");
-        let end = finish(g, c, f, &r.msg[..], server, answer, answered);
+        let end = finish(g, c, f, &r.msg[..], sv);
         *spare = Some(r);
         if datagrams {
             // What followed the request in its datagram is no request.
@@ -701,15 +832,7 @@ fn start(
 
 /// A receive ended: a request is answered; a serial frame for another unit makes
 /// the next frame one to drop; a failure ends a client (a serial line recovers).
-fn finish(
-    g: &mut Guard<'_>,
-    c: &mut Conn,
-    f: Finished,
-    msg: &[u8],
-    server: Option<OnServer<'_>>,
-    answer: &mut dyn Answer,
-    answered: &mut usize,
-) -> Result<()> {
+fn finish(g: &mut Guard<'_>, c: &mut Conn, f: Finished, msg: &[u8], sv: &mut Serving<'_, '_>) -> Result<()> {
     if g.debug {
         engine::trace_received(&msg[..f.traced], f.ended);
     }
@@ -728,24 +851,32 @@ fn finish(
         Outcome::Frame(len) => {
             c.last = transport::now();
             let req = &msg[..len];
-            if serial && req[0] != 0 && answer.any_unit() && !answer.accept_unit(req[0]) {
+            if serial && req[0] != 0 && sv.answer.any_unit() && !sv.answer.accept_unit(req[0]) {
                 if g.debug {
                     g.diag().out(format_args!("Request for slave {} ignored (not served)\n", req[0]));
                 }
                 c.ignore_next = g.line.shared_bus();
                 return Ok(());
             }
-            let lend = server.filter(|_| c.shares_ext);
+            *sv.next_id = sv.next_id.wrapping_add(1).max(1);
+            let id = *sv.next_id;
+            let lend = sv.server.filter(|_| c.shares_ext);
             let lent = |g: &mut Guard<'_>| {
                 if let Some(server) = lend {
                     let _ = server(&mut |s| std::mem::swap(&mut s.server_ext, &mut g.server_ext));
                 }
             };
             lent(g);
-            let answered_now = answer.answer(g, req);
+            let answered_now = sv.answer.answer(g, req, id);
             lent(g);
             match answered_now {
-                Ok(_) => *answered += 1,
+                Ok(Some(_)) => sv.answered += 1,
+                Ok(None) => {
+                    let h = g.framing().header_length() + 1;
+                    let mut head = [0u8; 8];
+                    head[..h].copy_from_slice(&req[..h]);
+                    sv.later.push((id, head, h as u8, g.line.peer()));
+                }
                 Err(e) if !own && is_lost(e) => return Err(e),
                 Err(_) => {}
             }
@@ -782,6 +913,31 @@ fn finish(
             }
         }
     }
+}
+
+/// Sends the answer given later to the request `p` on `g`'s line: true when it is
+/// out, false when part waits for the socket to be writable.
+fn send_answer(g: &mut Guard<'_>, p: &Pending, later: Later) -> Result<bool> {
+    use crate::proto::frame::MAX_ADU_LENGTH as MAX;
+    let framing = g.framing();
+    let head = &p.head[..p.head_len as usize];
+    let h = framing.header_length();
+    let mut out = [0u8; MAX];
+    let len = match later {
+        Later::Nothing => return Ok(true),
+        Later::Exception(code) => crate::proto::reply::exception_response(framing, head, code, &mut out),
+        Later::Pdu(pdu) => {
+            let tid = framing.response_tid(head);
+            framing.write_header(&mut out, head[h - 1], tid);
+            out[h..h + pdu.len()].copy_from_slice(&pdu);
+            h + pdu.len()
+        }
+    };
+    if let Some(peer) = p.peer {
+        g.line.set_peer(peer);
+    }
+    engine::send_msg(g, &mut out, len)?;
+    g.line.send_queued()
 }
 
 /// A failure of the client's connection itself.

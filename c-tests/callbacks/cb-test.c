@@ -64,7 +64,10 @@ static int unit_index(int unit)
 static void note(const modbus_request_info_t *ri, char access)
 {
     size_t n;
-    if (memcmp(ri, &S.last, sizeof(*ri)) != 0 || S.last.function != ri->function) {
+    /* (Field by field: the struct has padding.) */
+    if (ri->unit_id != S.last.unit_id || ri->function != S.last.function ||
+        ri->transaction_id != S.last.transaction_id || ri->socket != S.last.socket ||
+        ri->tls_role != S.last.tls_role || ri->request_id != S.last.request_id) {
         S.order[0] = '\0';
     }
     S.last = *ri;

@@ -27,6 +27,10 @@
  *   status V        FC 07 (read exception status) on a raw socket, twice on each of two
  *                   connections: V each time (a server configured beyond libmodbus
  *                   serves its clients with that configuration)
+ *   later           against runner-server --later: 3 reads in one write answered last
+ *                   first, each with its transaction id and value; an unknown function
+ *                   code's exception; a request never answered (the next one is); a
+ *                   client that leaves with its request unanswered (the server goes on)
  *   rtu             over RTU: units 1, 2 and 7 answer with their own values (a read and
  *                   a write each), unit 5 is silent (timeout), and the next request
  *                   is answered; a broadcast write reaches every unit served
@@ -436,6 +440,76 @@ static void status(int want)
     }
 }
 
+/* Reads what comes on `s` for up to `ms` into buf (at most max): the bytes read. */
+static int read_for(int s, uint8_t *buf, int max, int want, int ms)
+{
+    int got = 0;
+    double end = now_ms() + ms;
+    while (got < want) {
+        struct pollfd p = {s, POLLIN, 0};
+        int left = (int) (end - now_ms());
+        ssize_t n;
+        if (left <= 0 || poll(&p, 1, left) <= 0) {
+            break;
+        }
+        n = recv(s, buf + got, (size_t) (max - got), 0);
+        if (n <= 0) {
+            break;
+        }
+        got += (int) n;
+    }
+    return got;
+}
+
+static void later_scenario(void)
+{
+    uint8_t q[36], a[64];
+    int s = raw_connect(), got, i, order_ok = 1, values_ok = 1;
+    if (!EXPECT(s >= 0, "raw connect")) {
+        return;
+    }
+    for (i = 0; i < 3; i++) {
+        read_request(q + 12 * i, i + 1, 10 * (i + 1));
+    }
+    send(s, q, 36, 0);
+    got = read_for(s, a, sizeof a, 33, 3000);
+    EXPECT(got == 33, "three reads in one write: three answers (%d bytes)", got);
+    for (i = 0; got == 33 && i < 3; i++) {
+        const uint8_t *r = a + 11 * i;
+        int tid = r[1], value = (r[9] << 8) | r[10];
+        order_ok &= tid == 3 - i;
+        values_ok &= r[7] == 3 && value % 1000 == 10 * tid;
+    }
+    EXPECT(order_ok, "answered later, last first (by transaction id)");
+    EXPECT(values_ok, "each answer with its own value");
+    {
+        uint8_t u[8] = {0, 9, 0, 0, 0, 2, 1, 0x41};
+        send(s, u, sizeof u, 0);
+        got = read_for(s, a, sizeof a, 9, 3000);
+        EXPECT(got == 9 && a[1] == 9 && a[7] == 0xC1 && a[8] == 1, "an unknown function code: exception 01, later");
+    }
+    read_request(q, 20, 999);
+    send(s, q, 12, 0);
+    got = read_for(s, a, sizeof a, 1, 500);
+    EXPECT(got == 0, "a request answered with MODBUS_REPLY_NONE: nothing in 500 ms");
+    read_request(q, 21, 5);
+    send(s, q, 12, 0);
+    got = read_for(s, a, sizeof a, 11, 3000);
+    EXPECT(got == 11 && a[1] == 21, "the next request is answered");
+    close(s);
+    s = raw_connect();
+    read_request(q, 30, 7);
+    send(s, q, 12, 0);
+    close(s);
+    usleep(200000);
+    s = raw_connect();
+    read_request(q, 31, 8);
+    send(s, q, 12, 0);
+    got = read_for(s, a, sizeof a, 11, 3000);
+    EXPECT(got == 11 && a[1] == 31, "after a client left with its request unanswered, another is served");
+    close(s);
+}
+
 static void rtu(const char *device)
 {
     modbus_t *ctx = modbus_new_rtu(device, 115200, 'N', 8, 1);
@@ -519,6 +593,8 @@ int main(int argc, char **argv)
         hold(atoi(argv[3]), atoi(argv[4]));
     } else if (strcmp(what, "status") == 0 && argc > 3) {
         status(atoi(argv[3]));
+    } else if (strcmp(what, "later") == 0) {
+        later_scenario();
     } else if (strcmp(what, "rtu") == 0) {
         rtu(argv[1]);
     } else if (strcmp(what, "stop") == 0) {

@@ -18,6 +18,12 @@
  *                  when it cannot be raised)
  *   --status V     configure the context beyond libmodbus first: FC 07 (read exception
  *                  status) answers V (modbus_set_exception_status)
+ *   --later        answer every request later (a gateway's way): a `raw` callback
+ *                  that returns MODBUS_REPLY_LATER, and a thread that answers with
+ *                  modbus_server_answer() after up to 50 ms, the requests of a burst in
+ *                  reverse order: FC 03 and 04 from the mapping, FC 06 echoed, a read of
+ *                  register 999 not at all (MODBUS_REPLY_NONE), anything else with
+ *                  exception 01
  *   --bench        the benchmarks' data (benches/mb-server.c's: holding register i
  *                  holds 3 * i)
  *   --poll         run in steps of modbus_server_run(s, 0) after poll() on
@@ -36,6 +42,7 @@
  */
 #include <errno.h>
 #include <poll.h>
+#include <pthread.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -147,6 +154,87 @@ static int cb_write_registers(void *ud, const modbus_request_info_t *ri, int add
     return 0;
 }
 
+/* --later: the requests waiting for their answer, and the thread that answers. */
+#define LATER_MAX 256
+static struct {
+    pthread_mutex_t lock;
+    pthread_cond_t cond;
+    unsigned id[LATER_MAX];
+    uint8_t pdu[LATER_MAX][8];
+    int n;
+    int quit;
+} later = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER, {0}, {{0}}, 0, 0};
+
+static int cb_raw(void *ud, const modbus_request_info_t *ri, const uint8_t *pdu, int len, uint8_t *rsp, int max)
+{
+    (void) ud;
+    (void) rsp;
+    (void) max;
+    pthread_mutex_lock(&later.lock);
+    if (later.n == LATER_MAX) {
+        pthread_mutex_unlock(&later.lock);
+        return -MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
+    }
+    later.id[later.n] = ri->request_id;
+    memcpy(later.pdu[later.n], pdu, (size_t) (len < 8 ? len : 8));
+    later.n++;
+    pthread_cond_signal(&later.cond);
+    pthread_mutex_unlock(&later.lock);
+    return MODBUS_REPLY_LATER;
+}
+
+static void answer_one(unsigned id, const uint8_t *q)
+{
+    uint8_t rsp[MODBUS_MAX_PDU_LENGTH];
+    int addr = (q[1] << 8) | q[2], nb = (q[3] << 8) | q[4], i;
+    if (q[0] == MODBUS_FC_READ_HOLDING_REGISTERS && addr == 999) {
+        modbus_server_answer(server, id, NULL, MODBUS_REPLY_NONE);
+    } else if ((q[0] == MODBUS_FC_READ_HOLDING_REGISTERS || q[0] == MODBUS_FC_READ_INPUT_REGISTERS) && nb >= 1 &&
+               nb <= 125 && addr + nb <= NB) {
+        const uint16_t *t =
+            q[0] == MODBUS_FC_READ_INPUT_REGISTERS ? maps[0]->tab_input_registers : maps[0]->tab_registers;
+        rsp[0] = q[0];
+        rsp[1] = (uint8_t) (2 * nb);
+        for (i = 0; i < nb; i++) {
+            rsp[2 + 2 * i] = (uint8_t) (t[addr + i] >> 8);
+            rsp[3 + 2 * i] = (uint8_t) t[addr + i];
+        }
+        modbus_server_answer(server, id, rsp, 2 + 2 * nb);
+    } else if (q[0] == MODBUS_FC_WRITE_SINGLE_REGISTER && addr < NB) {
+        maps[0]->tab_registers[addr] = (uint16_t) nb;
+        modbus_server_answer(server, id, q, 5);
+    } else {
+        modbus_server_answer(server, id, NULL, -MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    }
+}
+
+static void *later_thread(void *arg)
+{
+    (void) arg;
+    pthread_mutex_lock(&later.lock);
+    while (!later.quit) {
+        struct timespec until;
+        if (later.n == 0) {
+            pthread_cond_wait(&later.cond, &later.lock);
+            continue;
+        }
+        /* A burst gathers for up to 50 ms, then is answered last first. */
+        clock_gettime(CLOCK_REALTIME, &until);
+        until.tv_nsec += 50000000;
+        if (until.tv_nsec >= 1000000000) {
+            until.tv_sec++;
+            until.tv_nsec -= 1000000000;
+        }
+        pthread_cond_timedwait(&later.cond, &later.lock, &until);
+        while (later.n > 0) {
+            later.n--;
+            answer_one(later.id[later.n], later.pdu[later.n]);
+        }
+    }
+    pthread_mutex_unlock(&later.lock);
+    return NULL;
+}
+
 static void fill(modbus_mapping_t *m, int k)
 {
     int i;
@@ -163,7 +251,9 @@ int main(int argc, char **argv)
     modbus_server_callbacks_t cb;
     modbus_t *ctx;
     const char *mode;
-    int callbacks = 0, idle_ms = -1, max = 1000, use_poll = 0, status = -1, bench = 0, port = 0, i, next;
+    int callbacks = 0, idle_ms = -1, max = 1000, use_poll = 0, status = -1, bench = 0, port = 0, deferred = 0, i,
+        next;
+    pthread_t answerer;
     long total = 0;
     struct sigaction sa;
 
@@ -203,6 +293,8 @@ int main(int argc, char **argv)
             }
         } else if (strcmp(argv[i], "--status") == 0 && i + 1 < argc) {
             status = atoi(argv[++i]);
+        } else if (strcmp(argv[i], "--later") == 0) {
+            deferred = 1;
         } else if (strcmp(argv[i], "--bench") == 0) {
             bench = 1;
         } else if (strcmp(argv[i], "--poll") == 0) {
@@ -283,6 +375,12 @@ int main(int argc, char **argv)
         cb.write_bits = cb_write_bits;
         cb.write_registers = cb_write_registers;
         modbus_server_set_callbacks(server, &cb, NULL);
+    } else if (deferred) {
+        memset(&cb, 0, sizeof cb);
+        cb.struct_size = sizeof cb;
+        cb.raw = cb_raw;
+        modbus_server_set_callbacks(server, &cb, NULL);
+        pthread_create(&answerer, NULL, later_thread, NULL);
     } else {
         modbus_server_set_mapping(server, maps[0]);
     }
@@ -326,6 +424,13 @@ int main(int argc, char **argv)
             return 1;
         }
         total = rc;
+    }
+    if (deferred) {
+        pthread_mutex_lock(&later.lock);
+        later.quit = 1;
+        pthread_cond_signal(&later.cond);
+        pthread_mutex_unlock(&later.lock);
+        pthread_join(answerer, NULL);
     }
     printf("stopped%s, %ld requests answered\n", signalled ? " by a signal" : "", total);
     modbus_server_free(server);

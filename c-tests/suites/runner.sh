@@ -120,6 +120,12 @@ else
     bad "tcpcb: modbus_server_stop from a callback ends the run" "exit $rc: $(tail -n 3 "$WORK/tcpcb.log")"
 fi
 
+section "answers given later (a raw callback, MODBUS_REPLY_LATER, modbus_server_answer from a thread)"
+serve later tcp port --later
+client debian later "$PORT" later
+client debian later-many "$PORT" many 100
+halt later "stopped by a signal"
+
 section "the application's own poll loop (modbus_server_get_fd, modbus_server_run(s, 0))"
 serve polled tcp port --poll --idle 1000
 client debian polled-basic "$PORT" basic 0

@@ -330,6 +330,13 @@ pub trait Data {
     fn other(&mut self, _rq: &Request, _pdu: &[u8], _rsp: &mut [u8]) -> Option<Result<usize, Refusal>> {
         None
     }
+    /// Every request goes to [`Data::other`] as it came, whatever its function code:
+    /// no check, no data access of the reply's own (a gateway that passes requests
+    /// through). After the unit and the authorization, nothing of the reply's runs.
+    #[inline(always)]
+    fn takes_every_function(&self) -> bool {
+        false
+    }
 }
 
 /// A [`Mapping`] as [`Data`]: what `modbus_reply` serves.
@@ -573,224 +580,235 @@ impl Server {
             }};
         }
 
-        let built: Result<Built, Refusal> = match function {
-            fc::READ_COILS | fc::READ_DISCRETE_INPUTS => {
-                let name = if function == fc::READ_DISCRETE_INPUTS { "read_input_bits" } else { "read_bits" };
-                let nb = r.u16(h + 3);
-                if !(1..=MAX_READ_BITS as i64).contains(&(nb as i64)) {
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        true,
-                        "Illegal nb of values {nb} in {name} (max {MAX_READ_BITS})\n"
-                    )
-                } else {
-                    data.check(&rq, &[Range { address, nb }], diag).and_then(
-                        #[inline(always)]
-                        |()| {
-                            let n = response_basis(framing, tid, slave, function, out);
-                            out[n] = nb.div_ceil(8) as u8;
-                            let packed = data.read_bits_wire(&rq, address, nb, &mut out[n + 1..], diag)?;
-                            Ok((n + 1 + packed, None, false))
-                        },
-                    )
+        let built: Result<Built, Refusal> = if data.takes_every_function() {
+            match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
+                Some(answered) => self.answered(answered, &rq, out),
+                None => {
+                    exception!(exception::ILLEGAL_FUNCTION, false, "Unknown Modbus function code: 0x{function:X}\n")
                 }
             }
-            fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS => {
-                let is_input = function == fc::READ_INPUT_REGISTERS;
-                let name = if is_input { "read_input_registers" } else { "read_registers" };
-                let nb = r.u16(h + 3);
-                if !(1..=MAX_READ_REGISTERS as i64).contains(&(nb as i64)) {
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        true,
-                        "Illegal nb of values {nb} in {name} (max {MAX_READ_REGISTERS})\n"
-                    )
-                } else {
-                    data.check(&rq, &[Range { address, nb }], diag).and_then(
-                        #[inline(always)]
-                        |()| respond_registers!(address, nb),
-                    )
+        } else {
+            match function {
+                fc::READ_COILS | fc::READ_DISCRETE_INPUTS => {
+                    let name = if function == fc::READ_DISCRETE_INPUTS { "read_input_bits" } else { "read_bits" };
+                    let nb = r.u16(h + 3);
+                    if !(1..=MAX_READ_BITS as i64).contains(&(nb as i64)) {
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            true,
+                            "Illegal nb of values {nb} in {name} (max {MAX_READ_BITS})\n"
+                        )
+                    } else {
+                        data.check(&rq, &[Range { address, nb }], diag).and_then(
+                            #[inline(always)]
+                            |()| {
+                                let n = response_basis(framing, tid, slave, function, out);
+                                out[n] = nb.div_ceil(8) as u8;
+                                let packed = data.read_bits_wire(&rq, address, nb, &mut out[n + 1..], diag)?;
+                                Ok((n + 1 + packed, None, false))
+                            },
+                        )
+                    }
                 }
-            }
-            fc::WRITE_SINGLE_COIL => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
-                #[inline(always)]
-                |()| {
-                    let value = r.u16(h + 3);
-                    if req_length as i64 != fixed_request_length(framing, 5) {
+                fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS => {
+                    let is_input = function == fc::READ_INPUT_REGISTERS;
+                    let name = if is_input { "read_input_registers" } else { "read_registers" };
+                    let nb = r.u16(h + 3);
+                    if !(1..=MAX_READ_REGISTERS as i64).contains(&(nb as i64)) {
                         exception!(
                             exception::ILLEGAL_DATA_VALUE,
-                            false,
-                            "Invalid request length in modbus_reply to write bit ({req_length})\n"
-                        )
-                    } else if value != 0xFF00 && value != 0 {
-                        exception!(
-                            exception::ILLEGAL_DATA_VALUE,
-                            false,
-                            "Illegal data value 0x{value:X} in write_bit request at address {address:X}\n"
+                            true,
+                            "Illegal nb of values {nb} in {name} (max {MAX_READ_REGISTERS})\n"
                         )
                     } else {
-                        data.write_bits(&rq, address, &[(value != 0) as u8]).and_then(
+                        data.check(&rq, &[Range { address, nb }], diag).and_then(
                             #[inline(always)]
-                            |()| copy!(h + 5),
+                            |()| respond_registers!(address, nb),
                         )
                     }
-                },
-            ),
-            fc::WRITE_SINGLE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
-                #[inline(always)]
-                |()| {
-                    if req_length as i64 != fixed_request_length(framing, 5) {
+                }
+                fc::WRITE_SINGLE_COIL => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
+                    #[inline(always)]
+                    |()| {
+                        let value = r.u16(h + 3);
+                        if req_length as i64 != fixed_request_length(framing, 5) {
+                            exception!(
+                                exception::ILLEGAL_DATA_VALUE,
+                                false,
+                                "Invalid request length in modbus_reply to write bit ({req_length})\n"
+                            )
+                        } else if value != 0xFF00 && value != 0 {
+                            exception!(
+                                exception::ILLEGAL_DATA_VALUE,
+                                false,
+                                "Illegal data value 0x{value:X} in write_bit request at address {address:X}\n"
+                            )
+                        } else {
+                            data.write_bits(&rq, address, &[(value != 0) as u8]).and_then(
+                                #[inline(always)]
+                                |()| copy!(h + 5),
+                            )
+                        }
+                    },
+                ),
+                fc::WRITE_SINGLE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
+                    #[inline(always)]
+                    |()| {
+                        if req_length as i64 != fixed_request_length(framing, 5) {
+                            exception!(
+                                exception::ILLEGAL_DATA_VALUE,
+                                false,
+                                "Invalid request length in modbus_reply to write register ({req_length})\n"
+                            )
+                        } else {
+                            data.write_registers(&rq, address, &[r.u16(h + 3)]).and_then(
+                                #[inline(always)]
+                                |()| copy!(h + 5),
+                            )
+                        }
+                    },
+                ),
+                fc::WRITE_MULTIPLE_COILS => {
+                    let nb = r.u16(h + 3);
+                    let byte_count = r.u8(h + 5) as i64;
+                    if !(1..=MAX_WRITE_BITS as i64).contains(&(nb as i64)) || byte_count * 8 < nb as i64 {
+                        // CVE-2019-14462: the byte count must cover the quantity.
                         exception!(
                             exception::ILLEGAL_DATA_VALUE,
-                            false,
-                            "Invalid request length in modbus_reply to write register ({req_length})\n"
+                            true,
+                            "Illegal number of values {nb} in write_bits (max {MAX_WRITE_BITS})\n"
                         )
                     } else {
-                        data.write_registers(&rq, address, &[r.u16(h + 3)]).and_then(
+                        data.check(&rq, &[Range { address, nb }], diag).and_then(
                             #[inline(always)]
-                            |()| copy!(h + 5),
-                        )
-                    }
-                },
-            ),
-            fc::WRITE_MULTIPLE_COILS => {
-                let nb = r.u16(h + 3);
-                let byte_count = r.u8(h + 5) as i64;
-                if !(1..=MAX_WRITE_BITS as i64).contains(&(nb as i64)) || byte_count * 8 < nb as i64 {
-                    // CVE-2019-14462: the byte count must cover the quantity.
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        true,
-                        "Illegal number of values {nb} in write_bits (max {MAX_WRITE_BITS})\n"
-                    )
-                } else {
-                    data.check(&rq, &[Range { address, nb }], diag).and_then(
-                        #[inline(always)]
-                        |()| {
-                            let mut bits = [0u8; MAX_WRITE_BITS as usize];
-                            let bits = &mut bits[..nb as usize];
-                            match req.get(h + 6..h + 6 + bits.len().div_ceil(8)) {
-                                Some(packed) => crate::data::set_bits_from_bytes(bits, packed),
-                                None => {
-                                    for (k, bit) in bits.iter_mut().enumerate() {
-                                        *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
+                            |()| {
+                                let mut bits = [0u8; MAX_WRITE_BITS as usize];
+                                let bits = &mut bits[..nb as usize];
+                                match req.get(h + 6..h + 6 + bits.len().div_ceil(8)) {
+                                    Some(packed) => crate::data::set_bits_from_bytes(bits, packed),
+                                    None => {
+                                        for (k, bit) in bits.iter_mut().enumerate() {
+                                            *bit = (r.u8(h + 6 + k / 8) >> (k % 8)) & 1;
+                                        }
                                     }
                                 }
-                            }
-                            data.write_bits(&rq, address, bits).and_then(
-                                #[inline(always)]
-                                |()| echo!(),
-                            )
-                        },
-                    )
-                }
-            }
-            fc::WRITE_MULTIPLE_REGISTERS => {
-                let nb = r.u16(h + 3);
-                let byte_count = r.u8(h + 5) as i64;
-                if !(1..=MAX_WRITE_REGISTERS as i64).contains(&(nb as i64)) || byte_count != nb as i64 * 2 {
-                    // CVE-2019-14463: the byte count must be exactly two per register.
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        true,
-                        "Illegal number of values {nb} in write_registers (max {MAX_WRITE_REGISTERS})\n"
-                    )
-                } else {
-                    data.check(&rq, &[Range { address, nb }], diag).and_then(
-                        #[inline(always)]
-                        |()| {
-                            let mut regs = [0u16; MAX_WRITE_REGISTERS as usize];
-                            let regs = &mut regs[..nb as usize];
-                            r.registers_to(h + 6, regs);
-                            data.write_registers(&rq, address, regs).and_then(
-                                #[inline(always)]
-                                |()| echo!(),
-                            )
-                        },
-                    )
-                }
-            }
-            fc::REPORT_SLAVE_ID => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
-                Some(answered) => self.answered(answered, &rq, out),
-                None => {
-                    let mut n = response_basis(framing, tid, slave, function, out);
-                    let count_at = n;
-                    n += 1;
-                    out[n] = REPORT_SLAVE_ID_BYTE;
-                    out[n + 1] = 0xFF; // run indicator ON
-                    n += 2;
-                    for part in [b"LMB".as_slice(), VERSION_STRING.as_bytes()] {
-                        out[n..n + part.len()].copy_from_slice(part);
-                        n += part.len();
+                                data.write_bits(&rq, address, bits).and_then(
+                                    #[inline(always)]
+                                    |()| echo!(),
+                                )
+                            },
+                        )
                     }
-                    out[count_at] = (n - count_at - 1) as u8;
-                    Ok((n, None, false))
                 }
-            },
-            fc::READ_EXCEPTION_STATUS => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
-                Some(answered) => self.answered(answered, &rq, out),
-                None => {
-                    // libmodbus through 3.1.12 answers nothing at all.
-                    diag.err(format_args!("FIXME Not implemented\n"));
-                    return Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT));
-                }
-            },
-            fc::MASK_WRITE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
-                #[inline(always)]
-                |()| {
-                    // libmodbus modifies the register before checking the length.
-                    let mut value = [0u16];
-                    data.read_registers(&rq, address, &mut value)?;
-                    let and = r.u16(h + 3);
-                    let or = r.u16(h + 5);
-                    data.write_registers(&rq, address, &[(value[0] & and) | (or & !and)])?;
-                    if req_length as i64 != fixed_request_length(framing, 7) {
+                fc::WRITE_MULTIPLE_REGISTERS => {
+                    let nb = r.u16(h + 3);
+                    let byte_count = r.u8(h + 5) as i64;
+                    if !(1..=MAX_WRITE_REGISTERS as i64).contains(&(nb as i64)) || byte_count != nb as i64 * 2 {
+                        // CVE-2019-14463: the byte count must be exactly two per register.
                         exception!(
                             exception::ILLEGAL_DATA_VALUE,
-                            false,
-                            "Invalid request length in modbus_reply to mask write register ({req_length})\n"
+                            true,
+                            "Illegal number of values {nb} in write_registers (max {MAX_WRITE_REGISTERS})\n"
                         )
                     } else {
-                        copy!(h + 7)
+                        data.check(&rq, &[Range { address, nb }], diag).and_then(
+                            #[inline(always)]
+                            |()| {
+                                let mut regs = [0u16; MAX_WRITE_REGISTERS as usize];
+                                let regs = &mut regs[..nb as usize];
+                                r.registers_to(h + 6, regs);
+                                data.write_registers(&rq, address, regs).and_then(
+                                    #[inline(always)]
+                                    |()| echo!(),
+                                )
+                            },
+                        )
+                    }
+                }
+                fc::REPORT_SLAVE_ID => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
+                    Some(answered) => self.answered(answered, &rq, out),
+                    None => {
+                        let mut n = response_basis(framing, tid, slave, function, out);
+                        let count_at = n;
+                        n += 1;
+                        out[n] = REPORT_SLAVE_ID_BYTE;
+                        out[n + 1] = 0xFF; // run indicator ON
+                        n += 2;
+                        for part in [b"LMB".as_slice(), VERSION_STRING.as_bytes()] {
+                            out[n..n + part.len()].copy_from_slice(part);
+                            n += part.len();
+                        }
+                        out[count_at] = (n - count_at - 1) as u8;
+                        Ok((n, None, false))
                     }
                 },
-            ),
-            fc::WRITE_AND_READ_REGISTERS => {
-                let nb = r.u16(h + 3);
-                let address_write = r.u16(h + 5);
-                let nb_write = r.u16(h + 7);
-                let write_bytes = r.u8(h + 9) as i64;
-                if !(1..=MAX_WR_WRITE_REGISTERS as i64).contains(&(nb_write as i64))
-                    || !(1..=MAX_WR_READ_REGISTERS as i64).contains(&(nb as i64))
-                    || write_bytes != nb_write as i64 * 2
-                {
-                    exception!(
-                        exception::ILLEGAL_DATA_VALUE,
-                        true,
-                        "Illegal nb of values (W{nb_write}, R{nb}) in write_and_read_registers \
+                fc::READ_EXCEPTION_STATUS => {
+                    match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
+                        Some(answered) => self.answered(answered, &rq, out),
+                        None => {
+                            // libmodbus through 3.1.12 answers nothing at all.
+                            diag.err(format_args!("FIXME Not implemented\n"));
+                            return Outcome::Fail(Error(crate::error::errno::ENOPROTOOPT));
+                        }
+                    }
+                }
+                fc::MASK_WRITE_REGISTER => data.check(&rq, &[Range { address, nb: 1 }], diag).and_then(
+                    #[inline(always)]
+                    |()| {
+                        // libmodbus modifies the register before checking the length.
+                        let mut value = [0u16];
+                        data.read_registers(&rq, address, &mut value)?;
+                        let and = r.u16(h + 3);
+                        let or = r.u16(h + 5);
+                        data.write_registers(&rq, address, &[(value[0] & and) | (or & !and)])?;
+                        if req_length as i64 != fixed_request_length(framing, 7) {
+                            exception!(
+                                exception::ILLEGAL_DATA_VALUE,
+                                false,
+                                "Invalid request length in modbus_reply to mask write register ({req_length})\n"
+                            )
+                        } else {
+                            copy!(h + 7)
+                        }
+                    },
+                ),
+                fc::WRITE_AND_READ_REGISTERS => {
+                    let nb = r.u16(h + 3);
+                    let address_write = r.u16(h + 5);
+                    let nb_write = r.u16(h + 7);
+                    let write_bytes = r.u8(h + 9) as i64;
+                    if !(1..=MAX_WR_WRITE_REGISTERS as i64).contains(&(nb_write as i64))
+                        || !(1..=MAX_WR_READ_REGISTERS as i64).contains(&(nb as i64))
+                        || write_bytes != nb_write as i64 * 2
+                    {
+                        exception!(
+                            exception::ILLEGAL_DATA_VALUE,
+                            true,
+                            "Illegal nb of values (W{nb_write}, R{nb}) in write_and_read_registers \
                              (max W{MAX_WR_WRITE_REGISTERS}, R{MAX_WR_READ_REGISTERS})\n"
-                    )
-                } else {
-                    let ranges = [Range { address, nb }, Range { address: address_write, nb: nb_write }];
-                    data.check(&rq, &ranges, diag).and_then(
-                        #[inline(always)]
-                        |()| {
-                            // CVE-2022-0367: both ranges are checked. Write first, then read.
-                            let mut written = [0u16; MAX_WR_WRITE_REGISTERS as usize];
-                            let written = &mut written[..nb_write as usize];
-                            r.registers_to(h + 10, written);
-                            data.write_registers(&rq, address_write, written)?;
-                            respond_registers!(address, nb)
-                        },
-                    )
+                        )
+                    } else {
+                        let ranges = [Range { address, nb }, Range { address: address_write, nb: nb_write }];
+                        data.check(&rq, &ranges, diag).and_then(
+                            #[inline(always)]
+                            |()| {
+                                // CVE-2022-0367: both ranges are checked. Write first, then read.
+                                let mut written = [0u16; MAX_WR_WRITE_REGISTERS as usize];
+                                let written = &mut written[..nb_write as usize];
+                                r.registers_to(h + 10, written);
+                                data.write_registers(&rq, address_write, written)?;
+                                respond_registers!(address, nb)
+                            },
+                        )
+                    }
                 }
+                _ => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
+                    Some(answered) => self.answered(answered, &rq, out),
+                    None => {
+                        exception!(exception::ILLEGAL_FUNCTION, true, "Unknown Modbus function code: 0x{function:X}\n")
+                    }
+                },
             }
-            _ => match data.other(&rq, pdu(framing, req), &mut out[h..h + MAX_PDU_LENGTH]) {
-                Some(answered) => self.answered(answered, &rq, out),
-                None => {
-                    exception!(exception::ILLEGAL_FUNCTION, true, "Unknown Modbus function code: 0x{function:X}\n")
-                }
-            },
         };
 
         let (len, exc, flush_first) = match built {
@@ -1737,5 +1755,59 @@ mod tests {
                 assert!(matches!(exception, None | Some(1..=3)));
             }
         }
+    }
+
+    /// A data set that takes every function code (a gateway's) sees each request's
+    /// PDU as it came, FC 03 included, and its answer goes out behind the header.
+    #[test]
+    fn every_function_through_other_when_asked() {
+        struct All(Vec<u8>);
+        impl Data for All {
+            fn accept_unit(&mut self, _unit: u8) -> bool {
+                true
+            }
+            fn check(
+                &mut self,
+                _rq: &Request,
+                _ranges: &[Range],
+                _diag: &mut dyn Diag,
+            ) -> core::result::Result<(), Refusal> {
+                panic!("no check for a request passed through")
+            }
+            fn read_bits(&mut self, _rq: &Request, _a: u16, _d: &mut [u8]) -> core::result::Result<(), Refusal> {
+                panic!("no data access")
+            }
+            fn read_registers(&mut self, _rq: &Request, _a: u16, _d: &mut [u16]) -> core::result::Result<(), Refusal> {
+                panic!("no data access")
+            }
+            fn write_bits(&mut self, _rq: &Request, _a: u16, _s: &[u8]) -> core::result::Result<(), Refusal> {
+                panic!("no data access")
+            }
+            fn write_registers(&mut self, _rq: &Request, _a: u16, _s: &[u16]) -> core::result::Result<(), Refusal> {
+                panic!("no data access")
+            }
+            fn other(
+                &mut self,
+                _rq: &Request,
+                pdu: &[u8],
+                rsp: &mut [u8],
+            ) -> Option<core::result::Result<usize, Refusal>> {
+                self.0 = pdu.to_vec();
+                rsp[..3].copy_from_slice(&[pdu[0], 0xAB, 0xCD]);
+                Some(Ok(3))
+            }
+            fn takes_every_function(&self) -> bool {
+                true
+            }
+        }
+        let server = Server { framing: T, quirks: 0 };
+        // A read of 2000 registers (past every limit): passed through as it came.
+        let req = [0x00, 0x07, 0x00, 0x00, 0x00, 0x06, 0x11, 0x03, 0x00, 0x10, 0x07, 0xD0];
+        let mut data = All(Vec::new());
+        let mut out = [0u8; MAX_ADU_LENGTH];
+        let outcome = server.answer(&req, req.len() as i32, &mut data, &mut Recorded::default(), &mut out);
+        assert_eq!(data.0, vec![0x03, 0x00, 0x10, 0x07, 0xD0]);
+        let Outcome::Respond { len, suppressed: false, .. } = outcome else { panic!("{outcome:?}") };
+        assert_eq!(&out[..len], &[0x00, 0x07, 0x00, 0x00, 0x00, 0x00, 0x11, 0x03, 0xAB, 0xCD][..len]);
     }
 }

@@ -161,6 +161,18 @@ impl Line {
         }
     }
 
+    /// On a server's UDP socket: the sender of the last datagram read.
+    pub fn peer(&self) -> Option<udp::Peer> {
+        self.held.datagram.as_deref().and_then(Datagram::peer)
+    }
+
+    /// On a server's UDP socket: the next answer goes to `peer`.
+    pub fn set_peer(&mut self, peer: udp::Peer) {
+        if let Some(d) = self.held.datagram.as_deref_mut() {
+            d.set_peer(peer);
+        }
+    }
+
     /// A stream socket (plain or TLS): a connection of its own per client.
     pub fn is_stream(&self) -> bool {
         matches!(self.kind, Kind::Socket | Kind::Tls)

@@ -122,6 +122,13 @@ pub fn has_peer(fd: i32) -> bool {
     unsafe { libc::getpeername(fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len) == 0 }
 }
 
+/// The sender of a datagram (a server answers it there).
+#[derive(Clone, Copy)]
+pub struct Peer {
+    addr: libc::sockaddr_storage,
+    len: libc::socklen_t,
+}
+
 /// The datagram being read, and where the answer goes.
 pub struct Datagram {
     buf: Box<[u8; MAX_ADU_LENGTH]>,
@@ -136,6 +143,19 @@ impl Default for Datagram {
     fn default() -> Self {
         // SAFETY: all-zero is a valid sockaddr_storage.
         Datagram { buf: Box::new([0; MAX_ADU_LENGTH]), start: 0, end: 0, peer: unsafe { zeroed() }, peer_len: 0 }
+    }
+}
+
+impl Datagram {
+    /// The sender of the last datagram read (`None` before any).
+    pub fn peer(&self) -> Option<Peer> {
+        (self.peer_len > 0).then_some(Peer { addr: self.peer, len: self.peer_len })
+    }
+
+    /// The next answer goes to `peer` (a request answered later).
+    pub fn set_peer(&mut self, peer: Peer) {
+        self.peer = peer.addr;
+        self.peer_len = peer.len;
     }
 }
 

@@ -24,6 +24,9 @@ pub struct modbus_request_info_t {
     pub socket: c_int,
     /// The client's role (Modbus/TCP Security), NULL on plain TCP and serial lines.
     pub tls_role: *const c_char,
+    /// A server that runs itself (`modbus_server_new`): the request's id, for an
+    /// answer given later with `modbus_server_answer`; 0 elsewhere.
+    pub request_id: u32,
 }
 
 /// `accept_unit`: 1 serves `unit_id`, 0 not.
@@ -83,10 +86,17 @@ pub struct modbus_server_callbacks_t {
     pub write_bits: Option<WriteBitsFn>,
     pub write_registers: Option<WriteRegistersFn>,
     pub other: Option<OtherFn>,
+    /// Every request, whatever its function code, as it came (a gateway's): the
+    /// other callbacks and the reply's checks are not used. As `other` returns.
+    pub raw: Option<OtherFn>,
 }
 
 /// `MODBUS_REPLY_NONE`: a callback's "send no answer at all".
 pub const REPLY_NONE: c_int = -0x100;
+/// `MODBUS_REPLY_LATER`: a callback's "the answer comes later"
+/// (`modbus_server_answer`, with the request's id); outside a server that runs
+/// itself, as `MODBUS_REPLY_NONE`.
+pub const REPLY_LATER: c_int = -0x101;
 
 /// The callbacks as [`Data`], with what `modbus_request_info_t` tells beyond the
 /// request (the socket, the role).
@@ -95,6 +105,10 @@ pub(crate) struct Callbacks {
     user_data: *mut c_void,
     socket: c_int,
     role: *const c_char,
+    /// The id of the request being answered (a runner's; 0: none).
+    pub(crate) request_id: u32,
+    /// A callback said `MODBUS_REPLY_LATER` for it.
+    pub(crate) deferred: bool,
 }
 
 impl Callbacks {
@@ -116,7 +130,7 @@ impl Callbacks {
         // SAFETY: `n` bytes are readable at `cb` (its struct_size) and fit in `copy`;
         // every bit pattern read is a valid size or a nullable function pointer.
         unsafe { ptr::copy_nonoverlapping(cb.cast::<u8>(), (&raw mut copy).cast::<u8>(), n) };
-        Some(Callbacks { cb: copy, user_data, socket: -1, role: ptr::null() })
+        Some(Callbacks { cb: copy, user_data, socket: -1, role: ptr::null(), request_id: 0, deferred: false })
     }
 
     /// The request comes from the client of `g` (its socket, its TLS role).
@@ -137,7 +151,24 @@ impl Callbacks {
             transaction_id: rq.transaction_id as c_int,
             socket: self.socket,
             tls_role: self.role,
+            request_id: self.request_id,
         }
+    }
+
+    /// A callback's "later": recorded for the runner (which keeps the request for
+    /// `modbus_server_answer`); no answer now.
+    fn later(&mut self) -> Refusal {
+        self.deferred = self.request_id != 0;
+        Refusal::Silent
+    }
+
+    /// What a data callback's return value asks for (see [`verdict`]), "later"
+    /// included.
+    fn data_verdict(&mut self, rc: c_int) -> Result<(), Refusal> {
+        if rc == REPLY_LATER {
+            return Err(self.later());
+        }
+        verdict(rc)
     }
 }
 
@@ -172,32 +203,40 @@ impl Data for Callbacks {
         let f = self.cb.read_bits.ok_or(UNSERVED)?;
         let ri = self.info(rq);
         // SAFETY: see the impl comment.
-        verdict(unsafe { f(self.user_data, &ri, address as c_int, dest.len() as c_int, dest.as_mut_ptr()) })
+        let rc = unsafe { f(self.user_data, &ri, address as c_int, dest.len() as c_int, dest.as_mut_ptr()) };
+        self.data_verdict(rc)
     }
 
     fn read_registers(&mut self, rq: &Request, address: u16, dest: &mut [u16]) -> Result<(), Refusal> {
         let f = self.cb.read_registers.ok_or(UNSERVED)?;
         let ri = self.info(rq);
         // SAFETY: see the impl comment.
-        verdict(unsafe { f(self.user_data, &ri, address as c_int, dest.len() as c_int, dest.as_mut_ptr()) })
+        let rc = unsafe { f(self.user_data, &ri, address as c_int, dest.len() as c_int, dest.as_mut_ptr()) };
+        self.data_verdict(rc)
     }
 
     fn write_bits(&mut self, rq: &Request, address: u16, src: &[u8]) -> Result<(), Refusal> {
         let f = self.cb.write_bits.ok_or(UNSERVED)?;
         let ri = self.info(rq);
         // SAFETY: see the impl comment.
-        verdict(unsafe { f(self.user_data, &ri, address as c_int, src.len() as c_int, src.as_ptr()) })
+        let rc = unsafe { f(self.user_data, &ri, address as c_int, src.len() as c_int, src.as_ptr()) };
+        self.data_verdict(rc)
     }
 
     fn write_registers(&mut self, rq: &Request, address: u16, src: &[u16]) -> Result<(), Refusal> {
         let f = self.cb.write_registers.ok_or(UNSERVED)?;
         let ri = self.info(rq);
         // SAFETY: see the impl comment.
-        verdict(unsafe { f(self.user_data, &ri, address as c_int, src.len() as c_int, src.as_ptr()) })
+        let rc = unsafe { f(self.user_data, &ri, address as c_int, src.len() as c_int, src.as_ptr()) };
+        self.data_verdict(rc)
+    }
+
+    fn takes_every_function(&self) -> bool {
+        self.cb.raw.is_some()
     }
 
     fn other(&mut self, rq: &Request, pdu: &[u8], rsp: &mut [u8]) -> Option<Result<usize, Refusal>> {
-        let f = self.cb.other?;
+        let f = self.cb.raw.or(self.cb.other)?;
         let ri = self.info(rq);
         let max = rsp.len();
         // SAFETY: see the impl comment; `rsp` is writable for `rsp_max` bytes.
@@ -205,6 +244,7 @@ impl Data for Callbacks {
         Some(match rc {
             n if n > 0 && n as usize <= max => Ok(n as usize),
             REPLY_NONE => Err(Refusal::Silent),
+            REPLY_LATER => Err(self.later()),
             n if n < 0 && -n < exception::MAX as c_int => Err(Refusal::Exception((-n) as u8)),
             _ => Err(Refusal::Exception(exception::SLAVE_OR_SERVER_FAILURE)),
         })

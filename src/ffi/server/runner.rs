@@ -19,7 +19,7 @@ use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail};
 use crate::handle;
 use crate::proto::reply::MappingData;
-use crate::runner::{Answer, Runner, Stopper};
+use crate::runner::{Answer, Answers, Later, Runner, Stopper};
 
 /// What the requests are answered from.
 enum Source {
@@ -41,16 +41,19 @@ impl Answer for Source {
         }
     }
 
-    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8]) -> Result<usize> {
+    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8], id: u32) -> Result<Option<usize>> {
         let len = req.len() as i32;
         match self {
             Source::Callbacks(cb) => {
                 cb.from(g);
-                crate::server::reply(g, req, len, cb)
+                cb.request_id = id;
+                cb.deferred = false;
+                let sent = crate::server::reply(g, req, len, cb)?;
+                Ok((!cb.deferred).then_some(sent))
             }
             Source::Mapping(m) => {
                 let mut mapping = CMapping(*m);
-                crate::server::reply(g, req, len, &mut MappingData(&mut mapping))
+                crate::server::reply(g, req, len, &mut MappingData(&mut mapping)).map(Some)
             }
             Source::Nothing => Err(Error::INVALID),
         }
@@ -62,6 +65,8 @@ pub struct ServerRunner {
     /// Reachable while a run is under way (`modbus_server_stop` from another thread
     /// or a signal handler).
     stopper: Arc<Stopper>,
+    /// Answers given later, from any thread (`modbus_server_answer`).
+    answers: Arc<Answers>,
     /// A run is under way: the calls that change the runner wait for its end
     /// (EBUSY), a free from a callback is done when it ends.
     running: AtomicBool,
@@ -115,6 +120,7 @@ pub unsafe extern "C" fn modbus_server_new(ctx: *mut Modbus, max_clients: c_int)
     match made {
         Ok(runner) => Box::into_raw(Box::new(ServerRunner {
             stopper: runner.stopper(),
+            answers: runner.answers(),
             running: AtomicBool::new(false),
             doomed: AtomicBool::new(false),
             inner: UnsafeCell::new(Inner { runner, ctx, source: Source::Nothing }),
@@ -270,6 +276,41 @@ pub unsafe extern "C" fn modbus_server_stop(s: *mut ServerRunner) -> c_int {
         }
         None => fail(Error::INVALID),
     }
+}
+
+/// Answers request `request_id` (`ri->request_id` of a callback that returned
+/// `MODBUS_REPLY_LATER`) as that callback would have: `rc` > 0, the answer's PDU in
+/// `rsp_pdu` (function code first, `rc` bytes); -code, an exception answer;
+/// `MODBUS_REPLY_NONE`, no answer. May be called from any thread and from a
+/// callback; the answer goes out in the run under way (woken) or the next. An answer
+/// for a client that has left, or for an unknown id, is dropped. EINVAL: `s` NULL,
+/// `rc` none of those (a PDU longer than 253 bytes, an exception code out of range),
+/// `rsp_pdu` NULL with `rc` > 0.
+///
+/// # Safety
+/// `s` must be NULL or a live runner; `rsp_pdu` NULL or valid for `rc` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_answer(
+    s: *mut ServerRunner,
+    request_id: u32,
+    rsp_pdu: *const u8,
+    rc: c_int,
+) -> c_int {
+    use super::callbacks::REPLY_NONE;
+    use crate::proto::error::exception;
+    // SAFETY: forwarded caller contract; only the shared parts are read.
+    let Some(server) = (unsafe { s.as_ref() }) else { return fail(Error::INVALID) };
+    let later = match rc {
+        REPLY_NONE => Later::Nothing,
+        n if n > 0 && n as usize <= crate::proto::limits::MAX_PDU_LENGTH && !rsp_pdu.is_null() => {
+            // SAFETY: the caller's buffer of `rc` bytes.
+            Later::Pdu(unsafe { std::slice::from_raw_parts(rsp_pdu, n as usize) }.to_vec())
+        }
+        n if n < 0 && -n < exception::MAX as c_int && -n > 0 => Later::Exception((-n) as u8),
+        _ => return fail(Error::INVALID),
+    };
+    server.answers.give(&server.stopper, request_id, later);
+    0
 }
 
 /// Closes every client (and the listening socket the server opened) and frees the
