@@ -573,6 +573,29 @@ int modbus_report_slave_id_async(modbus_t *ctx,
                                  void *user_data);
 
 /**
+ * Sends `raw_req` (unit id, then the PDU, as `modbus_send_raw_request` takes it) and
+ * receives its answer without waiting: returns a request id (>= 0), or -1 with
+ * errno. When the answer comes, its whole ADU (header, PDU, checksum), exception
+ * answers included, is written to `rsp` (`MODBUS_MAX_ADU_LENGTH` bytes, valid until
+ * `cb` runs) and `cb` gets `rc` = its length; an answer from another unit (a serial
+ * line) or of another function fails with EMBBADSLAVE or EMBBADDATA; a request to
+ * unit 0 on a serial line completes once sent, with rc as the write it is. The
+ * unit is `raw_req[0]`, whatever the context's slave. A gateway forwards requests
+ * this way. EINVAL: `raw_req` NULL or not 2 to 254 bytes, `rsp` NULL.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `raw_req` valid for `raw_req_length` bytes;
+ * `rsp` NULL or valid for `MODBUS_MAX_ADU_LENGTH` bytes until the request completes.
+ */
+MODBUS_API
+int modbus_send_raw_request_async(modbus_t *ctx,
+                                  const uint8_t *raw_req,
+                                  int raw_req_length,
+                                  uint8_t *rsp,
+                                  modbus_callback_t cb,
+                                  void *user_data);
+
+/**
  * What to wait for: `pfd->fd` (-1 while not connected), `pfd->events` (`POLLIN`,
  * `POLLOUT`, or 0), and in `*timeout_ms` (may be NULL) the milliseconds until
  * `modbus_process` is due even without an event (-1: no deadline; 0: call it now).

@@ -90,7 +90,7 @@ fn queue(
     answered: bool,
     continuing: Option<i32>,
 ) -> Result<i32> {
-    if ctx.session.slave < 0 {
+    if ctx.session.slave < 0 && req.own_unit().is_none() {
         ctx.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
     }
@@ -108,7 +108,8 @@ fn queue(
     } else {
         &[]
     };
-    let broadcast = (framing != Framing::Tcp && ctx.session.slave == 0) || !answered;
+    let unit = req.own_unit().map_or(ctx.session.slave, i32::from);
+    let broadcast = (framing != Framing::Tcp && unit == 0) || !answered;
     let tid = ctx.t_id;
     let o = state(ctx);
     let id = match continuing {
@@ -444,6 +445,8 @@ fn values(framing: Framing, deliver: Deliver, rsp: &[u8], count: i32) -> (i32, V
             let n = (count.max(0) as usize).min(max.max(0) as usize);
             (count, counted_data(&rsp[h..], n).to_vec())
         }
+        // The whole answer, as it came.
+        Deliver::Raw { .. } => (rsp.len() as i32, rsp.to_vec()),
         // The decoder reads the PDU (without the checksum).
         Deliver::Decode { .. } | Deliver::Stream { .. } => {
             (count, rsp[h..rsp.len() - framing.checksum_length()].to_vec())
@@ -485,6 +488,9 @@ fn answered(g: &mut Guard<'_>, o: &mut Outstanding, rsp: &[u8]) {
             return;
         }
     };
+    if let Deliver::Raw { .. } = e.payload.deliver {
+        return answered_raw(g, o, e, rsp);
+    }
     let mut diag = g.diag();
     match confirm::check(framing, e.adu(), rsp, &mut diag) {
         Ok(count) => {
@@ -501,6 +507,26 @@ fn answered(g: &mut Guard<'_>, o: &mut Outstanding, rsp: &[u8]) {
             recover(g, o, recovery, err);
         }
     }
+}
+
+/// The answer to a raw request: handed over as it came, exception answers included,
+/// when it is from the unit asked (a serial line) and of the function asked.
+fn answered_raw(g: &mut Guard<'_>, o: &mut Outstanding, e: Entry<Completion>, rsp: &[u8]) {
+    let framing = g.framing();
+    let h = framing.header_length();
+    let req = e.adu();
+    let same_unit = framing == Framing::Tcp || req[0] == 0 || rsp[0] == req[0];
+    let same_function = rsp.get(h).is_some_and(|f| f & 0x7F == req[h]);
+    if same_unit && same_function {
+        let (rc, data) = values(framing, e.payload.deliver, rsp, 0);
+        push(o, e, Ok(rc), data);
+        return;
+    }
+    let err = if same_unit { Error::BAD_DATA } else { Error::BAD_SLAVE };
+    engine::error_print(g, err, None);
+    push(o, e, Err(err.errno()), Vec::new());
+    let recovery = crate::proto::session::after_mismatch(g.session.recovery);
+    recover(g, o, recovery, err);
 }
 
 /// Writes the message of a receive that ended, and acts on its outcome.

@@ -31,6 +31,10 @@ pub enum Deliver {
     Count,
     /// Up to `max` bytes of the answer's data (FC 11); the call returns its byte count.
     Bytes { dest: *mut u8, max: c_int },
+    /// The whole answer's ADU, as it came (header, PDU, checksum; exception answers
+    /// too), to a buffer of `MODBUS_MAX_ADU_LENGTH` bytes; the call returns its length
+    /// (`modbus_send_raw_request_async`).
+    Raw { dest: *mut u8 },
     /// The answer's PDU handed to `decode` with the check's count and the call's
     /// arguments (the extensions' calls); it writes the values out and returns what
     /// the call returns.

@@ -137,6 +137,39 @@ static int same_result(const char *what, int brc, int berr, struct result a)
 }
 
 /* ---------------------------------------------------------------- against a real server */
+/* modbus_send_raw_request_async: the answer's whole ADU, as the blocking calls see
+ * it; an exception answer handed over as it came. (First on the context: a case of
+ * compare_calls leaves an answer on a serial line.) */
+static void raw_calls(modbus_t *ctx, int serial)
+{
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH], bad[MODBUS_MAX_ADU_LENGTH];
+    /* The context's unit (pymodbus answers only its own), else TCP's 0xFF. */
+    uint8_t unit = modbus_get_slave(ctx) > 0 ? (uint8_t) modbus_get_slave(ctx) : 0xFF;
+    uint8_t req[6] = {unit, 0x03, 0x00, 0x05, 0x00, 0x02}, past[6] = {unit, 0x03, 0x7F, 0x00, 0x00, 0x01};
+    uint16_t v[2] = {0, 0};
+    int h = serial ? 1 : 7, crc = serial ? 2 : 0;
+    struct result a;
+    int brc;
+    reset();
+    memset(rsp, 0, sizeof rsp);
+    a = one(ctx, modbus_send_raw_request_async(ctx, req, 6, rsp, on_done, NULL));
+    brc = modbus_read_registers(ctx, 5, 2, v);
+    EXPECT(brc == 2 && a.done == 1 && a.rc == h + 6 + crc && rsp[h] == 0x03 && rsp[h + 1] == 4 &&
+               ((rsp[h + 2] << 8) | rsp[h + 3]) == v[0] && ((rsp[h + 4] << 8) | rsp[h + 5]) == v[1] &&
+               rsp[h - 1] == unit,
+           "raw async read of 2 registers: the whole answer (rc %d, unit %d, %d %d), the blocking call's values (rc %d: %d %d)",
+           a.rc, rsp[h - 1], (rsp[h + 2] << 8) | rsp[h + 3], (rsp[h + 4] << 8) | rsp[h + 5], brc, v[0], v[1]);
+    reset();
+    memset(bad, 0, sizeof bad);
+    a = one(ctx, modbus_send_raw_request_async(ctx, past, 6, bad, on_done, NULL));
+    EXPECT(a.done == 1 && a.rc == h + 2 + crc && bad[h] == 0x83 && bad[h + 1] == 2,
+           "raw async read past the table: the exception answer as it came (rc %d, 0x%02X 0x%02X)", a.rc, bad[h],
+           bad[h + 1]);
+    errno = 0;
+    EXPECT(modbus_send_raw_request_async(ctx, req, 1, rsp, on_done, NULL) == -1 && errno == EINVAL,
+           "raw async request of one byte: EINVAL");
+}
+
 static void compare_calls(modbus_t *ctx, int serial)
 {
     uint16_t regs_b[64], regs_a[64], src[8] = {11, 22, 33, 44, 55, 66, 77, 88};
@@ -1168,6 +1201,7 @@ int main(int argc, char **argv)
     }
     modbus_set_response_timeout(ctx, 2, 0);
     chk_set_prefix(serial ? "rtu: " : tls ? "tls: " : "tcp: ");
+    raw_calls(ctx, serial);
     compare_calls(ctx, serial);
     if (tls) {
         /* The same calls, the handshake too without waiting: a new context, not

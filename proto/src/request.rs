@@ -44,6 +44,9 @@ pub enum Request<'a> {
     ReadFifoQueue { addr: u16 },
     /// FC 2B / MEI 0E.
     ReadDeviceId { read_code: u8, object_id: u8 },
+    /// A request as given (`modbus_send_raw_request_async`): its unit, and its PDU
+    /// (function code first, at least one byte), whatever the context's slave.
+    Raw { unit: u8, pdu: &'a [u8] },
 }
 
 /// Reference type of every file record sub-request.
@@ -118,13 +121,23 @@ impl Request<'_> {
             Request::WriteFileRecord { .. } => fc::WRITE_FILE_RECORD,
             Request::ReadFifoQueue { .. } => fc::READ_FIFO_QUEUE,
             Request::ReadDeviceId { .. } => fc::ENCAPSULATED_INTERFACE,
+            Request::Raw { pdu, .. } => pdu[0],
+        }
+    }
+
+    /// The unit a request names itself (a raw request's), in place of the
+    /// context's slave.
+    pub fn own_unit(&self) -> Option<u8> {
+        match *self {
+            Request::Raw { unit, .. } => Some(unit),
+            _ => None,
         }
     }
 
     /// Encodes the ADU (header + PDU, not yet sealed) into `out`, which must hold
     /// `MAX_ADU_LENGTH` bytes. Returns the length before [`Framing::seal`].
     pub fn encode(&self, framing: Framing, unit: u8, tid: u16, out: &mut [u8]) -> usize {
-        let h = framing.write_header(out, unit, tid);
+        let h = framing.write_header(out, self.own_unit().unwrap_or(unit), tid);
         out[h] = self.function();
         let p = h + 1;
         match *self {
@@ -208,6 +221,10 @@ impl Request<'_> {
             Request::ReadFifoQueue { addr } => {
                 put_u16(out, p, addr as i32);
                 p + 2
+            }
+            Request::Raw { pdu, .. } => {
+                out[p..p + pdu.len() - 1].copy_from_slice(&pdu[1..]);
+                p + pdu.len() - 1
             }
             Request::ReadDeviceId { read_code, object_id } => {
                 out[p] = crate::frame::MEI_READ_DEVICE_ID;

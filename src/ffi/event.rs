@@ -100,6 +100,12 @@ unsafe fn deliver(done: &Done) -> (c_int, c_int) {
                     let dest = unsafe { slice::from_raw_parts_mut(dest, done.data.len()) };
                     dest.copy_from_slice(&done.data);
                 }
+                Deliver::Raw { dest } if !done.data.is_empty() => {
+                    // SAFETY: an answer's ADU, at most MODBUS_MAX_ADU_LENGTH bytes: the
+                    // room `dest` has.
+                    let dest = unsafe { slice::from_raw_parts_mut(dest, done.data.len()) };
+                    dest.copy_from_slice(&done.data);
+                }
                 Deliver::Decode { decode, args } => {
                     // SAFETY: the decoder writes to the call's pointers, valid until now.
                     return (unsafe { decode(&done.data, rc, &args) }, 0);
@@ -405,6 +411,40 @@ pub unsafe extern "C" fn modbus_report_slave_id_async(
     }
     // SAFETY: forwarded caller contract.
     unsafe { submit(ctx, cb, user_data, Deliver::Bytes { dest, max: max_dest }, |_| Ok(Request::ReportSlaveId)) }
+}
+
+/// Sends `raw_req` (unit id, then the PDU, as `modbus_send_raw_request` takes it) and
+/// receives its answer without waiting: returns a request id (>= 0), or -1 with
+/// errno. When the answer comes, its whole ADU (header, PDU, checksum), exception
+/// answers included, is written to `rsp` (`MODBUS_MAX_ADU_LENGTH` bytes, valid until
+/// `cb` runs) and `cb` gets `rc` = its length; an answer from another unit (a serial
+/// line) or of another function fails with EMBBADSLAVE or EMBBADDATA; a request to
+/// unit 0 on a serial line completes once sent, with rc as the write it is. The
+/// unit is `raw_req[0]`, whatever the context's slave. A gateway forwards requests
+/// this way. EINVAL: `raw_req` NULL or not 2 to 254 bytes, `rsp` NULL.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `raw_req` valid for `raw_req_length` bytes;
+/// `rsp` NULL or valid for `MODBUS_MAX_ADU_LENGTH` bytes until the request completes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_send_raw_request_async(
+    ctx: *mut Modbus,
+    raw_req: *const u8,
+    raw_req_length: c_int,
+    rsp: *mut u8,
+    cb: Callback,
+    user_data: *mut c_void,
+) -> c_int {
+    let max = crate::proto::limits::MAX_PDU_LENGTH as c_int + 1;
+    if raw_req.is_null() || rsp.is_null() || !(2..=max).contains(&raw_req_length) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: the caller's request, `raw_req_length` bytes (copied by the queue).
+    let raw = unsafe { slice::from_raw_parts(raw_req, raw_req_length as usize) };
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        submit(ctx, cb, user_data, Deliver::Raw { dest: rsp }, |_| Ok(Request::Raw { unit: raw[0], pdu: &raw[1..] }))
+    }
 }
 
 /// What to wait for: `pfd->fd` (-1 while not connected), `pfd->events` (`POLLIN`,
