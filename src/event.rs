@@ -383,6 +383,12 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
                 .then(|| adu.len() - s.framing.checksum_length())
         });
         s.read_ahead = true;
+        // A serial answer must come from the unit asked: a raw request names its own.
+        if s.framing != Framing::Tcp {
+            if let Some(unit) = o.pipeline.first_awaiting().and_then(|e| e.adu().first()) {
+                s.slave = i32::from(*unit);
+            }
+        }
         let left = deadline.saturating_sub(now).max(Duration::from_micros(1));
         s.timeouts.response = Timeout::new(left.as_secs() as u32, left.subsec_micros().max(1));
         let machine = Receiver::new(&s, || now);

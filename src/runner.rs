@@ -391,7 +391,8 @@ impl Runner {
                 let key = ev.u64;
                 let revents = { ev.events } as u16 as i16;
                 match key {
-                    KEY_WAKE => {}
+                    // A stop (seen above) or an answer given later (sent below).
+                    KEY_WAKE => drain(self.stopper.wake),
                     KEY_TIMER => drain(self.timerfd),
                     KEY_LINE if self.own_line.is_some() => answered += self.own_line_ready(server, answer, true),
                     KEY_LINE => self.accept(server),
