@@ -1,0 +1,186 @@
+#!/usr/bin/env bash
+# gateway.sh: rsmodbus-gateway (gateway/rsmodbus-gateway.c) beside mbusd, built from
+# ../shared/anchors/mbusd when its source is there (cmake), each in front of an RTU
+# line on a pty pair whose device is benches/mb-server.c on Debian's libmodbus
+# (slave 1). The masters are Debian's libmodbus (c-tests/gateway/gw-check.c) and
+# mbpoll:
+#   - every function code mbusd handles, on a unit that answers and on one that is
+#     not there: the same answers and exceptions from both gateways (0x0B after the
+#     retries), line by line;
+#   - mbpoll's output through both;
+#   - fairness: 8 masters in tight loops, each served within 1.2x of the others
+#     (ours; mbusd's spread reported);
+#   - a master that leaves while its request is on the line; 100 masters held;
+#   - the configuration file (mbusd's keys) and -h.
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+#
+# usage: c-tests/suites/gateway.sh [--no-cargo]
+# Output goes to target/gateway-tests. The last line is "N passed, M failed"; the exit
+# status is non-zero if M > 0. Every process started here is stopped by its PID.
+set -u
+set -o pipefail
+
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+WORK=${GATEWAYTEST_OUT:-$ROOT/target/gateway-tests}
+LIBDIR=$ROOT/target/release
+
+# shellcheck source=c-tests/common/testlib.sh
+. "$ROOT/c-tests/common/testlib.sh"
+
+parse_flags -- "$@"
+
+section "build"
+our_lib_result "$LIBDIR" 2
+rm -rf "$WORK"
+mkdir -p "$WORK"
+BIN=$(c_build_dir)
+c_build_group GATEWAY
+MBUSD=
+MBUSD_SRC=$(realpath -m "$ROOT/../shared/anchors/mbusd")
+if [ -f "$MBUSD_SRC/CMakeLists.txt" ]; then
+    command -v cmake >/dev/null || apt-get install -y -qq cmake >/dev/null 2>&1
+    mkdir -p "$ROOT/target/mbusd-build"
+    if (cd "$ROOT/target/mbusd-build" && cmake "$MBUSD_SRC" >/dev/null && make -s >/dev/null) 2>"$WORK/mbusd-build.log"; then
+        MBUSD=$ROOT/target/mbusd-build/mbusd
+        ok "build mbusd from $MBUSD_SRC (the reference, beside ours; not part of the project)"
+    else
+        bad "build mbusd" "$(tail -n 5 "$WORK/mbusd-build.log")"
+    fi
+else
+    echo "# no mbusd source at $MBUSD_SRC: ours alone"
+fi
+
+# line NAME: a pty pair with mb-server (Debian's libmodbus, slave 1) on one end;
+# the gateway's end is $WORK/NAME-G.
+line() {
+    if ! socat_pair "$WORK/socat-$1.log" "$WORK/socat-$1.log" "$WORK/$1-D" "$WORK/$1-G"; then
+        bad "$1: a pty pair" "socat"
+        return 1
+    fi
+    SOCAT=$LAST_PID
+    start "$1-device" env -u LD_LIBRARY_PATH "$BIN/mb-server" rtu "$WORK/$1-D"
+    wait_ready "$1-device" READY 10 || { bad "$1: the device starts" "$(tail -n 3 "$WORK/$1-device.log")"; return 1; }
+}
+
+# gateway NAME ours|mbusd ARGS...: the gateway in front of line NAME, on a free port.
+gateway() {
+    local name=$1 which=$2 prog
+    shift 2
+    PORT=$(free_port)
+    if [ "$which" = ours ]; then
+        prog=(env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway")
+    else
+        prog=("$MBUSD")
+    fi
+    start "$name-gw" "${prog[@]}" -d -L - -v 2 -p "$WORK/$name-G" -s 115200 -P "$PORT" "$@"
+    sleep 0.5
+    kill -0 "${_pids[$name-gw]}" 2>/dev/null || { bad "$name: the gateway starts" "$(tail -n 3 "$WORK/$name-gw.log")"; return 1; }
+}
+
+# done_with NAME: stops the gateway, the device and the pty pair of NAME.
+done_with() {
+    stop "$1-gw"
+    stop "$1-device"
+    stop_pid "$SOCAT"
+}
+
+checks() { # checks NAME LOG ARGS...: gw-check's checks
+    local name=$1 log=$2 rc=0
+    shift 2
+    timeout -k 5 120 "$BIN/gw-check" "$@" >"$log" 2>&1 || rc=$?
+    program_checks "$name" "$log" "$rc"
+}
+
+GW_ARGS=(-R 1 -W 300 -N 1 -C 128)
+for which in ours ${MBUSD:+mbusd}; do
+    section "$which: through the gateway"
+    line "$which" || continue
+    gateway "$which" "$which" "${GW_ARGS[@]}" || { done_with "$which"; continue; }
+    if [ "$which" = ours ]; then
+        checks "ours: 8 masters in tight loops" "$WORK/fair-ours.log" "$PORT" fair 8 3
+        grep '^#' "$WORK/fair-ours.log"
+        checks "ours: 100 masters held" "$WORK/held-ours.log" "$PORT" held 100
+    else
+        timeout -k 5 60 "$BIN/gw-check" "$PORT" fair 8 3 >"$WORK/fair-mbusd.log" 2>&1
+        echo "# mbusd $(grep '^# fair' "$WORK/fair-mbusd.log" | cut -c3-)"
+        timeout -k 5 60 "$BIN/gw-check" "$PORT" held 30 >"$WORK/held-mbusd.log" 2>&1
+    fi
+    checks "$which: a master leaves with its request on the line" "$WORK/leave-$which.log" "$PORT" leave
+    timeout -k 5 30 mbpoll -m tcp -a 1 -r 1 -c 8 -p "$PORT" -1 127.0.0.1 >"$WORK/mbpoll-$which.txt" 2>&1
+    # Last: the requests for unit 9 (no device) leave Debian's RTU server waiting for
+    # the answer of "another slave" (it then takes the next request for it).
+    timeout -k 5 120 "$BIN/gw-check" "$PORT" calls >"$WORK/calls-$which.txt" 2>&1
+    done_with "$which"
+done
+
+section "the same answers as mbusd"
+if grep -q '^unit 1 FC03 read 10 registers at 4: rc=10 12 15' "$WORK/calls-ours.txt"; then
+    ok "ours: unit 1 answers through the gateway (FC 03: 12 15 18 ...)"
+else
+    bad "ours: unit 1 answers through the gateway" "$(head -n 5 "$WORK/calls-ours.txt")"
+fi
+if grep -q '^unit 9 FC03 read 10 registers at 4: rc=-1 errno=EMBXGTAR' "$WORK/calls-ours.txt"; then
+    ok "ours: a unit with no device: exception 0x0B (gateway target device failed to respond)"
+else
+    bad "ours: a unit with no device: exception 0x0B" "$(grep '^unit 9' "$WORK/calls-ours.txt" | head -n 3)"
+fi
+if grep -q 'Polling slave 1' "$WORK/mbpoll-ours.txt" && grep -q '^\[8\]:' "$WORK/mbpoll-ours.txt"; then
+    ok "ours: mbpoll reads 8 registers through it"
+else
+    bad "ours: mbpoll reads 8 registers through it" "$(tail -n 3 "$WORK/mbpoll-ours.txt")"
+fi
+if [ -n "$MBUSD" ]; then
+    if diff <(grep -v LIBINFO "$WORK/calls-ours.txt") <(grep -v LIBINFO "$WORK/calls-mbusd.txt") >"$WORK/calls.diff"; then
+        ok "every call: the same rc, errno and values as through mbusd ($(grep -vc LIBINFO "$WORK/calls-ours.txt") calls)"
+    else
+        bad "every call: the same as through mbusd" "$(head -n 10 "$WORK/calls.diff")"
+    fi
+    if diff <(grep -v '^Communication' "$WORK/mbpoll-ours.txt") <(grep -v '^Communication' "$WORK/mbpoll-mbusd.txt") \
+        >"$WORK/mbpoll.diff"; then
+        ok "mbpoll: the same output through both"
+    else
+        bad "mbpoll: the same output through both" "$(head -n 10 "$WORK/mbpoll.diff")"
+    fi
+fi
+
+section "configuration file and help"
+cat >"$WORK/gw.conf" <<EOF
+# mbusd's keys
+loglevel = 2
+logfile = -
+device = $WORK/conf-G
+speed = 115200
+mode = 8N1
+address = 127.0.0.1
+port = PORT_HERE
+maxconn = 8
+timeout = 10
+retries = 1
+pause = 1
+wait = 300
+replyonbroadcast = no
+EOF
+if line conf; then
+    PORT=$(free_port)
+    sed -i "s/PORT_HERE/$PORT/" "$WORK/gw.conf"
+    start conf-gw env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -c "$WORK/gw.conf"
+    sleep 0.5
+    checks "configuration file: the gateway reads it (port, device, speed)" "$WORK/conf-held.log" "$PORT" held 3
+    done_with conf
+fi
+out=$(env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -h 2>&1)
+missing=
+for o in -h -d -L -v -c -p -s -m -S -t -r -y -Y -A -P -C -N -R -W -T -b; do
+    grep -q -- "^  $o " <<<"$out" || missing+=" $o"
+done
+result "-h lists mbusd's options${missing:+ (missing:$missing)}" "$([ -z "$missing" ] && echo PASS || echo FAIL)"
+echo "bogus = 1" >"$WORK/bad.conf"
+if ! env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -c "$WORK/bad.conf" >"$WORK/bad.log" 2>&1 &&
+    grep -q "unknown key 'bogus'" "$WORK/bad.log"; then
+    ok "an unknown key in the configuration file is refused, named"
+else
+    bad "an unknown key in the configuration file is refused" "$(cat "$WORK/bad.log")"
+fi
+
+summary
