@@ -7,7 +7,10 @@
  * and answers as mbusd does: exception 0x0B when the device does not answer, 0x04
  * when its answers keep failing the CRC after the retries.
  *
- * Past mbusd: each master's requests wait in a queue of their own and the line
+ * Past mbusd: a Modbus/TCP Security front (mutual TLS, port 802 by default when
+ * tls_cert is set) whose policy maps the role in each master's certificate to the
+ * units and the access (read, or read and write) it may have: refused, exception
+ * 0x01. Each master's requests wait in a queue of their own and the line
  * serves the masters in turn, so one master in a tight loop cannot starve the others
  * (a full queue: exception 0x06); Modbus ASCII lines (-m 7E1a / mode = 8N1 ascii:
  * a trailing 'a', or "ascii"); every function code passes through, the extension
@@ -57,10 +60,24 @@ struct config {
     int wait;  /* ms for an answer */
     int replyonbroadcast;
     int foreground;
+    /* Modbus/TCP Security front (extended keys: tls_*). */
+    char tls_address[64];
+    int tls_port;
+    char tls_cert[256], tls_key[256], tls_ca[256];
 };
+
+/* tls_role.<Role> = r|rw FIRST-LAST: what masters of that role may do. */
+#define ROLES_MAX 16
+static struct role {
+    char name[64];
+    int write;
+    int first, last;
+} roles[ROLES_MAX];
+static int nroles;
 
 static struct config cfg = {
     2, "/var/log/rsmodbus-gateway.log", "/dev/ttyS0", 19200, "8N1", 0, 0, "", "0.0.0.0", 502, 32, 60, 3, 100, 500, 0, 0,
+    "0.0.0.0", 802, "", "", "",
 };
 
 static FILE *logf;
@@ -231,6 +248,29 @@ static int read_config(const char *path)
             rc = in_range("wait", v, 1, 10000, &cfg.wait);
         } else if (strcmp(k, "replyonbroadcast") == 0) {
             cfg.replyonbroadcast = truthy(v);
+        } else if (strcmp(k, "tls_address") == 0) {
+            copy(cfg.tls_address, sizeof cfg.tls_address, v);
+        } else if (strcmp(k, "tls_port") == 0) {
+            rc = in_range("tls_port", v, 1, 65535, &cfg.tls_port);
+        } else if (strcmp(k, "tls_cert") == 0) {
+            copy(cfg.tls_cert, sizeof cfg.tls_cert, v);
+        } else if (strcmp(k, "tls_key") == 0) {
+            copy(cfg.tls_key, sizeof cfg.tls_key, v);
+        } else if (strcmp(k, "tls_ca") == 0) {
+            copy(cfg.tls_ca, sizeof cfg.tls_ca, v);
+        } else if (strncmp(k, "tls_role.", 9) == 0) {
+            char access[8];
+            struct role *r = &roles[nroles];
+            if (nroles == ROLES_MAX || sscanf(v, "%7s %d-%d", access, &r->first, &r->last) != 3 ||
+                (strcmp(access, "r") != 0 && strcmp(access, "rw") != 0) || r->first < 0 || r->last > 255 ||
+                r->first > r->last) {
+                fprintf(stderr, "rsmodbus-gateway: %s:%d: %s must be 'r FIRST-LAST' or 'rw FIRST-LAST'\n", path, n, k);
+                rc = -1;
+            } else {
+                copy(r->name, sizeof r->name, k + 9);
+                r->write = strcmp(access, "rw") == 0;
+                nroles++;
+            }
         } else {
             fprintf(stderr, "rsmodbus-gateway: %s:%d: unknown key '%s'\n", path, n, k);
             rc = -1;
@@ -247,7 +287,8 @@ static int read_config(const char *path)
 /* ---------------------------------------------------------------- masters and the line */
 
 struct request {
-    uint32_t id;   /* the server's, for modbus_server_answer */
+    modbus_server_t *server; /* the front it came through */
+    uint32_t id;   /* that server's, for modbus_server_answer */
     int len;       /* of raw: unit + PDU */
     uint8_t raw[MODBUS_MAX_PDU_LENGTH + 1];
     int tries;     /* sends so far */
@@ -261,6 +302,7 @@ struct master {
 
 static struct {
     modbus_server_t *server;
+    modbus_server_t *tls_server; /* the Modbus/TCP Security front, if any */
     modbus_t *line;
     struct master *masters;
     int nmasters, cap;
@@ -317,6 +359,7 @@ static struct master *master_of(int socket)
 static int on_request(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length,
                       uint8_t *rsp_pdu, int rsp_max)
 {
+    /* (A socket number names one master across both fronts: one process.) */
     struct master *m = master_of(ri->socket);
     struct request *r;
     (void) user_data;
@@ -328,6 +371,7 @@ static int on_request(void *user_data, const modbus_request_info_t *ri, const ui
     }
     r = &m->q[(m->head + m->n) % QUEUE_MAX];
     r->id = ri->request_id;
+    r->server = user_data != NULL ? G.tls_server : G.server; /* (the TLS front's is non-NULL) */
     r->raw[0] = (uint8_t) ri->unit_id;
     memcpy(r->raw + 1, pdu, (size_t) pdu_length);
     r->len = pdu_length + 1;
@@ -366,7 +410,7 @@ static void dispatch(void)
     if (modbus_send_raw_request_async(G.line, G.current.raw, G.current.len, G.rsp, on_answer, NULL) < 0) {
         logw(0, "line: cannot send (%s)", modbus_strerror(errno));
         G.busy = 0;
-        modbus_server_answer(G.server, G.current.id, NULL, -MODBUS_EXCEPTION_GATEWAY_TARGET);
+        modbus_server_answer(G.current.server, G.current.id, NULL, -MODBUS_EXCEPTION_GATEWAY_TARGET);
     }
 }
 
@@ -382,13 +426,13 @@ static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data)
     G.quiet_until = now_ms() + cfg.pause;
     if (r->raw[0] == 0) {
         /* A broadcast: out, no answer expected; the request echoed with -b. */
-        modbus_server_answer(G.server, r->id, cfg.replyonbroadcast ? r->raw + 1 : NULL,
+        modbus_server_answer(r->server, r->id, cfg.replyonbroadcast ? r->raw + 1 : NULL,
                              cfg.replyonbroadcast ? r->len - 1 : MODBUS_REPLY_NONE);
         return;
     }
     if (rc > h + crc) {
         G.served++;
-        modbus_server_answer(G.server, r->id, G.rsp + h, rc - h - crc);
+        modbus_server_answer(r->server, r->id, G.rsp + h, rc - h - crc);
         return;
     }
     if (error == EMBBADCRC || error == EMBBADDATA) {
@@ -412,9 +456,30 @@ static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data)
     }
     logw(1, "line: unit %d, request 0x%02X: %s after %d tries", r->raw[0], r->raw[1], modbus_strerror(error),
          r->tries);
-    modbus_server_answer(G.server, r->id, NULL,
+    modbus_server_answer(r->server, r->id, NULL,
                          error == EMBBADCRC || error == EMBBADDATA ? -MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
                                                                    : -MODBUS_EXCEPTION_GATEWAY_TARGET);
+}
+
+/* The Modbus/TCP Security policy: the master's role (in its certificate) must have
+ * a tls_role line naming the unit, and "rw" for anything but a read. */
+static int authorize(modbus_t *ctx, const char *role, int unit_id, int function, int address, int nb,
+                     void *user_data)
+{
+    int i, read = function >= MODBUS_FC_READ_COILS && function <= MODBUS_FC_READ_INPUT_REGISTERS;
+    (void) ctx;
+    (void) address;
+    (void) nb;
+    (void) user_data;
+    for (i = 0; role != NULL && i < nroles; i++) {
+        if (strcmp(roles[i].name, role) == 0 && unit_id >= roles[i].first && unit_id <= roles[i].last &&
+            (read || roles[i].write)) {
+            return 1;
+        }
+    }
+    logw(3, "TLS master with role %s refused: unit %d, function 0x%02X", role != NULL ? role : "(none)", unit_id,
+         function);
+    return 0;
 }
 
 static void on_signal(int sig)
@@ -422,6 +487,9 @@ static void on_signal(int sig)
     (void) sig;
     stopping = 1;
     modbus_server_stop(G.server);
+    if (G.tls_server != NULL) {
+        modbus_server_stop(G.tls_server);
+    }
 }
 
 /* "8N1", "7E1a": data bits, parity, stop bits, ASCII. */
@@ -447,7 +515,7 @@ int main(int argc, char **argv)
     int opt, data, stop;
     char parity;
     modbus_server_callbacks_t cb;
-    modbus_t *front;
+    modbus_t *front, *tls_front = NULL;
     char port[16];
 
     while ((opt = getopt(argc, argv, "hdL:v:c:p:s:m:Stry:Y:A:P:C:N:R:W:T:b")) != -1) {
@@ -602,6 +670,20 @@ int main(int argc, char **argv)
     cb.raw = on_request;
     modbus_server_set_callbacks(G.server, &cb, NULL);
     modbus_server_set_idle_timeout(G.server, (uint32_t) cfg.timeout, 0);
+    if (cfg.tls_cert[0] != '\0') {
+        snprintf(port, sizeof port, "%d", cfg.tls_port);
+        tls_front = modbus_new_tcp_tls_pi(strcmp(cfg.tls_address, "0.0.0.0") == 0 ? NULL : cfg.tls_address, port);
+        if (tls_front == NULL || modbus_set_tls_certificate(tls_front, cfg.tls_cert, cfg.tls_key) != 0 ||
+            modbus_set_tls_ca(tls_front, cfg.tls_ca) != 0 ||
+            modbus_set_tls_authorization(tls_front, authorize, NULL) != 0 ||
+            (G.tls_server = modbus_server_new(tls_front, cfg.maxconn)) == NULL) {
+            logw(0, "TLS front %s:%d: %s", cfg.tls_address, cfg.tls_port, modbus_strerror(errno));
+            return 1;
+        }
+        modbus_server_set_callbacks(G.tls_server, &cb, &G);
+        modbus_server_set_idle_timeout(G.tls_server, (uint32_t) cfg.timeout, 0);
+        logw(2, "Modbus/TCP Security front on %s:%d, %d role(s)", cfg.tls_address, cfg.tls_port, nroles);
+    }
 
     if (!cfg.foreground && daemon(0, logf == stdout) != 0) {
         logw(0, "daemon: %s", strerror(errno));
@@ -614,10 +696,12 @@ int main(int argc, char **argv)
          cfg.speed, cfg.mode, G.ascii ? " (ASCII)" : "");
 
     while (!stopping) {
-        struct pollfd pfd[2];
+        struct pollfd pfd[3];
         int line_timeout, timeout = -1;
         pfd[0].fd = modbus_server_get_fd(G.server);
         pfd[0].events = POLLIN;
+        pfd[2].fd = G.tls_server != NULL ? modbus_server_get_fd(G.tls_server) : -1;
+        pfd[2].events = POLLIN;
         modbus_get_pollfd(G.line, &pfd[1], &line_timeout);
         timeout = line_timeout;
         if (!G.busy && G.quiet_until > now_ms()) {
@@ -625,11 +709,11 @@ int main(int argc, char **argv)
             timeout = timeout < 0 || pause < timeout ? pause : timeout;
         }
         logw(9, "loop: line fd %d events 0x%x, timeout %d ms, busy %d", pfd[1].fd, pfd[1].events, timeout, G.busy);
-        if (poll(pfd, 2, timeout) < 0 && errno != EINTR) {
+        if (poll(pfd, 3, timeout) < 0 && errno != EINTR) {
             logw(0, "poll: %s", strerror(errno));
             break;
         }
-        if (modbus_server_run(G.server, 0) < 0) {
+        if (modbus_server_run(G.server, 0) < 0 || (G.tls_server != NULL && modbus_server_run(G.tls_server, 0) < 0)) {
             logw(0, "server: %s", modbus_strerror(errno));
             break;
         }
@@ -642,6 +726,10 @@ int main(int argc, char **argv)
          G.crc_errors);
     modbus_server_free(G.server);
     modbus_free(front);
+    if (G.tls_server != NULL) {
+        modbus_server_free(G.tls_server);
+        modbus_free(tls_front);
+    }
     modbus_close(G.line);
     modbus_free(G.line);
     free(G.masters);

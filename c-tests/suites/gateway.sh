@@ -11,6 +11,7 @@
 #   - fairness: 8 masters in tight loops, each served within 1.2x of the others
 #     (ours; mbusd's spread reported);
 #   - a master that leaves while its request is on the line; 100 masters held;
+#   - the Modbus/TCP Security front (tls_* keys): roles mapped to units and access;
 #   - the configuration file (mbusd's keys) and -h.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -142,6 +143,35 @@ if [ -n "$MBUSD" ]; then
     else
         bad "mbpoll: the same output through both" "$(head -n 10 "$WORK/mbpoll.diff")"
     fi
+fi
+
+section "Modbus/TCP Security front: roles mapped to units and access"
+C=$WORK/certs
+if check "make the test certificates with openssl" "$ROOT/c-tests/tls/make-certs.sh" "$C" && line tls; then
+    PORT=$(free_port)
+    TLS_PORT=$(free_port)
+    cat >"$WORK/tls.conf" <<EOF
+device = $WORK/tls-G
+speed = 115200
+port = $PORT
+pause = 1
+wait = 300
+retries = 1
+logfile = -
+tls_port = $TLS_PORT
+tls_cert = $C/server.pem
+tls_key = $C/server.key
+tls_ca = $C/ca.pem
+tls_role.Operator = rw 1-3
+tls_role.Reader = r 1-247
+EOF
+    start tls-gw env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -v 3 -c "$WORK/tls.conf"
+    sleep 0.5
+    rc=0
+    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/gw-tls" "$C" "$TLS_PORT" >"$WORK/tls-masters.log" 2>&1 || rc=$?
+    program_checks "TLS front: Operator, Reader, no role" "$WORK/tls-masters.log" "$rc"
+    checks "TLS front: the plain TCP front serves beside it" "$WORK/tls-plain.log" "$PORT" held 3
+    done_with tls
 fi
 
 section "configuration file and help"
