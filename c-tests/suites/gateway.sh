@@ -199,6 +199,21 @@ if line conf; then
     checks "configuration file: the gateway reads it (port, device, speed)" "$WORK/conf-held.log" "$PORT" held 3
     done_with conf
 fi
+if line example; then
+    PORT=$(free_port)
+    # The example configuration as shipped, with the test's line, port and log.
+    start example-gw env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -c "$ROOT/gateway/example.conf" \
+        -p "$WORK/example-G" -s 115200 -P "$PORT" -L - -R 1
+    sleep 0.5
+    checks "gateway/example.conf: the gateway runs with it" "$WORK/example-held.log" "$PORT" held 3
+    done_with example
+fi
+if grep -q '^ExecStart=/usr/bin/rsmodbus-gateway -d -L - -c /etc/rsmodbus-gateway/%i.conf$' \
+    "$ROOT/gateway/rsmodbus-gateway@.service"; then
+    ok "the systemd unit template runs one gateway per /etc/rsmodbus-gateway/<instance>.conf"
+else
+    bad "the systemd unit template" "$(grep ExecStart "$ROOT/gateway/rsmodbus-gateway@.service")"
+fi
 out=$(env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -h 2>&1)
 missing=
 for o in -h -d -L -v -c -p -s -m -S -t -r -y -Y -A -P -C -N -R -W -T -b; do
