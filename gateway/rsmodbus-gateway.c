@@ -10,7 +10,9 @@
  * Past mbusd: a Modbus/TCP Security front (mutual TLS, port 802 by default when
  * tls_cert is set) whose policy maps the role in each master's certificate to the
  * units and the access (read, or read and write) it may have: refused, exception
- * 0x01. Each master's requests wait in a queue of their own and the line
+ * 0x01; fronts for RTU over TCP and Modbus/UDP; a Modbus/TCP or RTU-over-TCP
+ * device in place of the serial line. Each master's requests wait in a queue of
+ * their own and the line
  * serves the masters in turn, so one master in a tight loop cannot starve the others
  * (a full queue: exception 0x06); Modbus ASCII lines (-m 7E1a / mode = 8N1 ascii:
  * a trailing 'a', or "ascii"); every function code passes through, the extension
@@ -64,6 +66,11 @@ struct config {
     char tls_address[64];
     int tls_port;
     char tls_cert[256], tls_key[256], tls_ca[256];
+    /* More fronts (0: none) and another kind of line (extended keys). */
+    int rtutcp_port, udp_port;
+    char backend[16];      /* "serial" (the device), "tcp" or "rtutcp" */
+    char back_host[256];
+    char back_port[16];
 };
 
 /* tls_role.<Role> = r|rw FIRST-LAST: what masters of that role may do. */
@@ -77,7 +84,7 @@ static int nroles;
 
 static struct config cfg = {
     2, "/var/log/rsmodbus-gateway.log", "/dev/ttyS0", 19200, "8N1", 0, 0, "", "0.0.0.0", 502, 32, 60, 3, 100, 500, 0, 0,
-    "0.0.0.0", 802, "", "", "",
+    "0.0.0.0", 802, "", "", "", 0, 0, "serial", "", "",
 };
 
 static FILE *logf;
@@ -248,6 +255,23 @@ static int read_config(const char *path)
             rc = in_range("wait", v, 1, 10000, &cfg.wait);
         } else if (strcmp(k, "replyonbroadcast") == 0) {
             cfg.replyonbroadcast = truthy(v);
+        } else if (strcmp(k, "rtutcp_port") == 0) {
+            rc = in_range("rtutcp_port", v, 0, 65535, &cfg.rtutcp_port);
+        } else if (strcmp(k, "udp_port") == 0) {
+            rc = in_range("udp_port", v, 0, 65535, &cfg.udp_port);
+        } else if (strcmp(k, "backend") == 0) {
+            char kind[16] = "", host[256] = "", bport[16] = "";
+            if (sscanf(v, "%15s %255s %15s", kind, host, bport) < 1 ||
+                (strcmp(kind, "serial") != 0 &&
+                 ((strcmp(kind, "tcp") != 0 && strcmp(kind, "rtutcp") != 0) || host[0] == '\0' || bport[0] == '\0'))) {
+                fprintf(stderr, "rsmodbus-gateway: %s:%d: backend must be 'serial', 'tcp HOST PORT' or 'rtutcp HOST PORT'\n",
+                        path, n);
+                rc = -1;
+            } else {
+                copy(cfg.backend, sizeof cfg.backend, kind);
+                copy(cfg.back_host, sizeof cfg.back_host, host);
+                copy(cfg.back_port, sizeof cfg.back_port, bport);
+            }
         } else if (strcmp(k, "tls_address") == 0) {
             copy(cfg.tls_address, sizeof cfg.tls_address, v);
         } else if (strcmp(k, "tls_port") == 0) {
@@ -300,9 +324,19 @@ struct master {
     int head, n;
 };
 
-static struct {
+/* A front: the masters' side, one server that runs itself per kind. */
+struct front {
+    const char *what;
+    modbus_t *ctx;
     modbus_server_t *server;
-    modbus_server_t *tls_server; /* the Modbus/TCP Security front, if any */
+};
+#define FRONTS_MAX 4
+
+static struct {
+    struct front fronts[FRONTS_MAX];
+    int nfronts;
+    int header;   /* the line's answer header: 1 (serial, RTU over TCP) or 7 (TCP) */
+    int checksum; /* and its checksum: 2 (RTU), 1 (ASCII), 0 (TCP) */
     modbus_t *line;
     struct master *masters;
     int nmasters, cap;
@@ -371,7 +405,7 @@ static int on_request(void *user_data, const modbus_request_info_t *ri, const ui
     }
     r = &m->q[(m->head + m->n) % QUEUE_MAX];
     r->id = ri->request_id;
-    r->server = user_data != NULL ? G.tls_server : G.server; /* (the TLS front's is non-NULL) */
+    r->server = ((struct front *) user_data)->server;
     r->raw[0] = (uint8_t) ri->unit_id;
     memcpy(r->raw + 1, pdu, (size_t) pdu_length);
     r->len = pdu_length + 1;
@@ -383,6 +417,13 @@ static int on_request(void *user_data, const modbus_request_info_t *ri, const ui
 }
 
 static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data);
+
+static int every_unit(void *user_data, int unit)
+{
+    (void) user_data;
+    (void) unit;
+    return 1;
+}
 
 /* Puts the next request on the line: the next master with one waiting, in turn. */
 static void dispatch(void)
@@ -418,7 +459,7 @@ static void dispatch(void)
 static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data)
 {
     struct request *r = &G.current;
-    int h = 1, crc = G.ascii ? 1 : 2;
+    int h = G.header, crc = G.checksum;
     (void) ctx;
     (void) id;
     (void) user_data;
@@ -486,9 +527,9 @@ static void on_signal(int sig)
 {
     (void) sig;
     stopping = 1;
-    modbus_server_stop(G.server);
-    if (G.tls_server != NULL) {
-        modbus_server_stop(G.tls_server);
+    int i;
+    for (i = 0; i < G.nfronts; i++) {
+        modbus_server_stop(G.fronts[i].server);
     }
 }
 
@@ -515,8 +556,8 @@ int main(int argc, char **argv)
     int opt, data, stop;
     char parity;
     modbus_server_callbacks_t cb;
-    modbus_t *front, *tls_front = NULL;
     char port[16];
+    int i;
 
     while ((opt = getopt(argc, argv, "hdL:v:c:p:s:m:Stry:Y:A:P:C:N:R:W:T:b")) != -1) {
         switch (opt) {
@@ -628,9 +669,21 @@ int main(int argc, char **argv)
         }
     }
 
-    /* The line. */
-    G.line = G.ascii ? modbus_new_ascii(cfg.device, cfg.speed, parity, data, stop)
-                     : modbus_new_rtu(cfg.device, cfg.speed, parity, data, stop);
+    /* The line: a serial one, or a device on the network (RTU frames over TCP, or
+     * Modbus/TCP: one connection that every master's requests share). */
+    G.header = 1;
+    G.checksum = G.ascii ? 1 : 2;
+    if (strcmp(cfg.backend, "tcp") == 0) {
+        G.line = modbus_new_tcp_pi(cfg.back_host, cfg.back_port);
+        G.header = 7;
+        G.checksum = 0;
+    } else if (strcmp(cfg.backend, "rtutcp") == 0) {
+        G.line = modbus_new_rtu_tcp_pi(cfg.back_host, cfg.back_port);
+        G.checksum = 2;
+    } else {
+        G.line = G.ascii ? modbus_new_ascii(cfg.device, cfg.speed, parity, data, stop)
+                         : modbus_new_rtu(cfg.device, cfg.speed, parity, data, stop);
+    }
     if (G.line == NULL) {
         logw(0, "line %s: %s", cfg.device, modbus_strerror(errno));
         return 1;
@@ -638,7 +691,14 @@ int main(int argc, char **argv)
     modbus_set_response_timeout(G.line, (uint32_t) cfg.wait / 1000, (uint32_t) (cfg.wait % 1000) * 1000);
     /* Levels 8 and 9 trace the line's frames (libmodbus' debug output). */
     modbus_set_debug(G.line, cfg.loglevel >= 8);
-    if (modbus_connect(G.line) != 0) {
+    if (strcmp(cfg.backend, "serial") != 0) {
+        /* A device on the network reconnects by itself when it is lost. */
+        modbus_set_error_recovery(G.line, MODBUS_ERROR_RECOVERY_LINK);
+        if (modbus_connect(G.line) != 0) {
+            logw(1, "line %s %s:%s: %s (the first request connects again)", cfg.backend, cfg.back_host, cfg.back_port,
+                 modbus_strerror(errno));
+        }
+    } else if (modbus_connect(G.line) != 0) {
         logw(0, "line %s: %s", cfg.device, modbus_strerror(errno));
         return 1;
     }
@@ -653,36 +713,47 @@ int main(int argc, char **argv)
         return 1;
     }
 
-    /* The front. */
-    snprintf(port, sizeof port, "%d", cfg.port);
-    front = modbus_new_tcp_pi(strcmp(cfg.address, "0.0.0.0") == 0 ? NULL : cfg.address, port);
-    if (front == NULL) {
-        logw(0, "front %s:%d: %s", cfg.address, cfg.port, modbus_strerror(errno));
-        return 1;
-    }
-    G.server = modbus_server_new(front, cfg.maxconn);
-    if (G.server == NULL) {
-        logw(0, "front %s:%d: %s", cfg.address, cfg.port, modbus_strerror(errno));
-        return 1;
+    /* The fronts: Modbus/TCP; RTU frames over TCP and Modbus/UDP when asked; and
+     * Modbus/TCP Security with its policy. */
+    {
+        const char *any = strcmp(cfg.address, "0.0.0.0") == 0 ? NULL : cfg.address;
+        snprintf(port, sizeof port, "%d", cfg.port);
+        G.fronts[G.nfronts++] = (struct front) {"Modbus/TCP", modbus_new_tcp_pi(any, port), NULL};
+        if (cfg.rtutcp_port > 0) {
+            snprintf(port, sizeof port, "%d", cfg.rtutcp_port);
+            G.fronts[G.nfronts++] = (struct front) {"RTU over TCP", modbus_new_rtu_tcp_pi(any, port), NULL};
+        }
+        if (cfg.udp_port > 0) {
+            snprintf(port, sizeof port, "%d", cfg.udp_port);
+            G.fronts[G.nfronts++] = (struct front) {"Modbus/UDP", modbus_new_udp_pi(any, port), NULL};
+        }
+        if (cfg.tls_cert[0] != '\0') {
+            modbus_t *t;
+            snprintf(port, sizeof port, "%d", cfg.tls_port);
+            t = modbus_new_tcp_tls_pi(strcmp(cfg.tls_address, "0.0.0.0") == 0 ? NULL : cfg.tls_address, port);
+            if (t != NULL && (modbus_set_tls_certificate(t, cfg.tls_cert, cfg.tls_key) != 0 ||
+                              modbus_set_tls_ca(t, cfg.tls_ca) != 0 ||
+                              modbus_set_tls_authorization(t, authorize, NULL) != 0)) {
+                logw(0, "Modbus/TCP Security front: %s", modbus_strerror(errno));
+                return 1;
+            }
+            G.fronts[G.nfronts++] = (struct front) {"Modbus/TCP Security", t, NULL};
+        }
     }
     memset(&cb, 0, sizeof cb);
     cb.struct_size = sizeof cb;
     cb.raw = on_request;
-    modbus_server_set_callbacks(G.server, &cb, NULL);
-    modbus_server_set_idle_timeout(G.server, (uint32_t) cfg.timeout, 0);
-    if (cfg.tls_cert[0] != '\0') {
-        snprintf(port, sizeof port, "%d", cfg.tls_port);
-        tls_front = modbus_new_tcp_tls_pi(strcmp(cfg.tls_address, "0.0.0.0") == 0 ? NULL : cfg.tls_address, port);
-        if (tls_front == NULL || modbus_set_tls_certificate(tls_front, cfg.tls_cert, cfg.tls_key) != 0 ||
-            modbus_set_tls_ca(tls_front, cfg.tls_ca) != 0 ||
-            modbus_set_tls_authorization(tls_front, authorize, NULL) != 0 ||
-            (G.tls_server = modbus_server_new(tls_front, cfg.maxconn)) == NULL) {
-            logw(0, "TLS front %s:%d: %s", cfg.tls_address, cfg.tls_port, modbus_strerror(errno));
+    /* Every unit is the line's (an RTU-framed front takes them all). */
+    cb.accept_unit = every_unit;
+    for (i = 0; i < G.nfronts; i++) {
+        struct front *f = &G.fronts[i];
+        if (f->ctx == NULL || (f->server = modbus_server_new(f->ctx, cfg.maxconn)) == NULL) {
+            logw(0, "%s front: %s", f->what, modbus_strerror(errno));
             return 1;
         }
-        modbus_server_set_callbacks(G.tls_server, &cb, &G);
-        modbus_server_set_idle_timeout(G.tls_server, (uint32_t) cfg.timeout, 0);
-        logw(2, "Modbus/TCP Security front on %s:%d, %d role(s)", cfg.tls_address, cfg.tls_port, nroles);
+        modbus_server_set_callbacks(f->server, &cb, f);
+        modbus_server_set_idle_timeout(f->server, (uint32_t) cfg.timeout, 0);
+        logw(2, "%s front ready", f->what);
     }
 
     if (!cfg.foreground && daemon(0, logf == stdout) != 0) {
@@ -696,39 +767,42 @@ int main(int argc, char **argv)
          cfg.speed, cfg.mode, G.ascii ? " (ASCII)" : "");
 
     while (!stopping) {
-        struct pollfd pfd[3];
-        int line_timeout, timeout = -1;
-        pfd[0].fd = modbus_server_get_fd(G.server);
-        pfd[0].events = POLLIN;
-        pfd[2].fd = G.tls_server != NULL ? modbus_server_get_fd(G.tls_server) : -1;
-        pfd[2].events = POLLIN;
-        modbus_get_pollfd(G.line, &pfd[1], &line_timeout);
+        struct pollfd pfd[1 + FRONTS_MAX];
+        int line_timeout, timeout = -1, failed = 0;
+        for (i = 0; i < G.nfronts; i++) {
+            pfd[1 + i].fd = modbus_server_get_fd(G.fronts[i].server);
+            pfd[1 + i].events = POLLIN;
+        }
+        modbus_get_pollfd(G.line, &pfd[0], &line_timeout);
         timeout = line_timeout;
         if (!G.busy && G.quiet_until > now_ms()) {
             int pause = (int) (G.quiet_until - now_ms()) + 1;
             timeout = timeout < 0 || pause < timeout ? pause : timeout;
         }
-        logw(9, "loop: line fd %d events 0x%x, timeout %d ms, busy %d", pfd[1].fd, pfd[1].events, timeout, G.busy);
-        if (poll(pfd, 3, timeout) < 0 && errno != EINTR) {
+        logw(9, "loop: line fd %d events 0x%x, timeout %d ms, busy %d", pfd[0].fd, pfd[0].events, timeout, G.busy);
+        if (poll(pfd, (nfds_t) (1 + G.nfronts), timeout) < 0 && errno != EINTR) {
             logw(0, "poll: %s", strerror(errno));
             break;
         }
-        if (modbus_server_run(G.server, 0) < 0 || (G.tls_server != NULL && modbus_server_run(G.tls_server, 0) < 0)) {
-            logw(0, "server: %s", modbus_strerror(errno));
+        for (i = 0; i < G.nfronts && !failed; i++) {
+            if (modbus_server_run(G.fronts[i].server, 0) < 0) {
+                logw(0, "%s front: %s", G.fronts[i].what, modbus_strerror(errno));
+                failed = 1;
+            }
+        }
+        if (failed) {
             break;
         }
-        if (pfd[1].fd >= 0 || modbus_pending(G.line) > 0) {
-            modbus_process(G.line, pfd[1].revents);
+        if (pfd[0].fd >= 0 || modbus_pending(G.line) > 0) {
+            modbus_process(G.line, pfd[0].revents);
         }
         dispatch();
     }
     logw(2, "rsmodbus-gateway stopped: %ld answers, %ld timeouts, %ld bad answers", G.served, G.timeouts,
          G.crc_errors);
-    modbus_server_free(G.server);
-    modbus_free(front);
-    if (G.tls_server != NULL) {
-        modbus_server_free(G.tls_server);
-        modbus_free(tls_front);
+    for (i = 0; i < G.nfronts; i++) {
+        modbus_server_free(G.fronts[i].server);
+        modbus_free(G.fronts[i].ctx);
     }
     modbus_close(G.line);
     modbus_free(G.line);

@@ -168,11 +168,58 @@ EOF
     start tls-gw env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -v 3 -c "$WORK/tls.conf"
     sleep 0.5
     rc=0
-    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/gw-tls" "$C" "$TLS_PORT" >"$WORK/tls-masters.log" 2>&1 || rc=$?
+    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/gw-ours" tls "$C" "$TLS_PORT" >"$WORK/tls-masters.log" 2>&1 ||
+        rc=$?
     program_checks "TLS front: Operator, Reader, no role" "$WORK/tls-masters.log" "$rc"
     checks "TLS front: the plain TCP front serves beside it" "$WORK/tls-plain.log" "$PORT" held 3
     done_with tls
 fi
+
+section "more fronts (RTU over TCP, Modbus/UDP) and other lines (Modbus/TCP, RTU over TCP)"
+# ours_master NAME ARGS...: gw-ours' checks
+ours_master() {
+    local name=$1 rc=0
+    shift
+    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/gw-ours" "$@" >"$WORK/$name.log" 2>&1 || rc=$?
+    program_checks "$name" "$WORK/$name.log" "$rc"
+}
+if line fronts; then
+    PORT=$(free_port)
+    RTUTCP_PORT=$(free_port)
+    UDP_PORT=$(free_port)
+    printf 'rtutcp_port = %s\nudp_port = %s\n' "$RTUTCP_PORT" "$UDP_PORT" >"$WORK/fronts.conf"
+    start fronts-gw env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -c "$WORK/fronts.conf" -d -L - \
+        -p "$WORK/fronts-G" -s 115200 -P "$PORT" -R 1 -W 300 -N 1
+    sleep 0.5
+    ours_master "front: RTU over TCP" rtutcp "$RTUTCP_PORT"
+    ours_master "front: Modbus UDP" udp "$UDP_PORT"
+    checks "front: Modbus/TCP beside them" "$WORK/fronts-held.log" "$PORT" held 3
+    done_with fronts
+fi
+# A Modbus/TCP device (mb-server on Debian's libmodbus), then an RTU-over-TCP one
+# (our server that runs itself, the same data), as the line.
+for back in tcp rtutcp; do
+    dev_port=
+    if [ "$back" = tcp ]; then
+        start "back-$back-device" env -u LD_LIBRARY_PATH "$BIN/mb-server" tcp 0
+    else
+        dev_port=$(free_port)
+        start "back-$back-device" env LD_LIBRARY_PATH="$LIBDIR" "$BIN/runner-server" rtutcp "$dev_port" --bench
+    fi
+    if wait_ready "back-$back-device" READY 10; then
+        [ -n "$dev_port" ] || dev_port=$(sed -n 's/^READY \([0-9]*\)$/\1/p' "$WORK/back-$back-device.log")
+        PORT=$(free_port)
+        printf 'backend = %s 127.0.0.1 %s\n' "$back" "$dev_port" >"$WORK/back-$back.conf"
+        start "back-$back-gw" env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -c "$WORK/back-$back.conf" -d -L - \
+            -P "$PORT" -R 1 -W 300 -N 1
+        sleep 0.5
+        checks "line: a $back device" "$WORK/back-$back-held.log" "$PORT" held 3
+        stop "back-$back-gw"
+    else
+        bad "line: a $back device starts" "$(tail -n 3 "$WORK/back-$back-device.log")"
+    fi
+    stop "back-$back-device"
+done
 
 section "configuration file and help"
 cat >"$WORK/gw.conf" <<EOF

@@ -1,12 +1,16 @@
 /*
- * gw-tls.c: Modbus/TCP Security masters of rsmodbus-gateway's TLS front
- * (c-tests/suites/gateway.sh), with the certificates of c-tests/tls/make-certs.sh
- * and the policy tls_role.Operator = rw 1-3, tls_role.Reader = r 1-247:
+ * gw-ours.c: masters of rsmodbus-gateway's fronts that only rsmodbus speaks
+ * (c-tests/suites/gateway.sh); the line's device is benches/mb-server.c (holding
+ * register i holds 3 * i):
  *
- *   gw-tls CERTDIR PORT
- *
- * Operator reads and writes unit 1 and is refused unit 5; Reader reads and is
- * refused a write; a certificate without a role is refused (exception 01).
+ *   gw-ours tls CERTDIR PORT   Modbus/TCP Security, with the certificates of
+ *                              c-tests/tls/make-certs.sh and the policy
+ *                              tls_role.Operator = rw 1-3, tls_role.Reader = r 1-247:
+ *                              Operator reads and writes unit 1 and is refused unit
+ *                              5; Reader reads and is refused a write; a certificate
+ *                              without a role is refused (exception 01)
+ *   gw-ours rtutcp PORT        RTU frames over TCP: unit 1 read, written, read back
+ *   gw-ours udp PORT           Modbus/UDP: the same
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
@@ -49,18 +53,45 @@ static void done(modbus_t *ctx)
     modbus_free(ctx);
 }
 
+static void plain(const char *what, modbus_t *ctx)
+{
+    uint16_t v[2];
+    int rc;
+    if (!EXPECT(ctx != NULL && modbus_set_slave(ctx, 1) == 0 && modbus_connect(ctx) == 0, "%s: connect", what)) {
+        return;
+    }
+    modbus_set_response_timeout(ctx, 5, 0);
+    rc = modbus_read_registers(ctx, 10, 2, v);
+    EXPECT(rc == 2 && v[0] == 30 && v[1] == 33, "%s: reads unit 1 through the line (rc %d)", what, rc);
+    EXPECT(modbus_write_register(ctx, 61, 6161) == 1 && modbus_read_registers(ctx, 61, 1, v) == 1 && v[0] == 6161,
+           "%s: writes and reads back", what);
+    done(ctx);
+}
+
 int main(int argc, char **argv)
 {
     modbus_t *ctx;
     uint16_t v[2];
     int rc;
     if (argc < 3) {
-        fprintf(stderr, "usage: gw-tls CERTDIR PORT\n");
+        fprintf(stderr, "usage: gw-ours tls CERTDIR PORT | rtutcp PORT | udp PORT\n");
         return 2;
     }
     print_loaded_libmodbus();
-    dir = argv[1];
-    port = atoi(argv[2]);
+    if (strcmp(argv[1], "rtutcp") == 0) {
+        plain("RTU over TCP", modbus_new_rtu_tcp("127.0.0.1", atoi(argv[2])));
+        return chk_summary();
+    }
+    if (strcmp(argv[1], "udp") == 0) {
+        plain("Modbus/UDP", modbus_new_udp("127.0.0.1", atoi(argv[2])));
+        return chk_summary();
+    }
+    if (strcmp(argv[1], "tls") != 0 || argc < 4) {
+        fprintf(stderr, "usage: gw-ours tls CERTDIR PORT | rtutcp PORT | udp PORT\n");
+        return 2;
+    }
+    dir = argv[2];
+    port = atoi(argv[3]);
     if ((ctx = master("operator", 1)) != NULL) {
         rc = modbus_read_registers(ctx, 10, 2, v);
         EXPECT(rc == 2 && v[0] == 30 && v[1] == 33, "Operator: reads unit 1 through the line (rc %d)", rc);
