@@ -145,6 +145,43 @@ if [ -n "$MBUSD" ]; then
     fi
 fi
 
+section "faults on the line: a bad CRC, garbage, a device unplugged and back"
+# fake_line NAME: a pty pair with c-tests/gateway/fake_device.py on one end.
+fake_line() {
+    if ! socat_pair "$WORK/socat-$1.log" "$WORK/socat-$1.log" "$WORK/$1-D" "$WORK/$1-G"; then
+        bad "$1: a pty pair" "socat"
+        return 1
+    fi
+    SOCAT=$LAST_PID
+    start "$1-device" python3 "$ROOT/c-tests/gateway/fake_device.py" "$WORK/$1-D"
+    wait_ready "$1-device" READY 10 || { bad "$1: the fake device starts" "$(tail -n 3 "$WORK/$1-device.log")"; return 1; }
+}
+for which in ours ${MBUSD:+mbusd}; do
+    fake_line "fault-$which" || continue
+    gateway "fault-$which" "$which" -R 1 -W 200 -N 2 || { done_with "fault-$which"; continue; }
+    checks "$which: unit 6 answers with a bad CRC: exception 0x04 after the retries" "$WORK/crc-$which.log" "$PORT" unit 6 4
+    checks "$which: unit 8 answers garbage: exception 0x04, as for a bad CRC" "$WORK/garbage-$which.log" "$PORT" unit 8 4
+    checks "$which: unit 1 is answered after them" "$WORK/after-$which.log" "$PORT" held 2
+    tries=$(grep -c '^unit 6 fc 3' "$WORK/fault-$which-device.log")
+    echo "# $which: unit 6 was asked $tries times (-N 2: 3 expected)"
+    # Unplugged: the pty pair and its device go; a request fails (0x0B). Back: a new
+    # pair under the same names; the gateway opens the line again.
+    stop "fault-$which-device"
+    stop_pid "$SOCAT"
+    timeout -k 5 60 "$BIN/gw-check" "$PORT" unit 1 0B >"$WORK/unplugged-$which.log" 2>&1
+    if fake_line "fault-$which"; then
+        sleep 0.5
+        rc=0
+        timeout -k 5 60 "$BIN/gw-check" "$PORT" held 2 >"$WORK/replugged-$which.log" 2>&1 || rc=$?
+        if [ "$which" = ours ]; then
+            program_checks "ours: the line unplugged and back: answered again" "$WORK/replugged-$which.log" "$rc"
+        else
+            echo "# mbusd, the line unplugged and back: $(tail -n 1 "$WORK/replugged-$which.log")"
+        fi
+    fi
+    done_with "fault-$which"
+done
+
 section "Modbus/TCP Security front: roles mapped to units and access"
 C=$WORK/certs
 if check "make the test certificates with openssl" "$ROOT/c-tests/tls/make-certs.sh" "$C" && line tls; then

@@ -1,0 +1,78 @@
+#!/usr/bin/env python3
+# A serial Modbus RTU line with misbehaving devices, for c-tests/suites/gateway.sh:
+#   fake_device.py DEVICE
+# reads request frames (ended by 5 ms of silence) from DEVICE (one end of a pty pair)
+# and answers FC 03 (holding register i holds 3 * i) as:
+#   unit 1: rightly
+#   unit 6: with a wrong CRC, every time
+#   unit 8: with garbage (bytes that are no frame)
+#   any other unit: not at all
+# Prints READY, then one line per request it saw; counts on SIGTERM.
+#
+# SPDX-License-Identifier: MIT OR Apache-2.0
+import os
+import select
+import signal
+import sys
+import termios
+import tty
+
+
+def crc16(data):
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def frame(body):
+    c = crc16(body)
+    return body + bytes([c & 0xFF, c >> 8])
+
+
+def main():
+    fd = os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(fd)
+    attrs = termios.tcgetattr(fd)
+    attrs[4] = attrs[5] = termios.B115200
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    seen = {"requests": 0}
+
+    def done(*_):
+        print("fake device: %(requests)d requests" % seen, flush=True)
+        sys.exit(0)
+
+    signal.signal(signal.SIGTERM, done)
+    print("READY", flush=True)
+    while True:
+        select.select([fd], [], [])
+        req = b""
+        while True:
+            r, _, _ = select.select([fd], [], [], 0.005)
+            if not r:
+                break
+            req += os.read(fd, 256)
+        if len(req) < 4 or crc16(req[:-2]) != req[-2] | (req[-1] << 8):
+            print("garbage of %d bytes" % len(req), flush=True)
+            continue
+        seen["requests"] += 1
+        unit, fc = req[0], req[1]
+        print("unit %d fc %d" % (unit, fc), flush=True)
+        if fc != 3 or unit not in (1, 6, 8):
+            continue
+        addr = (req[2] << 8) | req[3]
+        nb = (req[4] << 8) | req[5]
+        body = bytes([unit, 3, 2 * nb]) + b"".join(((3 * (addr + i)) & 0xFFFF).to_bytes(2, "big") for i in range(nb))
+        if unit == 1:
+            os.write(fd, frame(body))
+        elif unit == 6:
+            bad = bytearray(frame(body))
+            bad[-1] ^= 0x55
+            os.write(fd, bytes(bad))
+        else:
+            os.write(fd, bytes([0x00, 0xFF, 0x13, 0x37, 0x00]))
+
+
+main()
