@@ -67,8 +67,10 @@ static void show(const char *what, int rc, int err, const uint16_t *regs, const 
 
 static void calls(void)
 {
-    int unit;
-    for (unit = 1; unit <= 9; unit += 8) {
+    /* GW_UNIT: the unit of the line's device (1: mb-server; 17: pymodbus'). */
+    int first = getenv("GW_UNIT") != NULL ? atoi(getenv("GW_UNIT")) : 1, units[2] = {first, 9}, k;
+    for (k = 0; k < 2; k++) {
+        int unit = units[k];
         modbus_t *ctx = master(unit);
         uint16_t regs[20], w[3] = {111, 222, 333};
         uint8_t bits[20], wb[5] = {1, 0, 1, 1, 0};
