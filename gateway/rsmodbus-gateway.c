@@ -42,6 +42,52 @@
 #define VERSION "0.1.0"
 #define QUEUE_MAX 16 /* requests one master may have waiting */
 
+/* ---------------------------------------------------------------- masters and lines */
+
+struct request {
+    modbus_server_t *server; /* the front it came through */
+    uint32_t id;   /* that server's, for modbus_server_answer */
+    int len;       /* of raw: unit (as sent on the line) + PDU */
+    uint8_t raw[MODBUS_MAX_PDU_LENGTH + 1];
+    int tries;     /* sends so far */
+};
+
+struct master {
+    int socket;
+    struct request q[QUEUE_MAX];
+    int head, n;
+};
+
+/* A line: a serial one, or a device on the network; its own masters' queues. */
+struct line {
+    char name[32];
+    char kind[16]; /* serial, tcp, rtutcp */
+    char device[256], mode[16], host[256], port[16];
+    int speed;
+    modbus_t *ctx;
+    int header;   /* its answers' header: 1 (serial, RTU over TCP) or 7 (TCP) */
+    int checksum; /* and checksum: 2 (RTU), 1 (ASCII), 0 (TCP) */
+    int ascii;
+    struct master *masters;
+    int nmasters, cap;
+    int turn;               /* the master served last */
+    int busy;               /* a request is on the line */
+    struct request current; /* it */
+    uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
+    double quiet_until;     /* the pause after a transaction */
+    long served, timeouts, crc_errors;
+};
+#define LINES_MAX 8
+static struct line lines[LINES_MAX] = {{.name = "default", .kind = "serial"}};
+static int nlines = 1;
+
+/* route = FIRST-LAST LINE [OFFSET]: units FIRST..LAST go to LINE as unit + OFFSET. */
+#define ROUTES_MAX 32
+static struct route {
+    int first, last, line, offset;
+} routes[ROUTES_MAX];
+static int nroutes;
+
 /* ---------------------------------------------------------------- configuration */
 
 struct config {
@@ -272,6 +318,57 @@ static int read_config(const char *path)
                 copy(cfg.back_host, sizeof cfg.back_host, host);
                 copy(cfg.back_port, sizeof cfg.back_port, bport);
             }
+        } else if (strncmp(k, "line.", 5) == 0) {
+            struct line *L = &lines[nlines];
+            char kind[16] = "", a[256] = "", b[16] = "", c[16] = "";
+            int fields = sscanf(v, "%15s %255s %15s %15s", kind, a, b, c);
+            memset(L, 0, sizeof *L);
+            copy(L->name, sizeof L->name, k + 5);
+            copy(L->kind, sizeof L->kind, kind);
+            if (nlines == LINES_MAX || strcmp(L->name, "default") == 0) {
+                rc = -1;
+            } else if (strcmp(kind, "serial") == 0 && fields >= 3) {
+                copy(L->device, sizeof L->device, a);
+                L->speed = atoi(b);
+                copy(L->mode, sizeof L->mode, fields == 4 ? c : "8N1");
+                rc = L->speed > 0 ? 0 : -1;
+            } else if ((strcmp(kind, "tcp") == 0 || strcmp(kind, "rtutcp") == 0) && fields == 3) {
+                copy(L->host, sizeof L->host, a);
+                copy(L->port, sizeof L->port, b);
+            } else {
+                rc = -1;
+            }
+            if (rc != 0) {
+                fprintf(stderr,
+                        "rsmodbus-gateway: %s:%d: %s must be 'serial DEVICE SPEED [MODE]', 'tcp HOST PORT' or "
+                        "'rtutcp HOST PORT' (and the name not 'default')\n",
+                        path, n, k);
+            } else {
+                nlines++;
+            }
+        } else if (strcmp(k, "route") == 0) {
+            char name[32] = "";
+            struct route *r = &routes[nroutes];
+            int fields = sscanf(v, "%d-%d %31s %d", &r->first, &r->last, name, &r->offset), j;
+            r->line = -1;
+            for (j = 0; j < nlines; j++) {
+                if (strcmp(lines[j].name, name) == 0) {
+                    r->line = j;
+                }
+            }
+            if (nroutes == ROUTES_MAX || fields < 3 || r->first < 0 || r->last > 255 || r->first > r->last ||
+                r->line < 0) {
+                fprintf(stderr,
+                        "rsmodbus-gateway: %s:%d: route must be 'FIRST-LAST LINE [OFFSET]', LINE 'default' or a "
+                        "line.NAME given before it\n",
+                        path, n);
+                rc = -1;
+            } else {
+                if (fields == 3) {
+                    r->offset = 0;
+                }
+                nroutes++;
+            }
         } else if (strcmp(k, "tls_address") == 0) {
             copy(cfg.tls_address, sizeof cfg.tls_address, v);
         } else if (strcmp(k, "tls_port") == 0) {
@@ -308,21 +405,7 @@ static int read_config(const char *path)
     return 0;
 }
 
-/* ---------------------------------------------------------------- masters and the line */
-
-struct request {
-    modbus_server_t *server; /* the front it came through */
-    uint32_t id;   /* that server's, for modbus_server_answer */
-    int len;       /* of raw: unit + PDU */
-    uint8_t raw[MODBUS_MAX_PDU_LENGTH + 1];
-    int tries;     /* sends so far */
-};
-
-struct master {
-    int socket;
-    struct request q[QUEUE_MAX];
-    int head, n;
-};
+/* ---------------------------------------------------------------- fronts */
 
 /* A front: the masters' side, one server that runs itself per kind. */
 struct front {
@@ -335,18 +418,6 @@ struct front {
 static struct {
     struct front fronts[FRONTS_MAX];
     int nfronts;
-    int header;   /* the line's answer header: 1 (serial, RTU over TCP) or 7 (TCP) */
-    int checksum; /* and its checksum: 2 (RTU), 1 (ASCII), 0 (TCP) */
-    modbus_t *line;
-    struct master *masters;
-    int nmasters, cap;
-    int turn;                 /* the master served last */
-    int busy;                 /* a request is on the line */
-    struct request current;   /* it */
-    uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
-    double quiet_until;       /* the pause after a transaction */
-    int ascii;
-    long served, timeouts, crc_errors;
 } G;
 
 static volatile sig_atomic_t stopping;
@@ -358,47 +429,70 @@ static double now_ms(void)
     return (double) ts.tv_sec * 1e3 + (double) ts.tv_nsec / 1e6;
 }
 
-static struct master *master_of(int socket)
+static struct master *master_of(struct line *L, int socket)
 {
     int i;
-    for (i = 0; i < G.nmasters; i++) {
-        if (G.masters[i].socket == socket) {
-            return &G.masters[i];
+    for (i = 0; i < L->nmasters; i++) {
+        if (L->masters[i].socket == socket) {
+            return &L->masters[i];
         }
     }
     /* A slot of a master with nothing queued is reused (its socket may be closed),
      * but not that of the request on the line (a retry goes back there). */
-    for (i = 0; i < G.nmasters; i++) {
-        if (G.masters[i].n == 0 && !(G.busy && i == G.turn)) {
-            G.masters[i].socket = socket;
-            G.masters[i].head = 0;
-            return &G.masters[i];
+    for (i = 0; i < L->nmasters; i++) {
+        if (L->masters[i].n == 0 && !(L->busy && i == L->turn)) {
+            L->masters[i].socket = socket;
+            L->masters[i].head = 0;
+            return &L->masters[i];
         }
     }
-    if (G.nmasters == G.cap) {
-        int cap = G.cap ? 2 * G.cap : 16;
-        struct master *m = realloc(G.masters, (size_t) cap * sizeof *m);
+    if (L->nmasters == L->cap) {
+        int cap = L->cap ? 2 * L->cap : 16;
+        struct master *m = realloc(L->masters, (size_t) cap * sizeof *m);
         if (m == NULL) {
             return NULL;
         }
-        G.masters = m;
-        G.cap = cap;
+        L->masters = m;
+        L->cap = cap;
     }
-    memset(&G.masters[G.nmasters], 0, sizeof G.masters[0]);
-    G.masters[G.nmasters].socket = socket;
-    return &G.masters[G.nmasters++];
+    memset(&L->masters[L->nmasters], 0, sizeof L->masters[0]);
+    L->masters[L->nmasters].socket = socket;
+    return &L->masters[L->nmasters++];
 }
 
-/* The server's raw callback: every request of every master, queued for the line. */
+/* The line of `unit` and the unit it has there; NULL: no route. */
+static struct line *route(int unit, int *there)
+{
+    int i;
+    if (nroutes == 0) {
+        *there = unit;
+        return &lines[0];
+    }
+    for (i = 0; i < nroutes; i++) {
+        if (unit >= routes[i].first && unit <= routes[i].last) {
+            *there = unit + routes[i].offset;
+            return *there >= 0 && *there <= 255 ? &lines[routes[i].line] : NULL;
+        }
+    }
+    return NULL;
+}
+
+/* The server's raw callback: every request of every master, queued for its line. */
 static int on_request(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length,
                       uint8_t *rsp_pdu, int rsp_max)
 {
-    /* (A socket number names one master across both fronts: one process.) */
-    struct master *m = master_of(ri->socket);
+    int there;
+    struct line *L = route(ri->unit_id, &there);
+    struct master *m;
     struct request *r;
-    (void) user_data;
     (void) rsp_pdu;
     (void) rsp_max;
+    if (L == NULL) {
+        logw(3, "unit %d: no route (exception 0x0A)", ri->unit_id);
+        return -MODBUS_EXCEPTION_GATEWAY_PATH;
+    }
+    /* (A socket number names one master across the fronts: one process.) */
+    m = master_of(L, ri->socket);
     if (m == NULL || m->n == QUEUE_MAX) {
         logw(1, "master on socket %d: queue full, request 0x%02X refused (busy)", ri->socket, ri->function);
         return -MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
@@ -406,13 +500,13 @@ static int on_request(void *user_data, const modbus_request_info_t *ri, const ui
     r = &m->q[(m->head + m->n) % QUEUE_MAX];
     r->id = ri->request_id;
     r->server = ((struct front *) user_data)->server;
-    r->raw[0] = (uint8_t) ri->unit_id;
+    r->raw[0] = (uint8_t) there;
     memcpy(r->raw + 1, pdu, (size_t) pdu_length);
     r->len = pdu_length + 1;
     r->tries = 0;
     m->n++;
-    logw(5, "master on socket %d: request 0x%02X for unit %d queued (%d waiting)", ri->socket, ri->function,
-         ri->unit_id, m->n);
+    logw(5, "master on socket %d: request 0x%02X for unit %d queued on line %s (%d waiting)", ri->socket,
+         ri->function, ri->unit_id, L->name, m->n);
     return MODBUS_REPLY_LATER;
 }
 
@@ -425,81 +519,144 @@ static int every_unit(void *user_data, int unit)
     return 1;
 }
 
-/* Puts the next request on the line: the next master with one waiting, in turn. */
-static void dispatch(void)
+/* Puts the next request on line L: the next master with one waiting, in turn. */
+static void dispatch(struct line *L)
 {
     int k;
-    if (G.busy || now_ms() < G.quiet_until) {
+    if (L->busy || now_ms() < L->quiet_until) {
         return;
     }
-    for (k = 1; k <= G.nmasters; k++) {
-        struct master *m = &G.masters[(G.turn + k) % G.nmasters];
+    for (k = 1; k <= L->nmasters; k++) {
+        struct master *m = &L->masters[(L->turn + k) % L->nmasters];
         if (m->n == 0) {
             continue;
         }
-        G.turn = (G.turn + k) % G.nmasters;
-        G.current = m->q[m->head];
+        L->turn = (L->turn + k) % L->nmasters;
+        L->current = m->q[m->head];
         m->head = (m->head + 1) % QUEUE_MAX;
         m->n--;
         break;
     }
-    if (k > G.nmasters) {
+    if (k > L->nmasters) {
         return;
     }
-    G.current.tries++;
-    G.busy = 1;
-    if (modbus_send_raw_request_async(G.line, G.current.raw, G.current.len, G.rsp, on_answer, NULL) < 0) {
-        logw(0, "line: cannot send (%s)", modbus_strerror(errno));
-        G.busy = 0;
-        modbus_server_answer(G.current.server, G.current.id, NULL, -MODBUS_EXCEPTION_GATEWAY_TARGET);
+    L->current.tries++;
+    L->busy = 1;
+    if (modbus_send_raw_request_async(L->ctx, L->current.raw, L->current.len, L->rsp, on_answer, L) < 0) {
+        logw(0, "line %s: cannot send (%s)", L->name, modbus_strerror(errno));
+        L->busy = 0;
+        modbus_server_answer(L->current.server, L->current.id, NULL, -MODBUS_EXCEPTION_GATEWAY_TARGET);
     }
 }
 
-/* The line's answer (or its failure) to the current request. */
+/* Line L's answer (or its failure) to its current request. */
 static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data)
 {
-    struct request *r = &G.current;
-    int h = G.header, crc = G.checksum;
+    struct line *L = user_data;
+    struct request *r = &L->current;
+    int h = L->header, crc = L->checksum;
     (void) ctx;
     (void) id;
-    (void) user_data;
-    G.busy = 0;
-    G.quiet_until = now_ms() + cfg.pause;
-    if (r->raw[0] == 0) {
+    L->busy = 0;
+    L->quiet_until = now_ms() + cfg.pause;
+    if (r->raw[0] == 0 && L->header == 1) {
         /* A broadcast: out, no answer expected; the request echoed with -b. */
         modbus_server_answer(r->server, r->id, cfg.replyonbroadcast ? r->raw + 1 : NULL,
                              cfg.replyonbroadcast ? r->len - 1 : MODBUS_REPLY_NONE);
         return;
     }
     if (rc > h + crc) {
-        G.served++;
-        modbus_server_answer(r->server, r->id, G.rsp + h, rc - h - crc);
+        L->served++;
+        modbus_server_answer(r->server, r->id, L->rsp + h, rc - h - crc);
         return;
     }
     if (error == EMBBADCRC || error == EMBBADDATA) {
-        G.crc_errors++;
+        L->crc_errors++;
     } else {
-        G.timeouts++;
+        L->timeouts++;
     }
     if (r->tries <= cfg.retries) {
-        logw(3, "line: unit %d, request 0x%02X: %s, try %d of %d", r->raw[0], r->raw[1], modbus_strerror(error),
-             r->tries + 1, cfg.retries + 1);
+        logw(3, "line %s: unit %d, request 0x%02X: %s, try %d of %d", L->name, r->raw[0], r->raw[1],
+             modbus_strerror(error), r->tries + 1, cfg.retries + 1);
         /* Again, first in line (after the pause). */
         struct request again = *r;
-        struct master *m = &G.masters[G.turn];
+        struct master *m = &L->masters[L->turn];
         if (m->n < QUEUE_MAX) {
             m->head = (m->head + QUEUE_MAX - 1) % QUEUE_MAX;
             m->q[m->head] = again;
             m->n++;
-            G.turn = (G.turn + G.nmasters - 1) % G.nmasters;
+            L->turn = (L->turn + L->nmasters - 1) % L->nmasters;
             return;
         }
     }
-    logw(1, "line: unit %d, request 0x%02X: %s after %d tries", r->raw[0], r->raw[1], modbus_strerror(error),
-         r->tries);
+    logw(1, "line %s: unit %d, request 0x%02X: %s after %d tries", L->name, r->raw[0], r->raw[1],
+         modbus_strerror(error), r->tries);
     modbus_server_answer(r->server, r->id, NULL,
                          error == EMBBADCRC || error == EMBBADDATA ? -MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
                                                                    : -MODBUS_EXCEPTION_GATEWAY_TARGET);
+}
+
+/* "8N1", "7E1a": data bits, parity, stop bits, ASCII. */
+static int parse_mode(const char *mode, int *data, char *parity, int *stop, int *ascii)
+{
+    size_t n = strlen(mode);
+    *ascii = 0;
+    if (n == 4 && (mode[3] == 'a' || mode[3] == 'A')) {
+        *ascii = 1;
+        n = 3;
+    }
+    if (n != 3 || mode[0] < '5' || mode[0] > '8' || strchr("NEOneo", mode[1]) == NULL || (mode[2] != '1' && mode[2] != '2')) {
+        return -1;
+    }
+    *data = mode[0] - '0';
+    *parity = (char) (mode[1] & ~0x20);
+    *stop = mode[2] - '0';
+    return 0;
+}
+
+/* Opens line L (a device on the network that cannot be reached now is connected by
+ * its first request). */
+static int open_line(struct line *L)
+{
+    int data, stop;
+    char parity;
+    L->header = 1;
+    if (strcmp(L->kind, "tcp") == 0) {
+        L->ctx = modbus_new_tcp_pi(L->host, L->port);
+        L->header = 7;
+        L->checksum = 0;
+    } else if (strcmp(L->kind, "rtutcp") == 0) {
+        L->ctx = modbus_new_rtu_tcp_pi(L->host, L->port);
+        L->checksum = 2;
+    } else {
+        if (parse_mode(L->mode, &data, &parity, &stop, &L->ascii) != 0) {
+            logw(0, "line %s: serial mode '%s' is not like 8N1 (or 7E1a for ASCII)", L->name, L->mode);
+            return -1;
+        }
+        L->checksum = L->ascii ? 1 : 2;
+        L->ctx = L->ascii ? modbus_new_ascii(L->device, L->speed, parity, data, stop)
+                          : modbus_new_rtu(L->device, L->speed, parity, data, stop);
+    }
+    if (L->ctx == NULL) {
+        logw(0, "line %s: %s", L->name, modbus_strerror(errno));
+        return -1;
+    }
+    modbus_set_response_timeout(L->ctx, (uint32_t) cfg.wait / 1000, (uint32_t) (cfg.wait % 1000) * 1000);
+    /* Levels 8 and 9 trace the line's frames (libmodbus' debug output). */
+    modbus_set_debug(L->ctx, cfg.loglevel >= 8);
+    if (strcmp(L->kind, "serial") != 0) {
+        modbus_set_error_recovery(L->ctx, MODBUS_ERROR_RECOVERY_LINK);
+        if (modbus_connect(L->ctx) != 0) {
+            logw(1, "line %s (%s %s:%s): %s (the first request connects again)", L->name, L->kind, L->host, L->port,
+                 modbus_strerror(errno));
+        }
+        return 0;
+    }
+    if (modbus_connect(L->ctx) != 0) {
+        logw(0, "line %s (%s): %s", L->name, L->device, modbus_strerror(errno));
+        return -1;
+    }
+    return 0;
 }
 
 /* The Modbus/TCP Security policy: the master's role (in its certificate) must have
@@ -533,27 +690,9 @@ static void on_signal(int sig)
     }
 }
 
-/* "8N1", "7E1a": data bits, parity, stop bits, ASCII. */
-static int parse_mode(const char *mode, int *data, char *parity, int *stop, int *ascii)
-{
-    size_t n = strlen(mode);
-    *ascii = 0;
-    if (n == 4 && (mode[3] == 'a' || mode[3] == 'A')) {
-        *ascii = 1;
-        n = 3;
-    }
-    if (n != 3 || mode[0] < '5' || mode[0] > '8' || strchr("NEOneo", mode[1]) == NULL || (mode[2] != '1' && mode[2] != '2')) {
-        return -1;
-    }
-    *data = mode[0] - '0';
-    *parity = (char) (mode[1] & ~0x20);
-    *stop = mode[2] - '0';
-    return 0;
-}
-
 int main(int argc, char **argv)
 {
-    int opt, data, stop;
+    int opt, data, stop, ascii;
     char parity;
     modbus_server_callbacks_t cb;
     char port[16];
@@ -649,7 +788,7 @@ int main(int argc, char **argv)
             return 1;
         }
     }
-    if (parse_mode(cfg.mode, &data, &parity, &stop, &G.ascii) != 0) {
+    if (parse_mode(cfg.mode, &data, &parity, &stop, &ascii) != 0) {
         fprintf(stderr, "rsmodbus-gateway: serial mode '%s' is not like 8N1 (or 7E1a for ASCII)\n", cfg.mode);
         return 1;
     }
@@ -669,45 +808,27 @@ int main(int argc, char **argv)
         }
     }
 
-    /* The line: a serial one, or a device on the network (RTU frames over TCP, or
-     * Modbus/TCP: one connection that every master's requests share). */
-    G.header = 1;
-    G.checksum = G.ascii ? 1 : 2;
-    if (strcmp(cfg.backend, "tcp") == 0) {
-        G.line = modbus_new_tcp_pi(cfg.back_host, cfg.back_port);
-        G.header = 7;
-        G.checksum = 0;
-    } else if (strcmp(cfg.backend, "rtutcp") == 0) {
-        G.line = modbus_new_rtu_tcp_pi(cfg.back_host, cfg.back_port);
-        G.checksum = 2;
-    } else {
-        G.line = G.ascii ? modbus_new_ascii(cfg.device, cfg.speed, parity, data, stop)
-                         : modbus_new_rtu(cfg.device, cfg.speed, parity, data, stop);
+    /* The lines: the default one (the device, or `backend`), and those of `line.*`. */
+    {
+        struct line *L0 = &lines[0];
+        copy(L0->kind, sizeof L0->kind, cfg.backend);
+        copy(L0->device, sizeof L0->device, cfg.device);
+        copy(L0->mode, sizeof L0->mode, cfg.mode);
+        copy(L0->host, sizeof L0->host, cfg.back_host);
+        copy(L0->port, sizeof L0->port, cfg.back_port);
+        L0->speed = cfg.speed;
     }
-    if (G.line == NULL) {
-        logw(0, "line %s: %s", cfg.device, modbus_strerror(errno));
-        return 1;
-    }
-    modbus_set_response_timeout(G.line, (uint32_t) cfg.wait / 1000, (uint32_t) (cfg.wait % 1000) * 1000);
-    /* Levels 8 and 9 trace the line's frames (libmodbus' debug output). */
-    modbus_set_debug(G.line, cfg.loglevel >= 8);
-    if (strcmp(cfg.backend, "serial") != 0) {
-        /* A device on the network reconnects by itself when it is lost. */
-        modbus_set_error_recovery(G.line, MODBUS_ERROR_RECOVERY_LINK);
-        if (modbus_connect(G.line) != 0) {
-            logw(1, "line %s %s:%s: %s (the first request connects again)", cfg.backend, cfg.back_host, cfg.back_port,
-                 modbus_strerror(errno));
+    for (i = 0; i < nlines; i++) {
+        if (open_line(&lines[i]) != 0) {
+            return 1;
         }
-    } else if (modbus_connect(G.line) != 0) {
-        logw(0, "line %s: %s", cfg.device, modbus_strerror(errno));
-        return 1;
     }
-    if (cfg.rs485 && modbus_rtu_set_serial_mode(G.line, MODBUS_RTU_RS485) != 0) {
+    if (cfg.rs485 && modbus_rtu_set_serial_mode(lines[0].ctx, MODBUS_RTU_RS485) != 0) {
         logw(0, "line %s: RS-485 mode: %s", cfg.device, modbus_strerror(errno));
         return 1;
     }
     if (cfg.trx == 1 || cfg.trx == 2) {
-        modbus_rtu_set_rts(G.line, cfg.trx == 1 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN);
+        modbus_rtu_set_rts(lines[0].ctx, cfg.trx == 1 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN);
     } else if (cfg.trx >= 3) {
         logw(0, "RS-485 direction through a sysfs file (-y, -Y) is not supported; use -S or -t/-r");
         return 1;
@@ -764,23 +885,29 @@ int main(int argc, char **argv)
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
     logw(2, "rsmodbus-gateway " VERSION " started: %s:%d -> %s %d %s%s", cfg.address, cfg.port, cfg.device,
-         cfg.speed, cfg.mode, G.ascii ? " (ASCII)" : "");
+         cfg.speed, cfg.mode, lines[0].ascii ? " (ASCII)" : "");
 
     while (!stopping) {
-        struct pollfd pfd[1 + FRONTS_MAX];
-        int line_timeout, timeout = -1, failed = 0;
+        struct pollfd pfd[FRONTS_MAX + LINES_MAX];
+        int timeout = -1, failed = 0, k;
+        double now = now_ms();
         for (i = 0; i < G.nfronts; i++) {
-            pfd[1 + i].fd = modbus_server_get_fd(G.fronts[i].server);
-            pfd[1 + i].events = POLLIN;
+            pfd[i].fd = modbus_server_get_fd(G.fronts[i].server);
+            pfd[i].events = POLLIN;
         }
-        modbus_get_pollfd(G.line, &pfd[0], &line_timeout);
-        timeout = line_timeout;
-        if (!G.busy && G.quiet_until > now_ms()) {
-            int pause = (int) (G.quiet_until - now_ms()) + 1;
-            timeout = timeout < 0 || pause < timeout ? pause : timeout;
+        for (k = 0; k < nlines; k++) {
+            struct line *L = &lines[k];
+            int t;
+            modbus_get_pollfd(L->ctx, &pfd[G.nfronts + k], &t);
+            if (!L->busy && L->quiet_until > now) {
+                int pause = (int) (L->quiet_until - now) + 1;
+                t = t < 0 || pause < t ? pause : t;
+            }
+            if (t >= 0 && (timeout < 0 || t < timeout)) {
+                timeout = t;
+            }
         }
-        logw(9, "loop: line fd %d events 0x%x, timeout %d ms, busy %d", pfd[0].fd, pfd[0].events, timeout, G.busy);
-        if (poll(pfd, (nfds_t) (1 + G.nfronts), timeout) < 0 && errno != EINTR) {
+        if (poll(pfd, (nfds_t) (G.nfronts + nlines), timeout) < 0 && errno != EINTR) {
             logw(0, "poll: %s", strerror(errno));
             break;
         }
@@ -793,19 +920,27 @@ int main(int argc, char **argv)
         if (failed) {
             break;
         }
-        if (pfd[0].fd >= 0 || modbus_pending(G.line) > 0) {
-            modbus_process(G.line, pfd[0].revents);
+        for (k = 0; k < nlines; k++) {
+            struct line *L = &lines[k];
+            if (pfd[G.nfronts + k].fd >= 0 || modbus_pending(L->ctx) > 0) {
+                modbus_process(L->ctx, pfd[G.nfronts + k].revents);
+            }
+            dispatch(L);
         }
-        dispatch();
     }
-    logw(2, "rsmodbus-gateway stopped: %ld answers, %ld timeouts, %ld bad answers", G.served, G.timeouts,
-         G.crc_errors);
+    for (i = 0; i < nlines; i++) {
+        logw(2, "line %s: %ld answers, %ld timeouts, %ld bad answers", lines[i].name, lines[i].served,
+             lines[i].timeouts, lines[i].crc_errors);
+    }
+    logw(2, "rsmodbus-gateway stopped");
     for (i = 0; i < G.nfronts; i++) {
         modbus_server_free(G.fronts[i].server);
         modbus_free(G.fronts[i].ctx);
     }
-    modbus_close(G.line);
-    modbus_free(G.line);
-    free(G.masters);
+    for (i = 0; i < nlines; i++) {
+        modbus_close(lines[i].ctx);
+        modbus_free(lines[i].ctx);
+        free(lines[i].masters);
+    }
     return 0;
 }

@@ -16,6 +16,8 @@
  *                                another master's read is answered, right
  *   gw-check PORT unit U EXC     a read of unit U fails with exception EXC (hex)
  *   gw-check PORT held N         N masters connected at once, each reading once
+ *   gw-check PORT reads U        unit U: registers 10 and 11 read (30, 33), register 62
+ *                                written and read back
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
@@ -224,6 +226,23 @@ static void held(int n)
     free(c);
 }
 
+static void reads(int unit)
+{
+    modbus_t *ctx = master(unit);
+    uint16_t v[2];
+    int rc;
+    if (!EXPECT(ctx != NULL, "connect")) {
+        return;
+    }
+    rc = modbus_read_registers(ctx, 10, 2, v);
+    EXPECT(rc == 2 && v[0] == 30 && v[1] == 33, "unit %d: registers 10 and 11 (rc %d)", unit, rc);
+    EXPECT(modbus_write_register(ctx, 62, (uint16_t) (6200 + unit)) == 1 && modbus_read_registers(ctx, 62, 1, v) == 1 &&
+               v[0] == 6200 + unit,
+           "unit %d: a write read back", unit);
+    modbus_close(ctx);
+    modbus_free(ctx);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
@@ -241,6 +260,8 @@ int main(int argc, char **argv)
         leave();
     } else if (strcmp(argv[2], "unit") == 0 && argc > 4) {
         unit_exception(atoi(argv[3]), (int) strtol(argv[4], NULL, 16));
+    } else if (strcmp(argv[2], "reads") == 0 && argc > 3) {
+        reads(atoi(argv[3]));
     } else if (strcmp(argv[2], "held") == 0 && argc > 3) {
         held(atoi(argv[3]));
     } else {

@@ -303,6 +303,40 @@ for back in tcp rtutcp; do
     stop "back-$back-device"
 done
 
+section "routing: two serial lines by unit ranges, a unit remapped, no route"
+RA_SOCAT=
+if line ra && RA_SOCAT=$SOCAT && line rb; then
+    PORT=$(free_port)
+    cat >"$WORK/routes.conf" <<EOF
+device = $WORK/ra-G
+speed = 115200
+port = $PORT
+pause = 1
+wait = 300
+retries = 1
+logfile = -
+line.b = serial $WORK/rb-G 115200 8N1
+route = 1-1 default
+route = 2-2 b -1
+EOF
+    start routes-gw env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -v 5 -c "$WORK/routes.conf"
+    sleep 0.5
+    checks "route: unit 1 to the default line" "$WORK/route-1.log" "$PORT" reads 1
+    checks "route: unit 2 to line b as its unit 1" "$WORK/route-2.log" "$PORT" reads 2
+    checks "route: unit 5 has none: exception 0x0A (gateway path unavailable)" "$WORK/route-5.log" "$PORT" unit 5 0A
+    # Each line's device saw its own writes only.
+    if grep -q "line b" "$WORK/routes-gw.log"; then
+        ok "route: the gateway names the line of each request"
+    else
+        bad "route: the gateway names the line of each request" "$(tail -n 3 "$WORK/routes-gw.log")"
+    fi
+    stop routes-gw
+    stop ra-device
+    stop rb-device
+    stop_pid "$SOCAT"
+fi
+stop_pid "$RA_SOCAT"
+
 section "configuration file and help"
 cat >"$WORK/gw.conf" <<EOF
 # mbusd's keys
