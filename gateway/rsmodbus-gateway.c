@@ -56,6 +56,7 @@ struct master {
     int socket;
     struct request q[QUEUE_MAX];
     int head, n;
+    long requests, busy; /* requests taken, refused as busy (since its socket came) */
 };
 
 /* A line: a serial one, or a device on the network; its own masters' queues. */
@@ -75,7 +76,7 @@ struct line {
     struct request current; /* it */
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
     double quiet_until;     /* the pause after a transaction */
-    long served, timeouts, crc_errors;
+    long requests, served, timeouts, crc_errors, exceptions;
 };
 #define LINES_MAX 8
 static struct line lines[LINES_MAX] = {{.name = "default", .kind = "serial"}};
@@ -115,6 +116,7 @@ struct config {
     /* More fronts (0: none) and another kind of line (extended keys). */
     int rtutcp_port, udp_port;
     char backend[16];      /* "serial" (the device), "tcp" or "rtutcp" */
+    char status_file[256]; /* counters, rewritten every second (extended key) */
     char back_host[256];
     char back_port[16];
 };
@@ -130,7 +132,7 @@ static int nroles;
 
 static struct config cfg = {
     2, "/var/log/rsmodbus-gateway.log", "/dev/ttyS0", 19200, "8N1", 0, 0, "", "0.0.0.0", 502, 32, 60, 3, 100, 500, 0, 0,
-    "0.0.0.0", 802, "", "", "", 0, 0, "serial", "", "",
+    "0.0.0.0", 802, "", "", "", 0, 0, "serial", "", "", "",
 };
 
 static FILE *logf;
@@ -218,6 +220,10 @@ static int truthy(const char *v)
 }
 
 /* Reads mbusd's configuration file: `key = value` lines, '#' comments. */
+/* Set while SIGHUP's reload reads the file again: lines are not made anew. */
+static int reloading;
+static char config_path[256];
+
 static int read_config(const char *path)
 {
     FILE *f = fopen(path, "r");
@@ -301,6 +307,8 @@ static int read_config(const char *path)
             rc = in_range("wait", v, 1, 10000, &cfg.wait);
         } else if (strcmp(k, "replyonbroadcast") == 0) {
             cfg.replyonbroadcast = truthy(v);
+        } else if (strcmp(k, "status_file") == 0) {
+            copy(cfg.status_file, sizeof cfg.status_file, v);
         } else if (strcmp(k, "rtutcp_port") == 0) {
             rc = in_range("rtutcp_port", v, 0, 65535, &cfg.rtutcp_port);
         } else if (strcmp(k, "udp_port") == 0) {
@@ -317,6 +325,15 @@ static int read_config(const char *path)
                 copy(cfg.backend, sizeof cfg.backend, kind);
                 copy(cfg.back_host, sizeof cfg.back_host, host);
                 copy(cfg.back_port, sizeof cfg.back_port, bport);
+            }
+        } else if (strncmp(k, "line.", 5) == 0 && reloading) {
+            /* Lines stay as they were made (a change takes a restart). */
+            int j, known = 0;
+            for (j = 0; j < nlines; j++) {
+                known |= strcmp(lines[j].name, k + 5) == 0;
+            }
+            if (!known) {
+                logw(1, "reload: %s is new: it takes a restart", k);
             }
         } else if (strncmp(k, "line.", 5) == 0) {
             struct line *L = &lines[nlines];
@@ -443,6 +460,7 @@ static struct master *master_of(struct line *L, int socket)
         if (L->masters[i].n == 0 && !(L->busy && i == L->turn)) {
             L->masters[i].socket = socket;
             L->masters[i].head = 0;
+            L->masters[i].requests = L->masters[i].busy = 0;
             return &L->masters[i];
         }
     }
@@ -495,8 +513,14 @@ static int on_request(void *user_data, const modbus_request_info_t *ri, const ui
     m = master_of(L, ri->socket);
     if (m == NULL || m->n == QUEUE_MAX) {
         logw(1, "master on socket %d: queue full, request 0x%02X refused (busy)", ri->socket, ri->function);
+        if (m != NULL) {
+            m->busy++;
+        }
+        L->exceptions++;
         return -MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
     }
+    m->requests++;
+    L->requests++;
     r = &m->q[(m->head + m->n) % QUEUE_MAX];
     r->id = ri->request_id;
     r->server = ((struct front *) user_data)->server;
@@ -591,6 +615,7 @@ static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data)
     }
     logw(1, "line %s: unit %d, request 0x%02X: %s after %d tries", L->name, r->raw[0], r->raw[1],
          modbus_strerror(error), r->tries);
+    L->exceptions++;
     modbus_server_answer(r->server, r->id, NULL,
                          error == EMBBADCRC || error == EMBBADDATA ? -MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
                                                                    : -MODBUS_EXCEPTION_GATEWAY_TARGET);
@@ -680,6 +705,127 @@ static int authorize(modbus_t *ctx, const char *role, int unit_id, int function,
     return 0;
 }
 
+/* The counters, in the Prometheus text exposition format, to `status_file` (written
+ * to a temporary file, then renamed: a reader never sees half of it). */
+static void write_status(void)
+{
+    char tmp[300];
+    FILE *f;
+    int k, i;
+    if (cfg.status_file[0] == '\0') {
+        return;
+    }
+    snprintf(tmp, sizeof tmp, "%s.tmp", cfg.status_file);
+    f = fopen(tmp, "w");
+    if (f == NULL) {
+        return;
+    }
+    fprintf(f, "# rsmodbus-gateway " VERSION "\n");
+    fprintf(f, "# TYPE rsmodbus_gateway_requests_total counter\n");
+    for (k = 0; k < nlines; k++) {
+        struct line *L = &lines[k];
+        int depth = 0;
+        for (i = 0; i < L->nmasters; i++) {
+            depth += L->masters[i].n;
+        }
+        fprintf(f, "rsmodbus_gateway_requests_total{line=\"%s\"} %ld\n", L->name, L->requests);
+        fprintf(f, "rsmodbus_gateway_answers_total{line=\"%s\"} %ld\n", L->name, L->served);
+        fprintf(f, "rsmodbus_gateway_timeouts_total{line=\"%s\"} %ld\n", L->name, L->timeouts);
+        fprintf(f, "rsmodbus_gateway_bad_answers_total{line=\"%s\"} %ld\n", L->name, L->crc_errors);
+        fprintf(f, "rsmodbus_gateway_exceptions_total{line=\"%s\"} %ld\n", L->name, L->exceptions);
+        fprintf(f, "rsmodbus_gateway_queue_depth{line=\"%s\"} %d\n", L->name, depth + L->busy);
+        for (i = 0; i < L->nmasters; i++) {
+            struct master *m = &L->masters[i];
+            if (m->requests > 0 || m->n > 0) {
+                fprintf(f, "rsmodbus_gateway_master_requests_total{line=\"%s\",socket=\"%d\"} %ld\n", L->name,
+                        m->socket, m->requests);
+                fprintf(f, "rsmodbus_gateway_master_busy_total{line=\"%s\",socket=\"%d\"} %ld\n", L->name,
+                        m->socket, m->busy);
+                fprintf(f, "rsmodbus_gateway_master_queue_depth{line=\"%s\",socket=\"%d\"} %d\n", L->name,
+                        m->socket, m->n);
+            }
+        }
+    }
+    fclose(f);
+    rename(tmp, cfg.status_file);
+}
+
+static volatile sig_atomic_t hangup;
+
+static void on_hangup(int sig)
+{
+    (void) sig;
+    hangup = 1;
+}
+
+/* SIGHUP: the configuration file again, without dropping a master. The policy, the
+ * routes and the line's timing (loglevel, retries, pause, wait, timeout,
+ * replyonbroadcast, status_file, tls_role.*, route) take the file's values; a
+ * change to what was opened (devices, lines, fronts, certificates) is logged and
+ * takes a restart. A file with an error changes nothing. */
+static void reload(void)
+{
+    struct config old = cfg;
+    struct role old_roles[ROLES_MAX];
+    struct route old_routes[ROUTES_MAX];
+    int old_nroles = nroles, old_nroutes = nroutes, i, rc;
+    if (config_path[0] == '\0') {
+        logw(1, "reload: no configuration file (-c)");
+        return;
+    }
+    memcpy(old_roles, roles, sizeof roles);
+    memcpy(old_routes, routes, sizeof routes);
+    nroles = 0;
+    nroutes = 0;
+    reloading = 1;
+    rc = read_config(config_path);
+    reloading = 0;
+    if (rc != 0) {
+        cfg = old;
+        memcpy(roles, old_roles, sizeof roles);
+        memcpy(routes, old_routes, sizeof routes);
+        nroles = old_nroles;
+        nroutes = old_nroutes;
+        logw(0, "reload: %s has an error: the running configuration stays", config_path);
+        return;
+    }
+#define KEEP(field)                                                                                                    \
+    do {                                                                                                               \
+        if (memcmp(&cfg.field, &old.field, sizeof cfg.field) != 0) {                                                   \
+            logw(1, "reload: " #field " changed: it takes a restart");                                                \
+            memcpy(&cfg.field, &old.field, sizeof cfg.field);                                                          \
+        }                                                                                                              \
+    } while (0)
+    KEEP(logfile);
+    KEEP(device);
+    KEEP(speed);
+    KEEP(mode);
+    KEEP(rs485);
+    KEEP(trx);
+    KEEP(address);
+    KEEP(port);
+    KEEP(maxconn);
+    KEEP(tls_address);
+    KEEP(tls_port);
+    KEEP(tls_cert);
+    KEEP(tls_key);
+    KEEP(tls_ca);
+    KEEP(rtutcp_port);
+    KEEP(udp_port);
+    KEEP(backend);
+    KEEP(back_host);
+    KEEP(back_port);
+#undef KEEP
+    for (i = 0; i < nlines; i++) {
+        modbus_set_response_timeout(lines[i].ctx, (uint32_t) cfg.wait / 1000, (uint32_t) (cfg.wait % 1000) * 1000);
+        modbus_set_debug(lines[i].ctx, cfg.loglevel >= 8);
+    }
+    for (i = 0; i < G.nfronts; i++) {
+        modbus_server_set_idle_timeout(G.fronts[i].server, (uint32_t) cfg.timeout, 0);
+    }
+    logw(2, "configuration reloaded from %s: %d route(s), %d role(s)", config_path, nroutes, nroles);
+}
+
 static void on_signal(int sig)
 {
     (void) sig;
@@ -697,6 +843,7 @@ int main(int argc, char **argv)
     modbus_server_callbacks_t cb;
     char port[16];
     int i;
+    double next_status = 0;
 
     while ((opt = getopt(argc, argv, "hdL:v:c:p:s:m:Stry:Y:A:P:C:N:R:W:T:b")) != -1) {
         switch (opt) {
@@ -715,6 +862,7 @@ int main(int argc, char **argv)
             }
             break;
         case 'c':
+            copy(config_path, sizeof config_path, optarg);
             if (read_config(optarg) != 0) {
                 return 1;
             }
@@ -884,6 +1032,7 @@ int main(int argc, char **argv)
     signal(SIGPIPE, SIG_IGN);
     signal(SIGINT, on_signal);
     signal(SIGTERM, on_signal);
+    signal(SIGHUP, on_hangup);
     logw(2, "rsmodbus-gateway " VERSION " started: %s:%d -> %s %d %s%s", cfg.address, cfg.port, cfg.device,
          cfg.speed, cfg.mode, lines[0].ascii ? " (ASCII)" : "");
 
@@ -907,6 +1056,13 @@ int main(int argc, char **argv)
                 timeout = t;
             }
         }
+        if (cfg.status_file[0] != '\0' && (timeout < 0 || timeout > 1000)) {
+            timeout = 1000;
+        }
+        if (now >= next_status) {
+            write_status();
+            next_status = now + 1000;
+        }
         if (poll(pfd, (nfds_t) (G.nfronts + nlines), timeout) < 0 && errno != EINTR) {
             logw(0, "poll: %s", strerror(errno));
             break;
@@ -920,6 +1076,10 @@ int main(int argc, char **argv)
         if (failed) {
             break;
         }
+        if (hangup) {
+            hangup = 0;
+            reload();
+        }
         for (k = 0; k < nlines; k++) {
             struct line *L = &lines[k];
             if (pfd[G.nfronts + k].fd >= 0 || modbus_pending(L->ctx) > 0) {
@@ -932,6 +1092,7 @@ int main(int argc, char **argv)
         logw(2, "line %s: %ld answers, %ld timeouts, %ld bad answers", lines[i].name, lines[i].served,
              lines[i].timeouts, lines[i].crc_errors);
     }
+    write_status();
     logw(2, "rsmodbus-gateway stopped");
     for (i = 0; i < G.nfronts; i++) {
         modbus_server_free(G.fronts[i].server);

@@ -16,6 +16,10 @@
  *                                another master's read is answered, right
  *   gw-check PORT unit U EXC     a read of unit U fails with exception EXC (hex)
  *   gw-check PORT held N         N masters connected at once, each reading once
+ *   gw-check PORT across U S     one connection: a read of unit U gets exception 0x0A
+ *                                (no route), then, S seconds later (the suite
+ *                                changes the routes and sends SIGHUP meanwhile), the
+ *                                same read on the same connection is answered
  *   gw-check PORT reads U        unit U: registers 10 and 11 read (30, 33), register 62
  *                                written and read back
  *
@@ -243,6 +247,28 @@ static void reads(int unit)
     modbus_free(ctx);
 }
 
+static void across(int unit, int secs)
+{
+    modbus_t *ctx = master(unit);
+    uint16_t v[2];
+    int rc;
+    if (!EXPECT(ctx != NULL, "connect")) {
+        return;
+    }
+    errno = 0;
+    rc = modbus_read_registers(ctx, 10, 2, v);
+    EXPECT(rc == -1 && errno == MODBUS_ENOBASE + MODBUS_EXCEPTION_GATEWAY_PATH,
+           "before the reload: unit %d has no route, exception 0x0A (%s)", unit, mbt_errname(errno));
+    printf("WAITING\n");
+    fflush(stdout);
+    sleep((unsigned) secs);
+    rc = modbus_read_registers(ctx, 10, 2, v);
+    EXPECT(rc == 2 && v[0] == 30 && v[1] == 33, "after the reload, on the same connection: unit %d answered (rc %d)",
+           unit, rc);
+    modbus_close(ctx);
+    modbus_free(ctx);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
@@ -260,6 +286,8 @@ int main(int argc, char **argv)
         leave();
     } else if (strcmp(argv[2], "unit") == 0 && argc > 4) {
         unit_exception(atoi(argv[3]), (int) strtol(argv[4], NULL, 16));
+    } else if (strcmp(argv[2], "across") == 0 && argc > 4) {
+        across(atoi(argv[3]), atoi(argv[4]));
     } else if (strcmp(argv[2], "reads") == 0 && argc > 3) {
         reads(atoi(argv[3]));
     } else if (strcmp(argv[2], "held") == 0 && argc > 3) {

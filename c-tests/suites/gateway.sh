@@ -337,6 +337,52 @@ EOF
 fi
 stop_pid "$RA_SOCAT"
 
+section "SIGHUP: the configuration again, connections kept; the counters' status file"
+if line hup; then
+    PORT=$(free_port)
+    write_hup_conf() { # write_hup_conf ROUTES...
+        {
+            printf 'device = %s\nspeed = 115200\nport = %s\npause = 1\nwait = 300\nretries = 1\nlogfile = -\n' \
+                "$WORK/hup-G" "$PORT"
+            printf 'status_file = %s\n' "$WORK/hup.status"
+            printf 'route = %s\n' "$@"
+        } >"$WORK/hup.conf"
+    }
+    write_hup_conf "1-1 default"
+    start hup-gw env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -v 3 -c "$WORK/hup.conf"
+    sleep 0.5
+    start hup-master "$BIN/gw-check" "$PORT" across 3 2
+    if wait_ready hup-master WAITING 10; then
+        write_hup_conf "1-1 default" "3-3 default -2"
+        kill -HUP "${_pids[hup-gw]}"
+    fi
+    wait_exit hup-master 20
+    program_checks "SIGHUP: a route added, the master's connection kept" "$WORK/hup-master.log" "$rc"
+    if grep -q "configuration reloaded from $WORK/hup.conf: 2 route(s), 0 role(s)" "$WORK/hup-gw.log"; then
+        ok "SIGHUP: the gateway says what it reloaded (2 routes)"
+    else
+        bad "SIGHUP: the gateway says what it reloaded" "$(tail -n 3 "$WORK/hup-gw.log")"
+    fi
+    echo "device = /dev/elsewhere" >>"$WORK/hup.conf"
+    kill -HUP "${_pids[hup-gw]}"
+    sleep 0.5
+    if grep -q "reload: device changed: it takes a restart" "$WORK/hup-gw.log"; then
+        ok "SIGHUP: a change of the device is named, and takes a restart"
+    else
+        bad "SIGHUP: a change of the device is named" "$(tail -n 3 "$WORK/hup-gw.log")"
+    fi
+    sleep 1.2
+    if grep -q '^rsmodbus_gateway_answers_total{line="default"} [1-9]' "$WORK/hup.status" &&
+        grep -q '^rsmodbus_gateway_exceptions_total{line="default"} ' "$WORK/hup.status"; then
+        ok "status file: the line's counters ($(grep -c . "$WORK/hup.status") lines, Prometheus text format)"
+    else
+        bad "status file: the line's counters" "$(cat "$WORK/hup.status" 2>&1 | head -n 5)"
+    fi
+    stop hup-gw
+    stop hup-device
+    stop_pid "$SOCAT"
+fi
+
 section "configuration file and help"
 cat >"$WORK/gw.conf" <<EOF
 # mbusd's keys
