@@ -185,7 +185,7 @@ static void usage(FILE *out)
             "  -Y file    : RS-485 direction by writing 0 (transmit) / 1 to a sysfs file\n"
             "  -A address : TCP address to bind (default 0.0.0.0; IPv6 accepted)\n"
             "  -P port    : TCP port (default 502)\n"
-            "  -C maxconn : most simultaneous TCP connections (1-128, default 32)\n"
+            "  -C maxconn : most simultaneous connections (1-10000, default 32; mbusd: up to 128)\n"
             "  -N retries : retries of a request (0-15, default 3; 0: none)\n"
             "  -R pause   : pause between requests in milliseconds (1-10000, default 100)\n"
             "  -W wait    : answer wait in milliseconds (1-10000, default 500)\n"
@@ -296,7 +296,7 @@ static int read_config(const char *path)
         } else if (strcmp(k, "port") == 0) {
             rc = in_range("port", v, 1, 65535, &cfg.port);
         } else if (strcmp(k, "maxconn") == 0) {
-            rc = in_range("maxconn", v, 1, 128, &cfg.maxconn);
+            rc = in_range("maxconn", v, 1, 10000, &cfg.maxconn);
         } else if (strcmp(k, "timeout") == 0) {
             rc = in_range("timeout", v, 0, 1000, &cfg.timeout);
         } else if (strcmp(k, "retries") == 0) {
@@ -904,7 +904,7 @@ int main(int argc, char **argv)
             }
             break;
         case 'C':
-            if (in_range("-C", optarg, 1, 128, &cfg.maxconn) != 0) {
+            if (in_range("-C", optarg, 1, 10000, &cfg.maxconn) != 0) {
                 return 1;
             }
             break;

@@ -20,6 +20,10 @@
  *                                (no route), then, S seconds later (the suite
  *                                changes the routes and sends SIGHUP meanwhile), the
  *                                same read on the same connection is answered
+ *   gw-check PORT broadcast ECHO a write to unit 0: no answer (a timeout), or, with
+ *                                ECHO 1 (-b), the request echoed; unit 1 got it
+ *   gw-check PORT busy           40 requests for unit 9 (no device) in one write: the
+ *                                first 16 wait, the others get exception 0x06 at once
  *   gw-check PORT reads U        unit U: registers 10 and 11 read (30, 33), register 62
  *                                written and read back
  *
@@ -269,6 +273,72 @@ static void across(int unit, int secs)
     modbus_free(ctx);
 }
 
+static void broadcast(int echo)
+{
+    modbus_t *ctx = master(0);
+    uint16_t v = 0;
+    int rc;
+    if (!EXPECT(ctx != NULL, "connect")) {
+        return;
+    }
+    modbus_set_response_timeout(ctx, 1, 0);
+    errno = 0;
+    rc = modbus_write_register(ctx, 200, (uint16_t) (777 + echo));
+    if (echo) {
+        EXPECT(rc == 1, "broadcast write with -b: the request echoed (rc %d, %s)", rc, mbt_errname(errno));
+    } else {
+        EXPECT(rc == -1 && errno == ETIMEDOUT, "broadcast write: no answer (rc %d, %s)", rc, mbt_errname(errno));
+    }
+    usleep(200000);
+    modbus_set_slave(ctx, 1);
+    modbus_flush(ctx);
+    modbus_set_response_timeout(ctx, 5, 0);
+    rc = modbus_read_registers(ctx, 200, 1, &v);
+    EXPECT(rc == 1 && v == 777 + echo, "the device got the broadcast (register 200 = %d)", v);
+    modbus_close(ctx);
+    modbus_free(ctx);
+}
+
+static void busy(void)
+{
+    struct sockaddr_in sa;
+    uint8_t q[40 * 12], a[40 * 9];
+    int s = socket(AF_INET, SOCK_STREAM, 0), i, got = 0, busy_n = 0;
+    double t0;
+    memset(&sa, 0, sizeof sa);
+    sa.sin_family = AF_INET;
+    sa.sin_port = htons((uint16_t) port);
+    sa.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    for (i = 0; i < 40; i++) {
+        uint8_t r[12] = {0, (uint8_t) i, 0, 0, 0, 6, 9, 3, 0, 0, 0, 1};
+        memcpy(q + 12 * i, r, 12);
+    }
+    if (!EXPECT(connect(s, (struct sockaddr *) &sa, sizeof sa) == 0, "connect")) {
+        close(s);
+        return;
+    }
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    t0 = ts.tv_sec + ts.tv_nsec / 1e9;
+    send(s, q, sizeof q, 0);
+    /* The refusals come before any answer of the line (each takes its timeouts). */
+    for (;;) {
+        struct pollfd p = {s, POLLIN, 0};
+        ssize_t n;
+        if (poll(&p, 1, 300) <= 0 || (n = recv(s, a + got, sizeof a - (size_t) got, 0)) <= 0) {
+            break;
+        }
+        got += (int) n;
+    }
+    for (i = 0; i + 9 <= got; i += 9) {
+        busy_n += a[i + 7] == 0x83 && a[i + 8] == MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
+    }
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    EXPECT(busy_n == 24, "40 requests at once: 16 wait, 24 refused as busy (exception 0x06) at once (%d in %.2f s)",
+           busy_n, ts.tv_sec + ts.tv_nsec / 1e9 - t0);
+    close(s);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
@@ -288,6 +358,10 @@ int main(int argc, char **argv)
         unit_exception(atoi(argv[3]), (int) strtol(argv[4], NULL, 16));
     } else if (strcmp(argv[2], "across") == 0 && argc > 4) {
         across(atoi(argv[3]), atoi(argv[4]));
+    } else if (strcmp(argv[2], "broadcast") == 0 && argc > 3) {
+        broadcast(atoi(argv[3]));
+    } else if (strcmp(argv[2], "busy") == 0) {
+        busy();
     } else if (strcmp(argv[2], "reads") == 0 && argc > 3) {
         reads(atoi(argv[3]));
     } else if (strcmp(argv[2], "held") == 0 && argc > 3) {

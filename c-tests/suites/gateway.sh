@@ -108,6 +108,7 @@ for which in ours ${MBUSD:+mbusd}; do
         timeout -k 5 60 "$BIN/gw-check" "$PORT" held 30 >"$WORK/held-mbusd.log" 2>&1
     fi
     checks "$which: a master leaves with its request on the line" "$WORK/leave-$which.log" "$PORT" leave
+    checks "$which: a broadcast" "$WORK/broadcast-$which.log" "$PORT" broadcast 0
     timeout -k 5 30 mbpoll -m tcp -a 1 -r 1 -c 8 -p "$PORT" -1 127.0.0.1 >"$WORK/mbpoll-$which.txt" 2>&1
     # Last: the requests for unit 9 (no device) leave Debian's RTU server waiting for
     # the answer of "another slave" (it then takes the next request for it).
@@ -302,6 +303,16 @@ for back in tcp rtutcp; do
     fi
     stop "back-$back-device"
 done
+
+section "broadcasts answered (-b), a master's full queue (0x06), 1,000 masters"
+if line more; then
+    gateway more ours -R 1 -W 100 -N 0 -b -C 1100 || true
+    checks "ours -b: a broadcast answered" "$WORK/broadcast-b.log" "$PORT" broadcast 1
+    checks "ours: 1,000 masters connected at once" "$WORK/held-1000.log" "$PORT" held 1000
+    # Last (requests for a unit not there confuse Debian's RTU server: see above).
+    checks "ours: a master's queue full" "$WORK/busy.log" "$PORT" busy
+    done_with more
+fi
 
 section "routing: two serial lines by unit ranges, a unit remapped, no route"
 RA_SOCAT=
