@@ -24,6 +24,8 @@
  *                                ECHO 1 (-b), the request echoed; unit 1 got it
  *   gw-check PORT busy           40 requests for unit 9 (no device) in one write: the
  *                                first 16 wait, the others get exception 0x06 at once
+ *   gw-check PORT hold N S       N masters connected, each reading once (latencies:
+ *                                p50, p99, max), then held S seconds (HOLDING)
  *   gw-check PORT reads U        unit U: registers 10 and 11 read (30, 33), register 62
  *                                written and read back
  *
@@ -339,6 +341,47 @@ static void busy(void)
     close(s);
 }
 
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *) a, y = *(const double *) b;
+    return (x > y) - (x < y);
+}
+
+static void hold(int n, int secs)
+{
+    modbus_t **c = calloc((size_t) n, sizeof *c);
+    double *lat = calloc((size_t) n, sizeof *lat);
+    int i, ok = 0;
+    uint16_t v;
+    for (i = 0; i < n; i++) {
+        c[i] = master(1);
+    }
+    for (i = 0; i < n; i++) {
+        struct timespec a, b;
+        clock_gettime(CLOCK_MONOTONIC, &a);
+        if (c[i] != NULL && modbus_read_registers(c[i], i % 100, 1, &v) == 1) {
+            ok++;
+        }
+        clock_gettime(CLOCK_MONOTONIC, &b);
+        lat[i] = (b.tv_sec - a.tv_sec) * 1e3 + (b.tv_nsec - a.tv_nsec) / 1e6;
+    }
+    qsort(lat, (size_t) n, sizeof *lat, cmp_double);
+    printf("# hold: %d masters, %d answered, latency p50 %.2f ms, p99 %.2f ms, max %.2f ms\n", n, ok, lat[n / 2],
+           lat[n * 99 / 100], lat[n - 1]);
+    printf("HOLDING\n");
+    fflush(stdout);
+    sleep((unsigned) secs);
+    for (i = 0; i < n; i++) {
+        if (c[i] != NULL) {
+            modbus_close(c[i]);
+            modbus_free(c[i]);
+        }
+    }
+    free(c);
+    free(lat);
+    EXPECT(ok == n, "%d masters answered (%d)", n, ok);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
@@ -362,6 +405,8 @@ int main(int argc, char **argv)
         broadcast(atoi(argv[3]));
     } else if (strcmp(argv[2], "busy") == 0) {
         busy();
+    } else if (strcmp(argv[2], "hold") == 0 && argc > 4) {
+        hold(atoi(argv[3]), atoi(argv[4]));
     } else if (strcmp(argv[2], "reads") == 0 && argc > 3) {
         reads(atoi(argv[3]));
     } else if (strcmp(argv[2], "held") == 0 && argc > 3) {

@@ -11,6 +11,8 @@
  *                              without a role is refused (exception 01)
  *   gw-ours rtutcp PORT        RTU frames over TCP: unit 1 read, written, read back
  *   gw-ours udp PORT           Modbus/UDP: the same
+ *   gw-ours tlsloop CERTDIR PORT S   an Operator master reading one register in a
+ *                              closed loop for S seconds: prints its answers/s
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
  */
@@ -18,6 +20,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include <modbus.h>
 
@@ -84,6 +87,23 @@ int main(int argc, char **argv)
     }
     if (strcmp(argv[1], "udp") == 0) {
         plain("Modbus/UDP", modbus_new_udp("127.0.0.1", atoi(argv[2])));
+        return chk_summary();
+    }
+    if (strcmp(argv[1], "tlsloop") == 0 && argc > 4) {
+        time_t end;
+        long n = 0;
+        dir = argv[2];
+        port = atoi(argv[3]);
+        if ((ctx = master("operator", 1)) == NULL) {
+            return chk_summary();
+        }
+        end = time(NULL) + atoi(argv[4]);
+        while (time(NULL) < end) {
+            n += modbus_read_registers(ctx, 5, 1, v) == 1;
+        }
+        printf("# tls loop: %ld answers in %d s (%.1f/s)\n", n, atoi(argv[4]), (double) n / atoi(argv[4]));
+        done(ctx);
+        EXPECT(n > 0, "answers through the TLS front");
         return chk_summary();
     }
     if (strcmp(argv[1], "tls") != 0 || argc < 4) {
