@@ -10,6 +10,13 @@
 #                                    against libmodbus' blocking calls, over loopback
 #                                    and a 10 ms round trip (benches/pipeline.sh,
 #                                    about 3 minutes)
+#   scripts/bench.sh --server-many   the server that runs itself (modbus_server_new)
+#                                    under many clients: 100 in closed loop against
+#                                    libmodbus' select() loop and pymodbus' asyncio
+#                                    server, 10,000 at one request a second, memory
+#                                    per idle client (TCP and TLS), TLS clients beside
+#                                    stalled handshakes (benches/server-many.sh, about
+#                                    2 minutes)
 #   scripts/bench.sh --callbacks     modbus_reply_callbacks against modbus_reply on one
 #                                    mapping: CPU per reply (benches/reply-cost.sh,
 #                                    about 20 s)
@@ -41,6 +48,11 @@ if [ "${1:-}" = --pipeline ]; then
     # Pipelining on one connection: benches/pipeline.sh (about 3 minutes).
     scripts/install-deps.sh >/dev/null
     exec benches/pipeline.sh
+fi
+if [ "${1:-}" = --server-many ]; then
+    # The server runner under many clients: benches/server-many.sh (about 2 minutes).
+    scripts/install-deps.sh >/dev/null
+    exec benches/server-many.sh
 fi
 if [ "${1:-}" = --callbacks ]; then
     exec benches/reply-cost.sh
