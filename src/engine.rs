@@ -185,9 +185,9 @@ fn write_waiting(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
     g.line.write(adu, timeout)
 }
 
-/// [`write_adu`] with the RTS sequence.
+/// [`write_adu`] with the RTS sequence (the event-driven client's too).
 #[inline(never)]
-fn write_with_rts(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
+pub fn write_with_rts(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
     let timeout = g.session.timeouts.response;
     let Some(rts) = g.line.rts_sequence() else { return g.line.write(adu, timeout) };
     g.diag().err(format_args!("Sending request using RTS signal\n"));

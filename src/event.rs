@@ -335,6 +335,10 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
     }
     let written = match g.line.write_at_once(out) {
         Some(r) => r,
+        // A serial line with RTS direction control (modbus_rtu_set_rts, or the
+        // application's hook): the same sequence as a blocking call's, the frame's
+        // time on the line included.
+        None if g.line.rts_around_writes() => engine::write_with_rts(g, out),
         None => {
             let timeout = g.session.timeouts.response;
             g.line.write(out, timeout)

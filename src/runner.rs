@@ -614,7 +614,10 @@ impl Runner {
         let mut c = c;
         let ctx = c.ctx.get_mut();
         let fd = ctx.fd();
-        let _ = epoll::control(self.epfd, libc::EPOLL_CTL_DEL, fd, 0, 0);
+        // A failed handshake has closed the socket already (fd -1).
+        if fd >= 0 {
+            let _ = epoll::control(self.epfd, libc::EPOLL_CTL_DEL, fd, 0, 0);
+        }
         if ctx.debug {
             ctx.diag().out(format_args!("Connection closed on socket {fd}\n"));
         }

@@ -50,6 +50,17 @@
 
 int mbt_is_rsmodbus(void); /* c-tests/common/libinfo.c, which prints LIBINFO first */
 static void chain_cb(modbus_t *ctx, int id, int rc, int error, void *user);
+/* The RTS hook's calls, as "0"/"1" characters. */
+static char rts_calls[64];
+static void rts_hook(modbus_t *ctx, int on)
+{
+    size_t n = strlen(rts_calls);
+    (void) ctx;
+    if (n + 1 < sizeof rts_calls) {
+        rts_calls[n] = on ? '1' : '0';
+        rts_calls[n + 1] = '\0';
+    }
+}
 static void free_cb(modbus_t *ctx, int id, int rc, int error, void *user);
 static int freed_flag;
 
@@ -1239,6 +1250,20 @@ int main(int argc, char **argv)
         uint16_t v = 0;
         int rc = modbus_read_registers(ctx, 50, 1, &v);
         EXPECT(rc == 1 && v == 7, "the broadcast reached the server (register 50 = %u)", v);
+        /* RS-485 direction by the application's hook: an asynchronous request runs
+         * the blocking call's sequence (up before the frame, down after it). */
+        rts_calls[0] = '\0';
+        modbus_rtu_set_custom_rts(ctx, rts_hook);
+        modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_UP);
+        rc = modbus_read_registers(ctx, 50, 1, &v);
+        EXPECT(rc == 1 && strcmp(rts_calls, "010") == 0, "blocking read with RTS up: the hook's calls %s (010)",
+               rts_calls);
+        rts_calls[0] = '\0';
+        a = one(ctx, modbus_read_registers_async(ctx, 50, 1, &v, on_done, NULL));
+        EXPECT(a.done == 1 && a.rc == 1 && strcmp(rts_calls, "10") == 0,
+               "asynchronous read with RTS up: rc %d, the hook's calls %s (10, as the blocking call's)", a.rc,
+               rts_calls);
+        modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_NONE);
         modbus_close(ctx);
     } else {
         chk_set_prefix("own servers: ");
