@@ -76,6 +76,7 @@ struct line {
     struct request current; /* it */
     uint8_t rsp[MODBUS_MAX_ADU_LENGTH];
     double quiet_until;     /* the pause after a transaction */
+    double gap_ms;          /* a serial line's 3.5 characters at its speed (-R 0) */
     long requests, served, timeouts, crc_errors, exceptions;
 };
 #define LINES_MAX 8
@@ -160,6 +161,21 @@ static void logw(int level, const char *fmt, ...)
     va_end(ap);
 }
 
+/* The RTS hook of -y/-Y (trx_control = sysfs_1/sysfs_0): `on` is the level the
+ * library wants (1 while sending for -y, 0 for -Y), written as the file's text. The
+ * file is opened each time (mbusd does the same): "1" or "0", no newline. */
+static void sysfs_direction(modbus_t *ctx, int on)
+{
+    int fd = open(cfg.trx_sysfile, O_WRONLY | O_CLOEXEC);
+    (void) ctx;
+    if (fd < 0 || write(fd, on ? "1" : "0", 1) != 1) {
+        logw(1, "RS-485 direction file %s: %s", cfg.trx_sysfile, strerror(errno));
+    }
+    if (fd >= 0) {
+        close(fd);
+    }
+}
+
 static void usage(FILE *out)
 {
     fprintf(out,
@@ -187,10 +203,23 @@ static void usage(FILE *out)
             "  -P port    : TCP port (default 502)\n"
             "  -C maxconn : most simultaneous connections (1-10000, default 32; mbusd: up to 128)\n"
             "  -N retries : retries of a request (0-15, default 3; 0: none)\n"
-            "  -R pause   : pause between requests in milliseconds (1-10000, default 100)\n"
+            "  -R pause   : pause between requests in milliseconds (0-10000, default 100;\n"
+            "               0: the 3.5-character silence only; mbusd's minimum is 1)\n"
             "  -W wait    : answer wait in milliseconds (1-10000, default 500)\n"
             "  -T timeout : idle connection timeout in seconds (0-1000, default 60; 0: none)\n"
             "  -b         : reply to broadcasts (the request echoed)\n\n"
+            "Configuration file (-c): mbusd's keys (loglevel logfile device speed mode enable_rs485\n"
+            "trx_control trx_sysfile address port maxconn timeout retries pause wait\n"
+            "replyonbroadcast), and past mbusd (rsmodbus-gateway(8)):\n"
+            "  tls_cert, tls_key, tls_ca         : Modbus/TCP Security front (mutual TLS)\n"
+            "  tls_address, tls_port             : where it listens (default port 802)\n"
+            "  tls_role.ROLE = r|rw FIRST-LAST   : what a certificate's role may do (else exception 01)\n"
+            "  rtutcp_port, udp_port             : RTU over TCP and Modbus/UDP fronts\n"
+            "  backend = serial | tcp|rtutcp HOST PORT : the default line's kind\n"
+            "  line.NAME = serial DEV SPEED [MODE] | tcp|rtutcp HOST PORT : another line\n"
+            "  route = FIRST-LAST LINE [OFFSET]  : units to a line, remapped (no route: 0x0A)\n"
+            "  status_file = PATH                : counters per line and master (Prometheus text)\n"
+            "SIGHUP reloads the configuration file; connections stay.\n\n"
             "Exceptions: 0x0B when the device does not answer, 0x04 when its answers keep failing\n"
             "the CRC, 0x06 when a master has %d requests waiting.\n",
             QUEUE_MAX);
@@ -302,7 +331,7 @@ static int read_config(const char *path)
         } else if (strcmp(k, "retries") == 0) {
             rc = in_range("retries", v, 0, 15, &cfg.retries);
         } else if (strcmp(k, "pause") == 0) {
-            rc = in_range("pause", v, 1, 10000, &cfg.pause);
+            rc = in_range("pause", v, 0, 10000, &cfg.pause);
         } else if (strcmp(k, "wait") == 0) {
             rc = in_range("wait", v, 1, 10000, &cfg.wait);
         } else if (strcmp(k, "replyonbroadcast") == 0) {
@@ -582,7 +611,8 @@ static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data)
     (void) ctx;
     (void) id;
     L->busy = 0;
-    L->quiet_until = now_ms() + cfg.pause;
+    /* -R 0: only the RTU silence between frames (3.5 characters), none on TCP. */
+    L->quiet_until = now_ms() + (cfg.pause > 0 ? cfg.pause : L->gap_ms);
     if (r->raw[0] == 0 && L->header == 1) {
         /* A broadcast: out, no answer expected; the request echoed with -b. */
         modbus_server_answer(r->server, r->id, cfg.replyonbroadcast ? r->raw + 1 : NULL,
@@ -659,6 +689,8 @@ static int open_line(struct line *L)
             return -1;
         }
         L->checksum = L->ascii ? 1 : 2;
+        /* A character: a start bit, the data bits, the parity bit, the stop bits. */
+        L->gap_ms = 3.5 * (1 + data + (parity != 'N') + stop) * 1000.0 / L->speed;
         L->ctx = L->ascii ? modbus_new_ascii(L->device, L->speed, parity, data, stop)
                           : modbus_new_rtu(L->device, L->speed, parity, data, stop);
     }
@@ -914,7 +946,7 @@ int main(int argc, char **argv)
             }
             break;
         case 'R':
-            if (in_range("-R", optarg, 1, 10000, &cfg.pause) != 0) {
+            if (in_range("-R", optarg, 0, 10000, &cfg.pause) != 0) {
                 return 1;
             }
             break;
@@ -978,8 +1010,16 @@ int main(int argc, char **argv)
     if (cfg.trx == 1 || cfg.trx == 2) {
         modbus_rtu_set_rts(lines[0].ctx, cfg.trx == 1 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN);
     } else if (cfg.trx >= 3) {
-        logw(0, "RS-485 direction through a sysfs file (-y, -Y) is not supported; use -S or -t/-r");
-        return 1;
+        /* The direction through a sysfs file (a GPIO's value): written before and after
+         * each transmission, by the library's RTS hook. -y writes 1 while sending, -Y 0. */
+        int fd = open(cfg.trx_sysfile, O_WRONLY | O_CLOEXEC);
+        if (fd < 0) {
+            logw(0, "RS-485 direction file %s: %s", cfg.trx_sysfile, strerror(errno));
+            return 1;
+        }
+        close(fd);
+        modbus_rtu_set_custom_rts(lines[0].ctx, sysfs_direction);
+        modbus_rtu_set_rts(lines[0].ctx, cfg.trx == 3 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN);
     }
 
     /* The fronts: Modbus/TCP; RTU frames over TCP and Modbus/UDP when asked; and
@@ -1038,18 +1078,22 @@ int main(int argc, char **argv)
 
     while (!stopping) {
         struct pollfd pfd[FRONTS_MAX + LINES_MAX];
-        int timeout = -1, failed = 0, k;
+        double timeout = -1; /* ms; the pause after a fast serial line is below one */
+        int failed = 0, k;
         double now = now_ms();
+        struct timespec ts;
         for (i = 0; i < G.nfronts; i++) {
             pfd[i].fd = modbus_server_get_fd(G.fronts[i].server);
             pfd[i].events = POLLIN;
         }
         for (k = 0; k < nlines; k++) {
             struct line *L = &lines[k];
-            int t;
-            modbus_get_pollfd(L->ctx, &pfd[G.nfronts + k], &t);
+            int lt;
+            double t;
+            modbus_get_pollfd(L->ctx, &pfd[G.nfronts + k], &lt);
+            t = lt;
             if (!L->busy && L->quiet_until > now) {
-                int pause = (int) (L->quiet_until - now) + 1;
+                double pause = L->quiet_until - now;
                 t = t < 0 || pause < t ? pause : t;
             }
             if (t >= 0 && (timeout < 0 || t < timeout)) {
@@ -1063,7 +1107,9 @@ int main(int argc, char **argv)
             write_status();
             next_status = now + 1000;
         }
-        if (poll(pfd, (nfds_t) (G.nfronts + nlines), timeout) < 0 && errno != EINTR) {
+        ts.tv_sec = (time_t) (timeout / 1000);
+        ts.tv_nsec = (long) ((timeout - (double) ts.tv_sec * 1000) * 1e6);
+        if (ppoll(pfd, (nfds_t) (G.nfronts + nlines), timeout < 0 ? NULL : &ts, NULL) < 0 && errno != EINTR) {
             logw(0, "poll: %s", strerror(errno));
             break;
         }

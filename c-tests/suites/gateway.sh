@@ -304,6 +304,55 @@ for back in tcp rtutcp; do
     stop "back-$back-device"
 done
 
+section "RS-485 direction through a sysfs file (-y, -Y)"
+# The "sysfs file" is a FIFO whose reader records every write: -y writes 1 before a
+# request goes out and 0 after it, -Y the reverse (mbusd's -y/-Y).
+fifo_reader() { # fifo_reader NAME: $WORK/NAME.fifo, recorded in $WORK/NAME.rec
+    rm -f "$WORK/$1.fifo" "$WORK/$1.rec"
+    mkfifo "$WORK/$1.fifo"
+    start "$1-rec" python3 -c 'import os, sys
+fd = os.open(sys.argv[1], os.O_RDWR)
+print("READY", flush=True)
+with open(sys.argv[2], "ab", buffering=0) as out:
+    while True:
+        out.write(os.read(fd, 64))' "$WORK/$1.fifo" "$WORK/$1.rec"
+    wait_ready "$1-rec" READY 10
+}
+for which in ours ${MBUSD:+mbusd}; do
+    for opt in -y -Y; do
+        n=trx$opt-$which
+        fifo_reader "$n" || { bad "$n: the FIFO's reader starts"; continue; }
+        if line "$n" && gateway "$n" "$which" -R 1 -W 300 -N 0 "$opt" "$WORK/$n.fifo"; then
+            checks "$which $opt: requests through the line" "$WORK/$n.log" "$PORT" reads 1
+        fi
+        done_with "$n"
+        sleep 0.2
+        stop "$n-rec"
+        rec=$(cat "$WORK/$n.rec" 2>/dev/null)
+        if [ "$which" = mbusd ]; then
+            echo "# mbusd $opt wrote: $rec"
+        elif { [ "$opt" = -y ] && [[ $rec =~ ^0?(10){3}$ ]]; } || { [ "$opt" = -Y ] && [[ $rec =~ ^1?(01){3}$ ]]; }; then
+            ok "ours $opt: the direction file is written around each of the 3 requests: $rec"
+        else
+            bad "ours $opt: the direction file is written around each of the 3 requests" "wrote: $rec"
+        fi
+    done
+done
+
+section "-R 0: the 3.5-character silence only (mbusd's least pause is 1 ms)"
+if line r0 && gateway r0 ours -R 0 -W 300 -N 0; then
+    checks "ours -R 0: requests through the line" "$WORK/r0.log" "$PORT" reads 1
+    checks "ours -R 0: 20 masters in turn" "$WORK/r0-fair.log" "$PORT" fair 20 2
+fi
+done_with r0
+if [ -n "$MBUSD" ]; then
+    if timeout 5 "$MBUSD" -d -L - -R 0 -p "$WORK/none" -P "$(free_port)" >"$WORK/mbusd-r0.log" 2>&1; then
+        bad "mbusd refuses -R 0 (as our manual page says)" "$(cat "$WORK/mbusd-r0.log")"
+    else
+        ok "mbusd refuses -R 0 (as our manual page says): $(head -n 1 "$WORK/mbusd-r0.log")"
+    fi
+fi
+
 section "broadcasts answered (-b), a master's full queue (0x06), 1,000 masters"
 if line more; then
     gateway more ours -R 1 -W 100 -N 0 -b -C 1100 || true
@@ -440,6 +489,17 @@ for o in -h -d -L -v -c -p -s -m -S -t -r -y -Y -A -P -C -N -R -W -T -b; do
     grep -q -- "^  $o " <<<"$out" || missing+=" $o"
 done
 result "-h lists mbusd's options${missing:+ (missing:$missing)}" "$([ -z "$missing" ] && echo PASS || echo FAIL)"
+# ... and every key of the configuration file, mbusd's and the extended ones, each of
+# which the man page documents too.
+missing=
+page=$(sed 's/`//g' "$ROOT/man/src/rsmodbus-gateway.md")
+for k in loglevel logfile device speed mode enable_rs485 trx_control trx_sysfile address port maxconn \
+    timeout retries pause wait replyonbroadcast tls_cert tls_key tls_ca tls_address tls_port tls_role. \
+    rtutcp_port udp_port backend line. route status_file; do
+    grep -qF -- "$k" <<<"$out" && grep -qF -- "$k" <<<"$page" || missing+=" $k"
+done
+result "-h and rsmodbus-gateway(8) list every configuration key${missing:+ (missing:$missing)}" \
+    "$([ -z "$missing" ] && echo PASS || echo FAIL)"
 echo "bogus = 1" >"$WORK/bad.conf"
 if ! env LD_LIBRARY_PATH="$LIBDIR" "$BIN/rsmodbus-gateway" -d -c "$WORK/bad.conf" >"$WORK/bad.log" 2>&1 &&
     grep -q "unknown key 'bogus'" "$WORK/bad.log"; then
