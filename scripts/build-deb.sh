@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # build-deb.sh: builds the Debian packages librsmodbus5 (libmodbus.so.5; provides,
-# conflicts with and replaces libmodbus5) and librsmodbus-dev (headers, libmodbus.so,
-# libmodbus.a, libmodbus.pc, manual pages, examples; provides libmodbus-dev) with
-# `dpkg-buildpackage -b` and debian/, using the cargo on PATH (Rust >= 1.85).
+# conflicts with and replaces libmodbus5), librsmodbus-dev (headers, libmodbus.so,
+# libmodbus.a, libmodbus.pc, manual pages, examples; provides libmodbus-dev) and
+# rsmodbus-gateway (the gateway, its manual page, systemd unit template and example
+# configuration) with `dpkg-buildpackage -b` and debian/, using the cargo on PATH
+# (Rust >= 1.85).
 #
 # Usage: scripts/build-deb.sh [OUTDIR]     (default target/debian)
 # Needs: debhelper, dpkg-dev, gcc, pkg-config, python3 (scripts/install-deps.sh).

@@ -3,7 +3,7 @@
 # without installing them on this machine (Debian's libmodbus5 stays: it is the
 # oracle of the differential tests):
 #   - control fields (dpkg-deb -f): names, version, Provides/Conflicts/Replaces
-#     libmodbus5 and libmodbus-dev, Depends; the ldconfig trigger, shlibs and symbols
+#     libmodbus5 and libmodbus-dev, Depends (rsmodbus-gateway's on librsmodbus5); the ldconfig trigger, shlibs and symbols
 #     (dpkg-deb -I); the exact file lists (dpkg-deb -c);
 #   - apt's resolver (simulation only): installing both packages removes libmodbus5
 #     and libmodbus-dev but keeps Debian's mbpoll, and collectd-core and zabbix-agent
@@ -17,7 +17,8 @@
 #   - Debian's unmodified /usr/bin/mbpoll with LD_LIBRARY_PATH pointing into the
 #     extracted root, against examples/tcp-server on loopback and examples/rtu-server
 #     over a pty: printed values, exit codes, and the libmodbus.so.5 it loaded
-#     (LD_DEBUG=libs, /proc/PID/maps).
+#     (LD_DEBUG=libs, /proc/PID/maps), and through the packaged rsmodbus-gateway in
+#     front of that pty (its -h too).
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
 # Usage: c-tests/suites/package.sh [--no-build]   (--no-build: use target/debian/*.deb)
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -48,12 +49,14 @@ if [ "${1:-}" != "--no-build" ]; then
 fi
 RUNTIME=$(ls "$DEBS"/librsmodbus5_*.deb 2>/dev/null | head -n 1)
 DEV=$(ls "$DEBS"/librsmodbus-dev_*.deb 2>/dev/null | head -n 1)
-if [ -z "$RUNTIME" ] || [ -z "$DEV" ]; then
-    bad "both packages exist in target/debian" "$(ls "$DEBS" 2>&1)"
+GW=$(ls "$DEBS"/rsmodbus-gateway_*.deb 2>/dev/null | head -n 1)
+if [ -z "$RUNTIME" ] || [ -z "$DEV" ] || [ -z "$GW" ]; then
+    bad "the three packages exist in target/debian" "$(ls "$DEBS" 2>&1)"
     summary
     exit 1
 fi
-echo "       $(basename "$RUNTIME"): $(stat -c %s "$RUNTIME") bytes; $(basename "$DEV"): $(stat -c %s "$DEV") bytes"
+echo "       $(basename "$RUNTIME"): $(stat -c %s "$RUNTIME") bytes; $(basename "$DEV"): $(stat -c %s "$DEV") bytes;" \
+    "$(basename "$GW"): $(stat -c %s "$GW") bytes"
 
 # --- copyright: every Rust crate linked into the library is named, with its licence ---
 if out=$(python3 debian/embedded-crates.py --check 2>&1); then
@@ -90,6 +93,16 @@ expect_field "$DEV" Provides "libmodbus-dev (= $api)"
 expect_field "$DEV" Conflicts libmodbus-dev
 expect_field "$DEV" Replaces libmodbus-dev
 expect_field "$DEV" Section libdevel
+expect_field "$GW" Package rsmodbus-gateway
+expect_field "$GW" Version "$version"
+expect_field "$GW" Section net
+# The gateway uses rsmodbus' own calls: it needs librsmodbus5 (dpkg-shlibdeps adds
+# libmodbus5 (>= 3.1.4) for libmodbus' calls, which librsmodbus5 provides).
+if field "$GW" Depends | grep -q "^librsmodbus5 (= $version), libc6 (>= "; then
+    ok "rsmodbus-gateway: Depends: $(field "$GW" Depends)"
+else
+    bad "rsmodbus-gateway: Depends on librsmodbus5 (= $version) and libc6" "got: $(field "$GW" Depends)"
+fi
 if field "$RUNTIME" Depends | grep -q 'libc6 (>= '; then
     ok "librsmodbus5: Depends (from dpkg-shlibdeps): $(field "$RUNTIME" Depends)"
 else
@@ -121,6 +134,12 @@ if grep -q '^Remv libmodbus5 ' "$WORK/apt-sim.log" && grep -q '^Inst librsmodbus
 else
     bad "apt (simulated): the packages replace libmodbus5 and keep mbpoll" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim.log")"
 fi
+apt-get -s install "$RUNTIME" "$GW" >"$WORK/apt-sim-gw.log" 2>&1
+if grep -q '^Inst rsmodbus-gateway ' "$WORK/apt-sim-gw.log" && grep -q '^Inst librsmodbus5 ' "$WORK/apt-sim-gw.log"; then
+    ok "apt (simulated): rsmodbus-gateway installs beside librsmodbus5"
+else
+    bad "apt (simulated): rsmodbus-gateway installs beside librsmodbus5" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim-gw.log")"
+fi
 if apt-cache show collectd-core zabbix-agent >/dev/null 2>&1; then
     apt-get -s install "$RUNTIME" collectd-core zabbix-agent >"$WORK/apt-sim2.log" 2>&1
     if grep -q '^Inst collectd-core ' "$WORK/apt-sim2.log" && grep -q '^Inst zabbix-agent ' "$WORK/apt-sim2.log" &&
@@ -135,19 +154,24 @@ fi
 # --- file lists -----------------------------------------------------------------------
 list() { dpkg-deb -c "$1" | awk '{ if ($6 == "") next; l = $6; if (NF >= 8 && $7 == "->") l = l " -> " $8; if (substr($1,1,1) != "d") print l }' | sed 's|^\./|/|' | sort; }
 L=/usr/lib/$MA
+# expect_files KEY DEB [NOTE]: DEB's files are exactly the lines of stdin.
+expect_files() {
+    local key=$1 deb=$2 note=${3:-}
+    sort >"$WORK/$key.expected"
+    list "$deb" >"$WORK/$key.files"
+    if diff -u "$WORK/$key.expected" "$WORK/$key.files" >"$WORK/$key.diff"; then
+        ok "$(field "$deb" Package): file list ($(wc -l <"$WORK/$key.files") files$note)"
+    else
+        bad "$(field "$deb" Package): file list" "$(head -n 40 "$WORK/$key.diff")"
+    fi
+}
 {
     echo "$L/libmodbus.so.5 -> libmodbus.so.5.1.0"
     echo "$L/libmodbus.so.5.1.0"
     echo "/usr/share/doc/librsmodbus5/changelog.gz"
     echo "/usr/share/doc/librsmodbus5/copyright"
     echo "/usr/share/lintian/overrides/librsmodbus5"
-} | sort >"$WORK/runtime.expected"
-list "$RUNTIME" >"$WORK/runtime.files"
-if diff -u "$WORK/runtime.expected" "$WORK/runtime.files" >"$WORK/runtime.diff"; then
-    ok "librsmodbus5: file list ($(wc -l <"$WORK/runtime.files") files)"
-else
-    bad "librsmodbus5: file list" "$(cat "$WORK/runtime.diff")"
-fi
+} | expect_files runtime "$RUNTIME"
 nm -D --defined-only $BUILT/libmodbus.so | awk '{print $3}' | sort >"$WORK/exported"
 {
     for h in modbus.h modbus-rtu.h modbus-tcp.h modbus-tls.h modbus-version.h; do echo "/usr/include/modbus/$h"; done
@@ -162,14 +186,14 @@ nm -D --defined-only $BUILT/libmodbus.so | awk '{print $3}' | sort >"$WORK/expor
     if [ "$(stat -c %s README.md)" -gt 4096 ]; then readme=README.md.gz; else readme=README.md; fi
     echo "/usr/share/doc/librsmodbus-dev/$readme"
     for f in examples/*.c; do echo "/usr/share/doc/librsmodbus-dev/examples/$(basename "$f")"; done
-} | sort >"$WORK/dev.expected"
-list "$DEV" >"$WORK/dev.files"
-if diff -u "$WORK/dev.expected" "$WORK/dev.files" >"$WORK/dev.diff"; then
-    ok "librsmodbus-dev: file list ($(wc -l <"$WORK/dev.files") files, $(grep -c 'man3/' "$WORK/dev.files") pages in man3 = $(wc -l <"$WORK/exported") exported symbols)"
-else
-    bad "librsmodbus-dev: file list" "$(head -n 40 "$WORK/dev.diff")"
-fi
-for deb in "$RUNTIME" "$DEV"; do
+} | expect_files dev "$DEV" ", a page in man3 for each of the $(wc -l <"$WORK/exported") exported symbols"
+{
+    echo "/usr/bin/rsmodbus-gateway"
+    echo "/usr/share/man/man8/rsmodbus-gateway.8.gz"
+    echo "/lib/systemd/system/rsmodbus-gateway@.service"
+    for f in changelog.gz copyright examples/example.conf; do echo "/usr/share/doc/rsmodbus-gateway/$f"; done
+} | expect_files gw "$GW"
+for deb in "$RUNTIME" "$DEV" "$GW"; do
     pkg=$(field "$deb" Package)
     dpkg-deb --fsys-tarfile "$deb" | tar -xO "./usr/share/doc/$pkg/copyright" >"$WORK/$pkg.copyright" 2>/dev/null
     if grep -q '^License: MIT or Apache-2.0' "$WORK/$pkg.copyright"; then
@@ -188,7 +212,7 @@ done
 # --- the extracted tree -----------------------------------------------------------------
 R=$WORK/root
 mkdir -p "$R"
-dpkg -x "$RUNTIME" "$R" && dpkg -x "$DEV" "$R"
+dpkg -x "$RUNTIME" "$R" && dpkg -x "$DEV" "$R" && dpkg -x "$GW" "$R"
 RL=$R$L
 so=$RL/libmodbus.so.5.1.0
 soname=$(objdump -p "$so" | awk '$1 == "SONAME" {print $2}')
@@ -249,7 +273,7 @@ expect_line "libmodbus.pc: Cflags" "$RL/pkgconfig/libmodbus.pc" "Cflags: -I\${in
 # The packaged manual pages render (gzipped, as man-db reads them).
 man_bad=()
 npages=0
-for page in "$R"/usr/share/man/man3/*.3.gz "$R"/usr/share/man/man7/*.7.gz; do
+for page in "$R"/usr/share/man/man3/*.3.gz "$R"/usr/share/man/man7/*.7.gz "$R"/usr/share/man/man8/*.8.gz; do
     npages=$((npages + 1))
     warn=$(MANWIDTH=80 man --warnings=all -l "$page" 2>&1 >/dev/null)
     [ -z "$warn" ] || man_bad+=("$(basename "$page"): $warn")
@@ -258,6 +282,19 @@ if [ ${#man_bad[@]} -eq 0 ] && [ "$npages" -gt 0 ]; then
     ok "the $npages packaged pages render with man -l without warnings"
 else
     bad "the packaged pages render without warnings" "${man_bad[@]:0:5}"
+fi
+
+# The packaged gateway: its help lists mbusd's options and the extended keys.
+if out=$(LD_LIBRARY_PATH=$RL "$R/usr/bin/rsmodbus-gateway" -h 2>&1) && grep -q -- "^  -y file" <<<"$out" &&
+    grep -q "tls_role" <<<"$out"; then
+    ok "the packaged rsmodbus-gateway -h exits 0 and lists -y and tls_role"
+else
+    bad "the packaged rsmodbus-gateway -h" "$(head -n 5 <<<"$out")"
+fi
+if [ "$(readelf -h "$R/usr/bin/rsmodbus-gateway" 2>/dev/null | awk '$1 == "Type:" {print $2}')" = DYN ]; then
+    ok "rsmodbus-gateway is position-independent (Debian's hardening build flags)"
+else
+    bad "rsmodbus-gateway is position-independent" "$(readelf -h "$R/usr/bin/rsmodbus-gateway" | grep Type)"
 fi
 
 # --- examples against the extracted root --------------------------------------------
@@ -404,6 +441,26 @@ if [ -x "$MBPOLL" ] && dpkg -S "$MBPOLL" 2>/dev/null | grep -q '^mbpoll:'; then
             [ "$rc" -eq 0 ] && ok "rtu-client (extracted library) exits 0" ||
                 bad "rtu-client (extracted library) exits 0" "exit $rc" "$(tail -n 5 "$WORK/pkg-rtu-client.log")"
             client_checks "rtu" "$WORK/pkg-rtu-client.log"
+            # The packaged gateway in front of the same line: mbpoll over TCP through it.
+            if [ -x "$R/usr/bin/rsmodbus-gateway" ]; then
+                gport=$(free_port)
+                start pkg-gateway "$R/usr/bin/rsmodbus-gateway" -d -L - -p "$WORK/ttyC" -s 19200 -m 8E1 \
+                    -P "$gport" -R 1 -W 500
+                if wait_ready pkg-gateway "started" 10; then
+                    # (registers 0-2 hold what rtu-client wrote)
+                    mbpoll_run gateway-read 0 -m tcp -p "$gport" -a 17 -r 4 -c 3 -1 127.0.0.1
+                    expect_values gateway-read 4:1003 5:1004 6:1005
+                    if grep -qF "$RL/libmodbus.so.5.1.0" "/proc/${_pids[pkg-gateway]}/maps"; then
+                        ok "the packaged rsmodbus-gateway maps the extracted libmodbus.so.5.1.0"
+                    else
+                        bad "the packaged rsmodbus-gateway maps the extracted library" \
+                            "$(grep libmodbus "/proc/${_pids[pkg-gateway]}/maps" | head -n 2)"
+                    fi
+                else
+                    bad "the packaged rsmodbus-gateway starts" "$(tail -n 5 "$WORK/pkg-gateway.log")"
+                fi
+                stop pkg-gateway
+            fi
         else
             bad "rtu-server for mbpoll starts" "$(cat "$WORK/mbpoll-rtu-server.log")"
         fi
