@@ -17,6 +17,11 @@
 #                                    per idle client (TCP and TLS), TLS clients beside
 #                                    stalled handshakes (benches/server-many.sh, about
 #                                    2 minutes)
+#   scripts/bench.sh --gateway       rsmodbus-gateway beside mbusd (built from
+#                                    ../shared/anchors/mbusd when it is there) on an
+#                                    RTU pty line: one master, 100 masters (spread),
+#                                    1,000 held (RSS, p99), the TLS front
+#                                    (benches/gateway.sh, about 2 minutes)
 #   scripts/bench.sh --callbacks     modbus_reply_callbacks against modbus_reply on one
 #                                    mapping: CPU per reply (benches/reply-cost.sh,
 #                                    about 20 s)
@@ -53,6 +58,11 @@ if [ "${1:-}" = --server-many ]; then
     # The server runner under many clients: benches/server-many.sh (about 2 minutes).
     scripts/install-deps.sh >/dev/null
     exec benches/server-many.sh
+fi
+if [ "${1:-}" = --gateway ]; then
+    # The gateway beside mbusd: benches/gateway.sh (about 2 minutes).
+    scripts/install-deps.sh >/dev/null
+    exec benches/gateway.sh
 fi
 if [ "${1:-}" = --callbacks ]; then
     exec benches/reply-cost.sh

@@ -149,7 +149,7 @@ static void fair(int n, int secs)
     pthread_t *t = calloc((size_t) n, sizeof *t);
     struct fair_arg *a = calloc((size_t) n, sizeof *a);
     long most = 0, fewest = -1, total = 0, errors = 0;
-    int i;
+    int i, unserved = 0, unconnected = 0;
     for (i = 0; i < n; i++) {
         a[i].secs = secs;
         pthread_create(&t[i], NULL, fair_master, &a[i]);
@@ -157,12 +157,18 @@ static void fair(int n, int secs)
     for (i = 0; i < n; i++) {
         pthread_join(t[i], NULL);
         total += a[i].count;
-        errors += a[i].errors;
+        unserved += a[i].count == 0;
+        /* (-1: it could not connect) */
+        unconnected += a[i].errors < 0;
+        errors += a[i].errors > 0 ? a[i].errors : 0;
         most = a[i].count > most ? a[i].count : most;
         fewest = fewest < 0 || a[i].count < fewest ? a[i].count : fewest;
     }
-    printf("# fair: %d masters, %ld answers in %d s (%.1f/s), %ld errors, most %ld, fewest %ld, spread %.2f\n", n,
-           total, secs, (double) total / secs, errors, most, fewest, fewest > 0 ? (double) most / fewest : 0.0);
+    printf("# fair: %d masters, %ld answers in %d s (%.1f/s), %ld errors, most %ld, fewest %ld, spread %.2f, "
+           "unserved %d, not connected %d\n",
+           n, total, secs, (double) total / secs, errors, most, fewest, fewest > 0 ? (double) most / fewest : 0.0,
+           unserved, unconnected);
+    EXPECT(unconnected == 0, "every master connected (%d not)", unconnected);
     EXPECT(fewest > 0, "every master served (fewest %ld)", fewest);
     EXPECT(errors == 0, "no errors (%ld)", errors);
     EXPECT(fewest > 0 && (double) most / fewest <= 1.2, "the busiest within 1.2x of the least served (%.2f)",
