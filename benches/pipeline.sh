@@ -14,8 +14,8 @@
 #      1, for each server. Target: at least 12x the transactions per second.
 #      Diagnostic rows (BENCH_NODELAY_DIAG=0 leaves them out): the same servers with
 #      benches/nodelay-preload.c preloaded, which sets TCP_NODELAY on the sockets they
-#      accept (libmodbus and rsmodbus leave Nagle's algorithm on there): how much of
-#      the pipeline's gain the servers' Nagle holds back.
+#      accept (libmodbus leaves Nagle's algorithm on there; rsmodbus' servers set
+#      it themselves): how much of the pipeline's gain the servers' Nagle holds back.
 #  (b) Loopback, no proxy: the async client at depth 16 on rsmodbus against Debian's
 #      blocking client (modbus_read_registers in a loop), each server. Targets:
 #      at least 3x the transactions per second; at most 0.5 system calls per
@@ -385,10 +385,10 @@ for set in "${sets[@]}"; do
 done
 if [ "$DIAG" = 1 ]; then
     echo
-    echo "Diagnostic rows: the same mb-server binary and library with benches/nodelay-preload.c"
-    echo "preloaded (TCP_NODELAY on the accepted socket; libmodbus and rsmodbus leave Nagle's"
-    echo "algorithm on there, so a server's answers after the first of a burst wait for its"
-    echo "acknowledgement)."
+    echo "Diagnostic rows: the same server binary and library with benches/nodelay-preload.c"
+    echo "preloaded (TCP_NODELAY on the accepted socket; libmodbus leaves Nagle's algorithm on"
+    echo "there, so its answers after the first of a burst wait for their acknowledgement;"
+    echo "rsmodbus' servers set TCP_NODELAY themselves)."
 fi
 echo
 # ratio_rows NUM DEN TARGET [MEASURE]: one table row per placement and server, the
