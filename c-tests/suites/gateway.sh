@@ -254,6 +254,47 @@ EOF
     env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/gw-ours" tls "$C" "$TLS_PORT" >"$WORK/tls-masters.log" 2>&1 ||
         rc=$?
     program_checks "TLS front: Operator, Reader, no role" "$WORK/tls-masters.log" "$rc"
+    # The same policy from pymodbus' TLS client (Python's ssl), its certificates.
+    if [ -n "${PY:-}" ]; then
+        timeout -k 5 60 "$PY" - "$TLS_PORT" "$C" >"$WORK/tls-pymodbus.log" 2>&1 <<'PY'
+import asyncio, os, ssl, sys
+from pymodbus.client import AsyncModbusTlsClient
+from pymodbus.pdu import ExceptionResponse
+port, certs = int(sys.argv[1]), sys.argv[2]
+passed = failed = 0
+def check(cond, name, r):
+    global passed, failed
+    passed += bool(cond)
+    failed += not cond
+    print(("ok   - " if cond else "FAIL - ") + name + ("" if cond else ": %s" % r))
+def refused(r):
+    return isinstance(r, ExceptionResponse) and r.exception_code == 1
+async def master(who):
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    ctx.load_verify_locations(os.path.join(certs, "ca.pem"))
+    ctx.load_cert_chain(os.path.join(certs, who + ".pem"), os.path.join(certs, who + ".key"))
+    ctx.check_hostname = False  # pymodbus passes no server name; the chain is verified
+    c = AsyncModbusTlsClient("127.0.0.1", port=port, sslctx=ctx, timeout=3, retries=0)
+    check(await c.connect(), "pymodbus %s: connects to the TLS front" % who, "")
+    r = await c.read_holding_registers(10, count=2, device_id=1)
+    check(not r.isError() and r.registers == [30, 33], "pymodbus %s: reads unit 1" % who, r)
+    r = await c.write_register(70, 7000, device_id=1)
+    if who == "operator":
+        check(not r.isError(), "pymodbus operator: writes unit 1 (rw 1-3)", r)
+        r = await c.write_register(70, 7001, device_id=5)
+        check(refused(r), "pymodbus operator: a write to unit 5 is refused with exception 01", r)
+    else:
+        check(refused(r), "pymodbus reader: a write is refused with exception 01 (r 1-247)", r)
+    c.close()
+async def main():
+    await master("operator")
+    await master("reader")
+asyncio.run(main())
+print("%d passed, %d failed" % (passed, failed))
+sys.exit(1 if failed else 0)
+PY
+        program_checks "TLS front: pymodbus masters, Operator and Reader" "$WORK/tls-pymodbus.log" "$?"
+    fi
     checks "TLS front: the plain TCP front serves beside it" "$WORK/tls-plain.log" "$PORT" held 3
     done_with tls
 fi
