@@ -225,7 +225,9 @@ static void *later_thread(void *arg)
             until.tv_sec++;
             until.tv_nsec -= 1000000000;
         }
-        pthread_cond_timedwait(&later.cond, &later.lock, &until);
+        /* (the requests that come meanwhile signal: the wait goes on to its end) */
+        while (!later.quit && pthread_cond_timedwait(&later.cond, &later.lock, &until) != ETIMEDOUT) {
+        }
         while (later.n > 0) {
             later.n--;
             answer_one(later.id[later.n], later.pdu[later.n]);
