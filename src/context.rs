@@ -65,6 +65,11 @@ pub struct Context {
     /// The event-driven client's requests and state (see [`crate::outstanding`]);
     /// `None` until the first asynchronous call.
     pub outstanding: Option<Box<crate::outstanding::Outstanding>>,
+    /// While `modbus_process` works on [`Context::outstanding`] (taken out of the
+    /// context) and has let go of the lock (an RTS hook runs): the requests pending
+    /// when it began. Calls on the context meanwhile see them pending; those that
+    /// would change them fail with `EBUSY`.
+    pub processing: Option<usize>,
     /// The transaction ids of the last TCP requests whose answer did not come in
     /// time: a late answer is dropped, never taken for the next request's.
     pub timed_out: TimedOut,
@@ -165,6 +170,7 @@ impl Context {
             spare: SpareFrames::default(),
             stop,
             outstanding: None,
+            processing: None,
             timed_out: TimedOut::default(),
             runner: false,
         }

@@ -40,15 +40,19 @@ pub struct Interest {
     pub until: Option<Duration>,
 }
 
-/// The context's event-driven state, made on first use.
-pub fn state(ctx: &mut Context) -> &mut Outstanding {
+/// The context's event-driven state, made on first use; `EBUSY` while
+/// `modbus_process` has it (from the RTS hook it calls: [`Context::processing`]).
+pub fn state(ctx: &mut Context) -> Result<&mut Outstanding> {
+    if ctx.processing.is_some() {
+        return Err(Error(libc::EBUSY));
+    }
     let framing = ctx.framing();
-    ctx.outstanding.get_or_insert_with(|| Box::new(Outstanding::new(framing)))
+    Ok(ctx.outstanding.get_or_insert_with(|| Box::new(Outstanding::new(framing))))
 }
 
 /// Requests given and not completed.
 pub fn pending(ctx: &Context) -> usize {
-    ctx.outstanding.as_ref().map_or(0, |o| o.pending())
+    ctx.processing.unwrap_or_else(|| ctx.outstanding.as_ref().map_or(0, |o| o.pending()))
 }
 
 /// A blocking call may run: nothing of the event-driven client is pending.
@@ -58,7 +62,7 @@ pub fn idle(ctx: &Context) -> Result<()> {
 
 /// `modbus_set_max_in_flight`.
 pub fn set_max_in_flight(ctx: &mut Context, n: i32) -> Result<()> {
-    if n < 1 || !state(ctx).pipeline.set_max_in_flight(n as usize) {
+    if n < 1 || !state(ctx)?.pipeline.set_max_in_flight(n as usize) {
         return Err(Error::INVALID);
     }
     Ok(())
@@ -94,7 +98,7 @@ fn queue(
         ctx.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
     }
-    if state(ctx).pending() >= MAX_PENDING {
+    if state(ctx)?.pending() >= MAX_PENDING {
         return Err(Error(libc::EAGAIN));
     }
     let mut buf: AduBuf = [0; MAX_ADU_LENGTH];
@@ -111,7 +115,7 @@ fn queue(
     let unit = req.own_unit().map_or(ctx.session.slave, i32::from);
     let broadcast = (framing != Framing::Tcp && unit == 0) || !answered;
     let tid = ctx.t_id;
-    let o = state(ctx);
+    let o = state(ctx)?;
     let id = match continuing {
         Some(id) => o.pipeline.resubmit(id, &buf[..len], wire, tid, completion),
         None => o.pipeline.submit(&buf[..len], wire, tid, broadcast, completion),
@@ -129,6 +133,9 @@ fn mark(o: &Outstanding) {
 
 /// `modbus_cancel`: completes request `id` with ECANCELED.
 pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
+    if ctx.processing.is_some() {
+        return Err(Error(libc::EBUSY));
+    }
     let o = ctx.outstanding.as_deref_mut().ok_or(Error::INVALID)?;
     mark(o);
     let e = o.pipeline.cancel(id).ok_or(Error::INVALID)?;
@@ -202,11 +209,17 @@ pub fn interest(ctx: &Context) -> Interest {
 /// Returns the number of requests completed (their results wait in the context for
 /// the C layer: [`take_done`]).
 pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
+    if g.processing.is_some() {
+        // modbus_process from the RTS hook of a modbus_process.
+        return Err(Error(libc::EBUSY));
+    }
     let Some(mut o) = g.outstanding.take() else { return Ok(0) };
+    g.processing = Some(o.pending());
     let before = o.done.len();
     let mut readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
     let writable = revents & (libc::POLLOUT | libc::POLLERR | libc::POLLHUP) != 0;
     run(g, &mut o, &mut readable, writable);
+    g.processing = None;
     let completed = o.done.len() - before;
     mark(&o);
     g.outstanding = Some(o);
@@ -325,7 +338,7 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
         g.line.purge();
     }
     let response = g.session.timeouts.response.duration();
-    o.pipeline.fill(now, response);
+    let moved = o.pipeline.fill(now, response);
     let out = o.pipeline.output();
     if out.is_empty() {
         return false;
@@ -338,7 +351,13 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
         // A serial line with RTS direction control (modbus_rtu_set_rts, or the
         // application's hook): the same sequence as a blocking call's, the frame's
         // time on the line included.
-        None if g.line.rts_around_writes() => engine::write_with_rts(g, out),
+        None if g.line.rts_around_writes() => {
+            let written = engine::write_with_rts(g, out);
+            // The answer's timeout starts when the frame has left (as a blocking
+            // call's): the sequence took the frame's time on the line.
+            o.pipeline.restart_clocks(moved, transport::now(), response);
+            written
+        }
         None => {
             let timeout = g.session.timeouts.response;
             g.line.write(out, timeout)

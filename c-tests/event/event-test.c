@@ -50,12 +50,23 @@
 
 int mbt_is_rsmodbus(void); /* c-tests/common/libinfo.c, which prints LIBINFO first */
 static void chain_cb(modbus_t *ctx, int id, int rc, int error, void *user);
-/* The RTS hook's calls, as "0"/"1" characters. */
+static void on_done(modbus_t *ctx, int id, int rc, int error, void *user);
+/* The RTS hook's calls, as "0"/"1" characters; with rts_probe set, what calls on
+ * the context give from inside the hook of an asynchronous request. */
 static char rts_calls[64];
+static int rts_probe, rts_pending = -2, rts_submit = -2, rts_submit_errno, rts_blocking = -2, rts_blocking_errno;
 static void rts_hook(modbus_t *ctx, int on)
 {
     size_t n = strlen(rts_calls);
-    (void) ctx;
+    if (rts_probe && on) {
+        uint16_t v;
+        rts_probe = 0;
+        rts_pending = modbus_pending(ctx);
+        rts_submit = modbus_read_registers_async(ctx, 50, 1, &v, on_done, NULL);
+        rts_submit_errno = errno;
+        rts_blocking = modbus_read_registers(ctx, 50, 1, &v);
+        rts_blocking_errno = errno;
+    }
     if (n + 1 < sizeof rts_calls) {
         rts_calls[n] = on ? '1' : '0';
         rts_calls[n + 1] = '\0';
@@ -1263,6 +1274,28 @@ int main(int argc, char **argv)
         EXPECT(a.done == 1 && a.rc == 1 && strcmp(rts_calls, "10") == 0,
                "asynchronous read with RTS up: rc %d, the hook's calls %s (10, as the blocking call's)", a.rc,
                rts_calls);
+        /* Inside the hook the request is pending; what would change the requests
+         * waits for modbus_process to return (EBUSY). */
+        rts_calls[0] = '\0';
+        rts_probe = 1;
+        a = one(ctx, modbus_read_registers_async(ctx, 50, 1, &v, on_done, NULL));
+        EXPECT(a.done == 1 && a.rc == 1 && rts_pending == 1 && rts_submit == -1 && rts_submit_errno == EBUSY &&
+                   rts_blocking == -1 && rts_blocking_errno == EBUSY && modbus_pending(ctx) == 0,
+               "calls from the RTS hook of an asynchronous request: pending %d, a submit %d (%s), a blocking call "
+               "%d (%s); the request rc %d",
+               rts_pending, rts_submit, modbus_strerror(rts_submit_errno), rts_blocking,
+               modbus_strerror(rts_blocking_errno), a.rc);
+        /* The answer's timeout starts when the frame has left: a sequence of 2 x 150 ms
+         * around it (modbus_rtu_set_rts_delay) with a response timeout of 100 ms. */
+        modbus_rtu_set_rts_delay(ctx, 150000);
+        modbus_set_response_timeout(ctx, 0, 100000);
+        rc = modbus_read_registers(ctx, 50, 1, &v);
+        EXPECT(rc == 1, "blocking read, RTS delay 150 ms, response timeout 100 ms: rc %d (%s)", rc,
+               rc == -1 ? modbus_strerror(errno) : "ok");
+        a = one(ctx, modbus_read_registers_async(ctx, 50, 1, &v, on_done, NULL));
+        EXPECT(a.done == 1 && a.rc == 1, "the same asynchronous read: rc %d (%s)", a.rc,
+               a.rc == -1 ? modbus_strerror(a.error) : "ok");
+        modbus_set_response_timeout(ctx, 2, 0);
         modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_NONE);
         modbus_close(ctx);
     } else {

@@ -107,7 +107,7 @@ pub unsafe extern "C" fn modbus_multi_add(m: *mut Multi, ctx: *mut Modbus) -> c_
     // SAFETY: forwarded caller contract.
     status(unsafe {
         crate::handle::call(ctx, |g| {
-            let o = event::state(g);
+            let o = event::state(g)?;
             if o.multi.is_some() {
                 return Err(Error(libc::EBUSY));
             }

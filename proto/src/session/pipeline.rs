@@ -227,6 +227,16 @@ impl<T> Pipeline<T> {
         moved
     }
 
+    /// The last `n` requests [`Pipeline::fill`] moved to the wire count their time
+    /// from `now` instead: their write took the frame's time on the line (an RTS
+    /// sequence), and the answer's timeout, as a blocking call's, starts when it ends.
+    pub fn restart_clocks(&mut self, n: usize, now: Duration, response: Duration) {
+        let from = self.sent.saturating_sub(n);
+        for e in self.entries.range_mut(from..self.sent) {
+            e.deadline = Some(now + if e.broadcast { TURNAROUND } else { response });
+        }
+    }
+
     /// Bytes to write.
     pub fn output(&self) -> &[u8] {
         &self.out

@@ -196,3 +196,20 @@ fn a_continued_request_keeps_its_id_and_goes_next() {
     assert_eq!(p.cancel(first).map(|e| e.payload), Some("stream, round 2"));
     assert_eq!(p.pending(), 1);
 }
+
+#[test]
+fn a_write_that_took_time_restarts_the_clocks_of_the_requests_it_sent() {
+    let mut p = tcp(2);
+    submit(&mut p, 1, "a");
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 1);
+    assert_eq!(p.deadline(), Some(RESPONSE));
+    submit(&mut p, 2, "b");
+    assert_eq!(p.fill(MS, RESPONSE), 1);
+    // The second write took 300 ms (an RTS sequence on a slow line): its request's
+    // timeout starts at its end; the first request's stays.
+    p.restart_clocks(1, 301 * MS, RESPONSE);
+    assert_eq!(p.deadline(), Some(RESPONSE));
+    assert!(p.due(RESPONSE + MS).iter().map(|(e, _)| e.payload).eq(["a"]));
+    assert_eq!(p.deadline(), Some(301 * MS + RESPONSE));
+    assert!(p.due(300 * MS + RESPONSE).is_empty(), "b still has its whole response timeout");
+}
