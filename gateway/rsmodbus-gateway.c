@@ -204,7 +204,7 @@ static void usage(FILE *out)
             "  -C maxconn : most simultaneous connections (1-10000, default 32; mbusd: up to 128)\n"
             "  -N retries : retries of a request (0-15, default 3; 0: none)\n"
             "  -R pause   : pause between requests in milliseconds (0-10000, default 100;\n"
-            "               0: the 3.5-character silence only; mbusd's minimum is 1)\n"
+            "               0: 3.5 characters at the line's speed only; mbusd's minimum is 1)\n"
             "  -W wait    : answer wait in milliseconds (1-10000, default 500)\n"
             "  -T timeout : idle connection timeout in seconds (0-1000, default 60; 0: none)\n"
             "  -b         : reply to broadcasts (the request echoed)\n\n"
@@ -834,6 +834,7 @@ static void reload(void)
     KEEP(mode);
     KEEP(rs485);
     KEEP(trx);
+    KEEP(trx_sysfile);
     KEEP(address);
     KEEP(port);
     KEEP(maxconn);
@@ -1008,7 +1009,11 @@ int main(int argc, char **argv)
         return 1;
     }
     if (cfg.trx == 1 || cfg.trx == 2) {
-        modbus_rtu_set_rts(lines[0].ctx, cfg.trx == 1 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN);
+        if (modbus_rtu_set_rts(lines[0].ctx, cfg.trx == 1 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN) != 0) {
+            logw(0, "line %s: RS-485 direction by RTS (-t, -r): %s (a serial RTU line only)", lines[0].name,
+                 modbus_strerror(errno));
+            return 1;
+        }
     } else if (cfg.trx >= 3) {
         /* The direction through a sysfs file (a GPIO's value): written before and after
          * each transmission, by the library's RTS hook. -y writes 1 while sending, -Y 0. */
@@ -1018,8 +1023,12 @@ int main(int argc, char **argv)
             return 1;
         }
         close(fd);
-        modbus_rtu_set_custom_rts(lines[0].ctx, sysfs_direction);
-        modbus_rtu_set_rts(lines[0].ctx, cfg.trx == 3 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN);
+        if (modbus_rtu_set_custom_rts(lines[0].ctx, sysfs_direction) != 0 ||
+            modbus_rtu_set_rts(lines[0].ctx, cfg.trx == 3 ? MODBUS_RTU_RTS_UP : MODBUS_RTU_RTS_DOWN) != 0) {
+            logw(0, "line %s: RS-485 direction through %s (-y, -Y): %s (a serial RTU line only)", lines[0].name,
+                 cfg.trx_sysfile, modbus_strerror(errno));
+            return 1;
+        }
     }
 
     /* The fronts: Modbus/TCP; RTU frames over TCP and Modbus/UDP when asked; and
