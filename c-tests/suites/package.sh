@@ -291,10 +291,21 @@ if out=$(LD_LIBRARY_PATH=$RL "$R/usr/bin/rsmodbus-gateway" -h 2>&1) && grep -q -
 else
     bad "the packaged rsmodbus-gateway -h" "$(head -n 5 <<<"$out")"
 fi
-if [ "$(readelf -h "$R/usr/bin/rsmodbus-gateway" 2>/dev/null | awk '$1 == "Type:" {print $2}')" = DYN ]; then
-    ok "rsmodbus-gateway is position-independent (Debian's hardening build flags)"
+# Debian's hardening flags (dpkg-buildflags): fortified calls and a read-only
+# relocation table, besides the PIE gcc makes anyway.
+gw_bin=$R/usr/bin/rsmodbus-gateway
+fortified=$(nm -D "$gw_bin" 2>/dev/null | grep -c '__[a-z]*_chk')
+if [ "$fortified" -gt 0 ] && readelf -l "$gw_bin" | grep -q GNU_RELRO &&
+    [ "$(readelf -h "$gw_bin" | awk '$1 == "Type:" {print $2}')" = DYN ]; then
+    ok "rsmodbus-gateway is built with Debian's hardening flags: $fortified fortified calls, RELRO, PIE"
 else
-    bad "rsmodbus-gateway is position-independent" "$(readelf -h "$R/usr/bin/rsmodbus-gateway" | grep Type)"
+    bad "rsmodbus-gateway is built with Debian's hardening flags" "fortified calls: $fortified" \
+        "$(readelf -l "$gw_bin" | grep -c GNU_RELRO) RELRO segments; $(readelf -h "$gw_bin" | grep Type)"
+fi
+if [ -d "$R/etc/rsmodbus-gateway" ]; then
+    ok "rsmodbus-gateway makes /etc/rsmodbus-gateway (the unit template's configurations)"
+else
+    bad "rsmodbus-gateway makes /etc/rsmodbus-gateway"
 fi
 
 # --- examples against the extracted root --------------------------------------------
