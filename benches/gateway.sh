@@ -107,8 +107,10 @@ paced() {
         stop_all
     done
     PACED_ALL[$name]=${rates[*]}
-    PACED[$name]=$(printf '%s\n' "${rates[@]}" | sort -n | sed -n 2p)
+    PACED[$name]=$(printf '%s\n' "${rates[@]}" | median)
 }
+# median: the middle of the numbers on stdin (a failed round, an empty line, left out).
+median() { { grep . || true; } | sort -n | awk '{ v[NR] = $1 } END { if (NR) print v[int((NR + 1) / 2)] }'; }
 rate() { sed -n 's/.*(\([0-9.]*\)\/s).*/\1/p' "$1" | head -n 1; }
 # spread LOG: busiest / least served, or how many masters got nothing (and of those,
 # how many could not connect).
@@ -154,13 +156,15 @@ paced ours ours-R0 -R 0
 direct_rates=()
 for round in 1 2 3; do
     setup ours paced
-    kill "$GW_PID"
+    # (gone before the master opens the line: its close would reset the terminal)
+    kill "$GW_PID" 2>/dev/null || true
+    wait "$GW_PID" 2>/dev/null || true
     env LD_LIBRARY_PATH="$ROOT/target/release" "$OUT/bench-client" rtu "$OUT/G" r1 -t "$SECS" -w 1000 \
         >"$OUT/direct-$round.log" 2>&1 || true
     direct_rates+=("$(sed -n 's/.*tps=\([0-9.]*\).*/\1/p' "$OUT/direct-$round.log")")
     stop_all
 done
-DIRECT=$(printf '%s\n' "${direct_rates[@]}" | sort -n | sed -n 2p)
+DIRECT=$(printf '%s\n' "${direct_rates[@]}" | median)
 
 # Ours through the TLS front, against the plain front, on the same paced line.
 C=$OUT/certs
@@ -177,8 +181,8 @@ for round in 1 2 3; do # taking turns on the same line; the medians
     tls_rates+=("$(rate "$OUT/tls-$round.log")")
     plain_rates+=("$(rate "$OUT/plain-$round.log")")
 done
-TLS=$(printf '%s\n' "${tls_rates[@]}" | sort -n | sed -n 2p)
-PLAIN=$(printf '%s\n' "${plain_rates[@]}" | sort -n | sed -n 2p)
+TLS=$(printf '%s\n' "${tls_rates[@]}" | median)
+PLAIN=$(printf '%s\n' "${plain_rates[@]}" | median)
 stop_all
 
 # The line's own limit: a read of one register is 8 bytes out and 7 back, 10 bits

@@ -19,9 +19,10 @@
 #                                    2 minutes)
 #   scripts/bench.sh --gateway       rsmodbus-gateway beside mbusd (built from
 #                                    ../shared/anchors/mbusd when it is there) on an
-#                                    RTU pty line: one master, 100 masters (spread),
-#                                    1,000 held (RSS, p99), the TLS front
-#                                    (benches/gateway.sh, about 2 minutes)
+#                                    RTU line, a pty pair or one paced at 115200 baud:
+#                                    one master, 100 masters (spread), 1,000 held (RSS,
+#                                    p99), the TLS front (benches/gateway.sh, about 4
+#                                    minutes)
 #   scripts/bench.sh --callbacks     modbus_reply_callbacks against modbus_reply on one
 #                                    mapping: CPU per reply (benches/reply-cost.sh,
 #                                    about 20 s)
@@ -60,7 +61,7 @@ if [ "${1:-}" = --server-many ]; then
     exec benches/server-many.sh
 fi
 if [ "${1:-}" = --gateway ]; then
-    # The gateway beside mbusd: benches/gateway.sh (about 2 minutes).
+    # The gateway beside mbusd: benches/gateway.sh (about 4 minutes).
     scripts/install-deps.sh >/dev/null
     exec benches/gateway.sh
 fi
