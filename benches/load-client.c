@@ -53,8 +53,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#define FINE 100000   /* 1 µs buckets below 100 ms */
-#define COARSE 100000 /* then 1 ms buckets up to 100 s */
+#include "latency-hist.h"
 
 enum state { UNUSED, CONNECTING, IDLE, WAITING, DEAD };
 
@@ -69,8 +68,7 @@ struct conn {
 
 static struct conn *conns;
 static int nconns, regs = 10;
-static uint32_t hist[FINE + COARSE];
-static uint64_t max_ns, counted, errors, late, all_tx;
+static uint64_t errors, late, all_tx;
 static int counting;
 static volatile sig_atomic_t stop_idle;
 
@@ -87,57 +85,6 @@ static uint64_t cpu_ns(void)
     getrusage(RUSAGE_SELF, &ru);
     return ((uint64_t) ru.ru_utime.tv_sec + (uint64_t) ru.ru_stime.tv_sec) * 1000000000u +
            ((uint64_t) ru.ru_utime.tv_usec + (uint64_t) ru.ru_stime.tv_usec) * 1000u;
-}
-
-static void record(uint64_t ns)
-{
-    uint64_t us = ns / 1000;
-    if (us < FINE) {
-        hist[us]++;
-    } else {
-        uint64_t ms = us / 1000;
-        hist[FINE + (ms < COARSE ? ms : COARSE - 1)]++;
-    }
-    if (ns > max_ns) {
-        max_ns = ns;
-    }
-    counted++;
-}
-
-/* The latency (µs) below which a share q of the requests fall. */
-static uint64_t quantile(double q)
-{
-    uint64_t want = (uint64_t) (q * (double) counted), seen = 0;
-    int i;
-    if (counted == 0) {
-        return 0;
-    }
-    if (want >= counted) {
-        want = counted - 1;
-    }
-    for (i = 0; i < FINE + COARSE; i++) {
-        seen += hist[i];
-        if (seen > want) {
-            return i < FINE ? (uint64_t) i : (uint64_t) (i - FINE) * 1000;
-        }
-    }
-    return max_ns / 1000;
-}
-
-static void write_hist(const char *name)
-{
-    FILE *f = fopen(name, "w");
-    int i;
-    if (f == NULL) {
-        perror(name);
-        exit(1);
-    }
-    for (i = 0; i < FINE + COARSE; i++) {
-        if (hist[i] != 0) {
-            fprintf(f, "%llu %u\n", i < FINE ? (unsigned long long) i : (unsigned long long) (i - FINE) * 1000, hist[i]);
-        }
-    }
-    fclose(f);
 }
 
 static void kill_conn(struct conn *c, int ep)

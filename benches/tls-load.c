@@ -45,8 +45,7 @@
 
 int print_loaded_libmodbus(void); /* c-tests/common/libinfo.c: the LIBINFO line */
 
-#define FINE 100000
-#define COARSE 100000
+#include "latency-hist.h"
 
 struct client {
     modbus_t *ctx;
@@ -57,8 +56,7 @@ struct client {
     int got_first;
 };
 
-static uint32_t hist[FINE + COARSE];
-static uint64_t counted, errors, max_ns, connect_max_ns;
+static uint64_t errors, connect_max_ns;
 static uint64_t t_start, t_end;
 static int base;
 
@@ -67,35 +65,6 @@ static uint64_t now_ns(void)
     struct timespec t;
     clock_gettime(CLOCK_MONOTONIC, &t);
     return (uint64_t) t.tv_sec * 1000000000u + (uint64_t) t.tv_nsec;
-}
-
-static void record(uint64_t ns)
-{
-    uint64_t us = ns / 1000;
-    hist[us < FINE ? us : FINE + (us / 1000 < COARSE ? us / 1000 : COARSE - 1)]++;
-    counted++;
-    if (ns > max_ns) {
-        max_ns = ns;
-    }
-}
-
-static uint64_t quantile(double q)
-{
-    uint64_t want = (uint64_t) (q * (double) counted), seen = 0;
-    int i;
-    if (counted == 0) {
-        return 0;
-    }
-    if (want >= counted) {
-        want = counted - 1;
-    }
-    for (i = 0; i < FINE + COARSE; i++) {
-        seen += hist[i];
-        if (seen > want) {
-            return i < FINE ? (uint64_t) i : (uint64_t) (i - FINE) * 1000;
-        }
-    }
-    return max_ns / 1000;
 }
 
 static void done(modbus_t *ctx, int id, int rc, int error, void *user_data);
@@ -203,18 +172,7 @@ int main(int argc, char **argv)
            (unsigned long long) (max_ns / 1000), (unsigned long long) errors, (double) connect_max_ns / 1e6);
     fflush(stdout);
     if (hist_file != NULL) {
-        FILE *f = fopen(hist_file, "w");
-        if (f == NULL) {
-            perror(hist_file);
-            return 1;
-        }
-        for (i = 0; i < FINE + COARSE; i++) {
-            if (hist[i] != 0) {
-                fprintf(f, "%llu %u\n", i < FINE ? (unsigned long long) i : (unsigned long long) (i - FINE) * 1000,
-                        hist[i]);
-            }
-        }
-        fclose(f);
+        write_hist(hist_file);
     }
     /* Requests may be in flight, handshakes under way: end without them. */
     _exit(0);
