@@ -131,6 +131,12 @@ pub enum Layout {
     /// A device-identification response: MEI type, read code, conformity, more
     /// follows, next object, count, then `count` objects (id, length, value).
     DeviceId,
+    /// A function code the table does not know (user-defined codes 65-72 and
+    /// 100-110, vendors' own): nothing in the PDU tells its length. It comes from
+    /// outside: the MBAP length on TCP, the frame's delimiters on ASCII; on RTU the
+    /// frame ends at the first length whose CRC matches, or where the line goes
+    /// quiet (see [`Rules::crc_search_step`]).
+    Open,
 }
 
 /// The function-code table: the layout of `function`'s requests (`Indication`) or
@@ -152,9 +158,14 @@ pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
             fc::READ_FILE_RECORD | fc::WRITE_FILE_RECORD if extended => Counted(1),
             fc::READ_FIFO_QUEUE if extended => Fixed(2),
             fc::ENCAPSULATED_INTERFACE if extended => Fixed(3),
+            // Requests of nothing but their function code.
+            fc::READ_EXCEPTION_STATUS | fc::GET_COMM_EVENT_COUNTER | fc::GET_COMM_EVENT_LOG | fc::REPORT_SLAVE_ID => {
+                Fixed(0)
+            }
             // A server beyond libmodbus takes a request it does not know whole (the
-            // MBAP length on TCP, the frame on ASCII) for the application to answer.
-            _ if extended => Known(0),
+            // MBAP length on TCP, the frame on ASCII, the CRC on RTU) for the
+            // application to answer.
+            _ if extended => Open,
             _ => Fixed(0),
         },
         MsgKind::Confirmation => match function {
@@ -169,6 +180,13 @@ pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
             fc::GET_COMM_EVENT_LOG | fc::READ_FILE_RECORD | fc::WRITE_FILE_RECORD if extended => Counted(1),
             fc::READ_FIFO_QUEUE if extended => Counted16,
             fc::ENCAPSULATED_INTERFACE if extended => DeviceId,
+            // Read Exception Status (a status byte), and every exception response
+            // (its code): libmodbus's one byte.
+            fc::READ_EXCEPTION_STATUS => Fixed(1),
+            0x80..=0xFF => Fixed(1),
+            // A code the table does not know: its answer is taken whole (libmodbus
+            // cuts it to one byte after the function code).
+            _ if extended => Open,
             _ => Fixed(1),
         },
     }
@@ -179,9 +197,11 @@ pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
 /// of them; the response checks ask it.
 pub fn beyond_libmodbus(function: u8) -> bool {
     let request = layout(MsgKind::Indication, true, function);
-    let unknown = request == Layout::Known(0);
-    (!unknown && request != layout(MsgKind::Indication, false, function))
-        || layout(MsgKind::Confirmation, true, function) != layout(MsgKind::Confirmation, false, function)
+    let response = layout(MsgKind::Confirmation, true, function);
+    let unknown = request == Layout::Open || response == Layout::Open;
+    !unknown
+        && (request != layout(MsgKind::Indication, false, function)
+            || response != layout(MsgKind::Confirmation, false, function))
 }
 
 /// `MEI_READ_DEVICE_ID`: the MEI type of FC 0x2B that carries device identification.
@@ -207,14 +227,28 @@ impl Rules {
         Rules { framing, kind, extended: matches!(kind, MsgKind::Confirmation), known_total: None }
     }
 
-    /// An RTU diagnostics request on a server that answers it: nothing in it tells
-    /// its length ("return query data" may carry any number of words), so it ends
-    /// where its CRC matches, one word after the other.
+    /// An RTU message whose PDU does not tell its length ends where its CRC
+    /// matches: this many bytes at a time past the least it can be (`None`: its
+    /// length is known). A diagnostics request on a server that answers it ("return
+    /// query data" may carry any number of words) goes one word at a time; a
+    /// function code the table does not know ([`Layout::Open`]), one byte at a time.
+    #[inline]
+    pub fn crc_search_step(&self, msg: &[u8]) -> Option<usize> {
+        if self.framing != Framing::Rtu || !self.extended {
+            return None;
+        }
+        let &function = msg.get(self.framing.header_length())?;
+        match layout(self.kind, true, function) {
+            Layout::Open => Some(1),
+            _ if self.kind == MsgKind::Indication && function == fc::DIAGNOSTICS => Some(2),
+            _ => None,
+        }
+    }
+
+    /// See [`Rules::crc_search_step`].
+    #[inline]
     pub fn searches_crc(&self, msg: &[u8]) -> bool {
-        self.framing == Framing::Rtu
-            && self.kind == MsgKind::Indication
-            && self.extended
-            && msg.get(self.framing.header_length()) == Some(&fc::DIAGNOSTICS)
+        self.crc_search_step(msg).is_some()
     }
 }
 
@@ -253,6 +287,7 @@ pub fn message_length(rules: Rules, msg: &[u8]) -> Length {
             _ => return Length::Need(fc_end + 2),
         },
         Layout::Known(min) => known_end(rules, msg, fc_end + min as usize),
+        Layout::Open => known_end(rules, msg, fc_end),
         Layout::DeviceId => match msg.get(fc_end) {
             None => return Length::Need(fc_end + 1),
             Some(&mei) if mei != MEI_READ_DEVICE_ID => known_end(rules, msg, fc_end + 1),
@@ -291,9 +326,9 @@ fn known_end(rules: Rules, msg: &[u8], floor: usize) -> usize {
 pub fn whole_length(rules: Rules, bytes: &[u8]) -> Option<usize> {
     let max = rules.framing.max_adu_length();
     let Length::Total(mut total) = message_length(rules, bytes) else { return None };
-    if rules.searches_crc(bytes) {
-        while total <= bytes.len() && !crc_matches(&bytes[..total]) && total + 2 <= max {
-            total += 2;
+    if let Some(step) = rules.crc_search_step(bytes) {
+        while total <= bytes.len() && !crc_matches(&bytes[..total]) && total + step <= max {
+            total += step;
         }
     }
     (total <= max && total <= bytes.len()).then_some(total)
@@ -323,9 +358,10 @@ pub enum Progress {
 #[derive(Clone, Debug)]
 pub struct Assembler {
     rules: Rules,
-    /// An RTU diagnostics request whose PDU is whole: its CRC decides where it ends
-    /// (see [`Rules::searches_crc`]).
-    crc_search: bool,
+    /// An RTU message whose PDU does not tell its length: its CRC decides where it
+    /// ends, searched this many bytes at a time (see [`Rules::crc_search_step`]); 0:
+    /// no search.
+    crc_search: usize,
     length: usize,
     wanted: usize,
 }
@@ -337,12 +373,7 @@ impl Assembler {
     /// code) unless [`Assembler::extended_requests`] says otherwise, so that a server
     /// not configured for them behaves exactly like libmodbus.
     pub fn new(framing: Framing, kind: MsgKind) -> Self {
-        Assembler {
-            rules: Rules::new(framing, kind),
-            crc_search: false,
-            length: 0,
-            wanted: framing.header_length() + 1,
-        }
+        Assembler { rules: Rules::new(framing, kind), crc_search: 0, length: 0, wanted: framing.header_length() + 1 }
     }
 
     /// The length of header + PDU the response to a diagnostics request must have
@@ -361,10 +392,10 @@ impl Assembler {
         self
     }
 
-    /// True while an RTU diagnostics request is waiting for the CRC that ends it: if
-    /// the line goes quiet now, the frame ends here (and its CRC is bad).
+    /// True while an RTU message is waiting for the CRC that ends it: if the line
+    /// goes quiet now, the frame ends here (and its CRC is bad).
     pub fn searching_crc(&self) -> bool {
-        self.crc_search
+        self.crc_search > 0
     }
 
     /// Bytes received so far.
@@ -412,7 +443,7 @@ impl Assembler {
             return Ok(Progress::NeedMore(self.wanted));
         }
         let msg = &buf[..self.length];
-        if self.crc_search {
+        if self.crc_search > 0 {
             return Ok(self.search_crc(msg));
         }
         let max = self.rules.framing.max_adu_length();
@@ -426,12 +457,12 @@ impl Assembler {
             }
             Length::Total(total) if total > max => Err(Error::BAD_DATA),
             Length::Total(total) => {
-                self.crc_search = self.rules.searches_crc(msg);
+                self.crc_search = self.rules.crc_search_step(msg).unwrap_or(0);
                 if total > self.length {
                     self.wanted = total - self.length;
                     return Ok(Progress::NeedMore(self.wanted));
                 }
-                if self.crc_search {
+                if self.crc_search > 0 {
                     return Ok(self.search_crc(msg));
                 }
                 Ok(Progress::Complete(self.length))
@@ -439,15 +470,16 @@ impl Assembler {
         }
     }
 
-    /// An RTU diagnostics request ends where its CRC matches; until then read one
-    /// more word, up to the largest ADU.
+    /// A message searching its CRC ends where it matches; until then read one more
+    /// step (a word, a byte), up to the largest ADU.
     fn search_crc(&mut self, frame: &[u8]) -> Progress {
-        if crc_matches(frame) || self.length + 2 > self.rules.framing.max_adu_length() {
-            self.crc_search = false;
+        let step = self.crc_search;
+        if crc_matches(frame) || self.length + step > self.rules.framing.max_adu_length() {
+            self.crc_search = 0;
             return Progress::Complete(self.length);
         }
-        self.wanted = 2;
-        Progress::NeedMore(2)
+        self.wanted = step;
+        Progress::NeedMore(step)
     }
 }
 
@@ -614,8 +646,13 @@ mod tests {
                     continue;
                 }
                 let plain = layout(kind, false, function);
-                let whole = kind == MsgKind::Indication && plain == Layout::Fixed(0);
-                let expected = if whole { Layout::Known(0) } else { plain };
+                // Unknown codes: a request libmodbus frames up to its code, an answer
+                // that is no exception and no Read Exception Status.
+                let whole = match kind {
+                    MsgKind::Indication => plain == Layout::Fixed(0) && !matches!(function, 0x07 | 0x11),
+                    MsgKind::Confirmation => function < 0x80 && function != 0x07 && plain == Layout::Fixed(1),
+                };
+                let expected = if whole { Layout::Open } else { plain };
                 assert_eq!(layout(kind, true, function), expected, "{kind:?} {function:#x}");
             }
         }
@@ -667,6 +704,50 @@ mod tests {
         let mut v = body.to_vec();
         v.extend(crc16(body).to_le_bytes());
         v
+    }
+
+    /// A function code the table does not know (user-defined 0x41): its answer is
+    /// taken whole on every framing (libmodbus keeps the code and one byte): on RTU
+    /// up to the first length whose CRC matches, one byte at a time; on TCP by the
+    /// MBAP length; on ASCII by the frame. Exception answers keep libmodbus's length.
+    #[test]
+    fn unknown_function_codes_are_answered_whole() {
+        let c = MsgKind::Confirmation;
+        let answer = rtu(&[0x11, 0x41, 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08]);
+        assert_eq!(answer.len(), 12);
+        for chunk in [1, 2, 3, 256] {
+            assert_eq!(assemble(Framing::Rtu, c, &answer, chunk), Ok(12), "chunk {chunk}");
+        }
+        // Read whole with more behind it (a client reading ahead): the frame ends at
+        // its CRC.
+        let mut more = answer.clone();
+        more.extend_from_slice(&[0x11, 0x03]);
+        assert_eq!(Assembler::new(Framing::Rtu, c).whole(&more), Some(12));
+        // An even and an empty PDU body too.
+        for body in [&[0x41u8][..], &[0x41, 0xAA][..], &[0x64, 1, 2, 3, 4, 5, 6, 7][..]] {
+            let mut adu = vec![0x05];
+            adu.extend_from_slice(body);
+            let frame = rtu(&adu);
+            assert_eq!(assemble(Framing::Rtu, c, &frame, 1), Ok(frame.len()), "{frame:02X?}");
+        }
+        // The line goes quiet before a CRC matched: the assembler still searches.
+        let mut a = Assembler::new(Framing::Rtu, c);
+        a.received(&answer[..2], 2).unwrap();
+        assert_eq!(a.received(&answer[..4], 2), Ok(Progress::NeedMore(1)));
+        assert!(a.searching_crc());
+        // TCP: the MBAP length says 10 (unit + 9 bytes of PDU): 16 bytes.
+        let tcp = [0x00, 0x01, 0x00, 0x00, 0x00, 0x0A, 0xFF, 0x41, 1, 2, 3, 4, 5, 6, 7, 8];
+        for chunk in [1, 7, 256] {
+            assert_eq!(assemble(Framing::Tcp, c, &tcp, chunk), Ok(16), "chunk {chunk}");
+        }
+        // Exception answers and Read Exception Status keep one byte after the code.
+        let exception = rtu(&[0x11, 0xC1, 0x01]);
+        assert_eq!(assemble(Framing::Rtu, c, &exception, 1), Ok(5));
+        let status = rtu(&[0x11, 0x07, 0x6D]);
+        assert_eq!(assemble(Framing::Rtu, c, &status, 1), Ok(5));
+        // A server beyond libmodbus takes such a request whole on RTU too.
+        let req = rtu(&[0x11, 0x41, 0x01, 0x02, 0x03]);
+        assert_eq!(assemble_ext(Framing::Rtu, MsgKind::Indication, &req, 1), Ok(req.len()));
     }
 
     #[test]

@@ -168,15 +168,15 @@ pub fn request_extent<'a>(framing: Framing, extended: bool, bound: usize, prefix
     }
     let rules = Rules { framing, kind: MsgKind::Indication, extended, known_total: None };
     let head = prefix(h + 1);
-    if rules.searches_crc(head) {
-        // An RTU diagnostics request ends where its CRC matches, one word after the
-        // other (as `modbus_receive` frames it), bounded by the ADU.
+    if let Some(step) = rules.crc_search_step(head) {
+        // An RTU request whose PDU does not tell its length ends where its CRC
+        // matches (as `modbus_receive` frames it), bounded by the ADU.
         let Length::Total(mut len) = message_length(rules, head) else { return cap };
         while len <= cap {
             if crc_matches(prefix(len)) {
                 return len;
             }
-            len += 2;
+            len += step;
         }
         return cap;
     }
