@@ -21,7 +21,10 @@ pub mod errno {
     pub const EDEADLK: i32 = 35;
     pub const ENOPROTOOPT: i32 = 92;
     pub const ENOTSUP: i32 = 95;
+    pub const ENETDOWN: i32 = 100;
+    pub const ECONNABORTED: i32 = 103;
     pub const ECONNRESET: i32 = 104;
+    pub const ENOTCONN: i32 = 107;
     pub const ETIMEDOUT: i32 = 110;
     pub const ECONNREFUSED: i32 = 111;
 }
@@ -87,6 +90,16 @@ pub const EMBTLSCACERT: i32 = EMBTLS + 8;
 pub struct Error(pub i32);
 
 impl Error {
+    /// A failure of the line itself (not of one message): the connection was reset,
+    /// closed, aborted or is gone, or the network under it is down.
+    #[inline]
+    pub const fn line_lost(self) -> bool {
+        matches!(
+            self.0,
+            errno::ECONNRESET | errno::EPIPE | errno::ENOTCONN | errno::EBADF | errno::ECONNABORTED | errno::ENETDOWN
+        )
+    }
+
     /// Fail with -1 but leave errno as it is (libmodbus does this in a few places,
     /// e.g. receiving on a context that is not connected).
     pub const UNCHANGED: Error = Error(0);

@@ -180,6 +180,9 @@ mod tests {
             (errno::ECONNRESET, libc::ECONNRESET),
             (errno::ETIMEDOUT, libc::ETIMEDOUT),
             (errno::ECONNREFUSED, libc::ECONNREFUSED),
+            (errno::ENETDOWN, libc::ENETDOWN),
+            (errno::ECONNABORTED, libc::ECONNABORTED),
+            (errno::ENOTCONN, libc::ENOTCONN),
         ];
         for (ours, libc) in pairs {
             assert_eq!(ours, libc);

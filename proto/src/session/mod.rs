@@ -7,8 +7,11 @@
 
 use core::time::Duration;
 
+pub mod client;
+pub mod late;
 pub mod pipeline;
 pub mod receive;
+pub mod server;
 
 use crate::error::{Error, errno};
 use crate::frame::MsgKind;

@@ -19,6 +19,7 @@
 use core::time::Duration;
 use std::collections::VecDeque;
 
+use super::late::LateIds;
 use crate::frame::{Framing, MAX_ADU_LENGTH};
 
 /// How many requests a context may hold (queued and in flight): a submit beyond
@@ -27,9 +28,6 @@ pub const MAX_PENDING: usize = 1024;
 /// The deepest pipelining: the transaction ids of the requests in flight and of
 /// those that timed out stay distinct.
 pub const MAX_IN_FLIGHT: usize = 256;
-/// How many transaction ids of requests that timed out or were cancelled while on
-/// the wire are remembered, so that their late answers are dropped.
-const GONE_REMEMBERED: usize = 512;
 /// The silence after a broadcast on a serial line before the next request (the
 /// serial line specification's turnaround delay is 100 to 200 ms).
 pub const TURNAROUND: Duration = Duration::from_millis(100);
@@ -109,22 +107,12 @@ pub struct Pipeline<T> {
     max_in_flight: usize,
     /// The bytes of the requests that went in flight and are not written yet.
     out: Vec<u8>,
-    /// The transaction ids of requests that left the wire before their answer came.
-    gone: VecDeque<u16>,
     next_id: i32,
 }
 
 impl<T> Pipeline<T> {
     pub fn new(framing: Framing) -> Self {
-        Pipeline {
-            framing,
-            entries: VecDeque::new(),
-            sent: 0,
-            max_in_flight: 1,
-            out: Vec::new(),
-            gone: VecDeque::new(),
-            next_id: 0,
-        }
+        Pipeline { framing, entries: VecDeque::new(), sent: 0, max_in_flight: 1, out: Vec::new(), next_id: 0 }
     }
 
     /// The framing the pipeline was made for.
@@ -207,8 +195,9 @@ impl<T> Pipeline<T> {
     /// Moves the next requests from the queue to the wire, as many as the depth
     /// allows (a broadcast holds the line for its turnaround: nothing goes with it
     /// or after it until then); their bytes are appended to [`Pipeline::output`].
-    /// `response` is the response timeout, counted from `now`. Returns how many went.
-    pub fn fill(&mut self, now: Duration, response: Duration) -> usize {
+    /// `response` is the response timeout, counted from `now`. `late`: the context's
+    /// late transaction ids. Returns how many went.
+    pub fn fill(&mut self, now: Duration, response: Duration, late: &mut LateIds) -> usize {
         let mut moved = 0;
         while self.sent < self.entries.len() && self.sent < self.max_in_flight() && !self.on_wire().any(|e| e.broadcast)
         {
@@ -219,7 +208,7 @@ impl<T> Pipeline<T> {
             // A transaction id used again: its old request's late answer can no
             // longer be told apart; this request's answer wins.
             if self.framing == Framing::Tcp {
-                self.gone.retain(|&t| t != tid);
+                late.reused(tid);
             }
             self.sent += 1;
             moved += 1;
@@ -271,8 +260,9 @@ impl<T> Pipeline<T> {
 
     /// The requests whose time is up at `now`: broadcasts whose turnaround ended
     /// ([`End::Sent`]) and requests whose response timeout passed
-    /// ([`End::TimedOut`]), in the order they went out.
-    pub fn due(&mut self, now: Duration) -> Vec<(Entry<T>, End)> {
+    /// ([`End::TimedOut`]), in the order they went out. The ids of those that timed
+    /// out join `late`.
+    pub fn due(&mut self, now: Duration, late: &mut LateIds) -> Vec<(Entry<T>, End)> {
         let mut ended = Vec::new();
         let mut i = 0;
         while i < self.sent {
@@ -281,7 +271,7 @@ impl<T> Pipeline<T> {
                 if e.broadcast {
                     ended.push((e, End::Sent));
                 } else {
-                    self.forget(e.tid);
+                    self.forget(e.tid, late);
                     ended.push((e, End::TimedOut));
                 }
             } else {
@@ -293,18 +283,15 @@ impl<T> Pipeline<T> {
 
     /// Remembers the transaction id of a request that left the wire before its
     /// answer came.
-    fn forget(&mut self, tid: u16) {
-        if self.framing != Framing::Tcp {
-            return;
+    fn forget(&self, tid: u16, late: &mut LateIds) {
+        if self.framing == Framing::Tcp {
+            late.push(tid);
         }
-        if self.gone.len() == GONE_REMEMBERED {
-            self.gone.pop_front();
-        }
-        self.gone.push_back(tid);
     }
 
-    /// The request an answer belongs to. `tid`: the answer's transaction id (TCP).
-    pub fn answer(&mut self, tid: Option<u16>) -> Answer<T> {
+    /// The request an answer belongs to. `tid`: the answer's transaction id (TCP);
+    /// one of `late` is a late answer's.
+    pub fn answer(&mut self, tid: Option<u16>, late: &mut LateIds) -> Answer<T> {
         let index = match (self.framing, tid) {
             (Framing::Tcp, Some(tid)) => self.on_wire().position(|e| e.tid == tid && !e.broadcast),
             (Framing::Tcp, None) => None,
@@ -313,14 +300,7 @@ impl<T> Pipeline<T> {
         match index {
             Some(i) => Answer::Of(self.take(i)),
             None => match tid {
-                Some(tid) if self.framing == Framing::Tcp => {
-                    if let Some(k) = self.gone.iter().position(|&t| t == tid) {
-                        self.gone.remove(k);
-                        Answer::Stale
-                    } else {
-                        Answer::Unexpected
-                    }
-                }
+                Some(tid) if self.framing == Framing::Tcp && late.take(tid) => Answer::Stale,
                 _ => Answer::Unexpected,
             },
         }
@@ -328,13 +308,13 @@ impl<T> Pipeline<T> {
 
     /// Takes request `id` out, wherever it is. A request on the wire is remembered
     /// as gone (its answer will be dropped); one partly written cannot be taken back
-    /// from the line, so its bytes go out all the same.
-    pub fn cancel(&mut self, id: i32) -> Option<Entry<T>> {
+    /// from the line, so its bytes go out all the same. `late`: as for [`Pipeline::due`].
+    pub fn cancel(&mut self, id: i32, late: &mut LateIds) -> Option<Entry<T>> {
         let i = self.entries.iter().position(|e| e.id == id)?;
         let on_wire = i < self.sent;
         let e = self.take(i);
         if on_wire && !e.broadcast {
-            self.forget(e.tid);
+            self.forget(e.tid, late);
         }
         Some(e)
     }

@@ -30,15 +30,16 @@ fn of(a: Answer<&'static str>) -> &'static str {
 #[test]
 fn depth_one_sends_one_request_at_a_time() {
     let mut p = tcp(1);
+    let mut late = LateIds::default();
     submit(&mut p, 1, "a");
     submit(&mut p, 2, "b");
-    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 1);
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE, &mut late), 1);
     assert_eq!(p.output(), &adu(1));
-    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 0, "the depth is full");
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE, &mut late), 0, "the depth is full");
     p.wrote(12);
     assert!(p.output().is_empty());
-    assert_eq!(of(p.answer(Some(1))), "a");
-    assert_eq!(p.fill(MS, RESPONSE), 1);
+    assert_eq!(of(p.answer(Some(1), &mut late)), "a");
+    assert_eq!(p.fill(MS, RESPONSE, &mut late), 1);
     assert_eq!(p.output(), &adu(2));
     assert_eq!(p.pending(), 1);
 }
@@ -46,10 +47,11 @@ fn depth_one_sends_one_request_at_a_time() {
 #[test]
 fn requests_queued_together_go_out_in_one_buffer_and_answers_match_in_any_order() {
     let mut p = tcp(16);
+    let mut late = LateIds::default();
     for (tid, w) in [(7, "x"), (8, "y"), (9, "z")] {
         submit(&mut p, tid, w);
     }
-    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 3);
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE, &mut late), 3);
     let mut all = Vec::new();
     for t in [7, 8, 9] {
         all.extend_from_slice(&adu(t));
@@ -57,39 +59,41 @@ fn requests_queued_together_go_out_in_one_buffer_and_answers_match_in_any_order(
     assert_eq!(p.output(), &all[..]);
     p.wrote(5);
     assert_eq!(p.output(), &all[5..], "a short write keeps the rest, in order");
-    assert_eq!(of(p.answer(Some(9))), "z");
-    assert_eq!(of(p.answer(Some(7))), "x");
-    assert_eq!(of(p.answer(Some(42))), "unexpected");
-    assert_eq!(of(p.answer(Some(8))), "y");
+    assert_eq!(of(p.answer(Some(9), &mut late)), "z");
+    assert_eq!(of(p.answer(Some(7), &mut late)), "x");
+    assert_eq!(of(p.answer(Some(42), &mut late)), "unexpected");
+    assert_eq!(of(p.answer(Some(8), &mut late)), "y");
     assert!(p.is_empty());
 }
 
 #[test]
 fn a_late_answer_is_dropped_never_handed_to_the_next_request() {
     let mut p = tcp(1);
+    let mut late = LateIds::default();
     submit(&mut p, 1, "first");
-    p.fill(Duration::ZERO, RESPONSE);
+    p.fill(Duration::ZERO, RESPONSE, &mut late);
     assert_eq!(p.deadline(), Some(RESPONSE));
-    assert!(p.due(RESPONSE - MS).is_empty());
-    let due = p.due(RESPONSE);
+    assert!(p.due(RESPONSE - MS, &mut late).is_empty());
+    let due = p.due(RESPONSE, &mut late);
     assert_eq!(due.len(), 1);
     assert!(matches!(due[0].1, End::TimedOut));
     submit(&mut p, 2, "second");
-    assert_eq!(p.fill(RESPONSE, RESPONSE), 1);
+    assert_eq!(p.fill(RESPONSE, RESPONSE, &mut late), 1);
     assert_eq!(p.deadline(), Some(2 * RESPONSE), "the timeout runs from the send");
-    assert_eq!(of(p.answer(Some(1))), "stale");
-    assert_eq!(of(p.answer(Some(1))), "unexpected", "a stale id is dropped once");
-    assert_eq!(of(p.answer(Some(2))), "second");
+    assert_eq!(of(p.answer(Some(1), &mut late)), "stale");
+    assert_eq!(of(p.answer(Some(1), &mut late)), "unexpected", "a stale id is dropped once");
+    assert_eq!(of(p.answer(Some(2), &mut late)), "second");
 }
 
 #[test]
 fn each_request_in_flight_has_its_own_deadline() {
     let mut p = tcp(4);
+    let mut late = LateIds::default();
     submit(&mut p, 1, "a");
-    p.fill(Duration::ZERO, RESPONSE);
+    p.fill(Duration::ZERO, RESPONSE, &mut late);
     submit(&mut p, 2, "b");
-    p.fill(100 * MS, RESPONSE);
-    let due = p.due(RESPONSE);
+    p.fill(100 * MS, RESPONSE, &mut late);
+    let due = p.due(RESPONSE, &mut late);
     assert_eq!(due.iter().map(|(e, _)| e.payload).collect::<Vec<_>>(), ["a"]);
     assert_eq!(p.deadline(), Some(600 * MS));
     assert_eq!(p.answer_deadline(), Some(600 * MS));
@@ -98,57 +102,61 @@ fn each_request_in_flight_has_its_own_deadline() {
 #[test]
 fn a_reused_transaction_id_belongs_to_the_new_request() {
     let mut p = tcp(1);
+    let mut late = LateIds::default();
     submit(&mut p, 5, "old");
-    p.fill(Duration::ZERO, RESPONSE);
-    p.due(RESPONSE);
+    p.fill(Duration::ZERO, RESPONSE, &mut late);
+    p.due(RESPONSE, &mut late);
     // 65536 requests later the id comes round again.
     submit(&mut p, 5, "new");
-    p.fill(RESPONSE, RESPONSE);
-    assert_eq!(of(p.answer(Some(5))), "new");
+    p.fill(RESPONSE, RESPONSE, &mut late);
+    assert_eq!(of(p.answer(Some(5), &mut late)), "new");
 }
 
 #[test]
 fn cancel_takes_a_request_from_the_queue_or_the_wire() {
     let mut p = tcp(1);
+    let mut late = LateIds::default();
     let a = submit(&mut p, 1, "a");
     let b = submit(&mut p, 2, "b");
-    p.fill(Duration::ZERO, RESPONSE);
-    assert_eq!(p.cancel(b).map(|e| e.payload), Some("b"));
-    assert_eq!(p.cancel(a).map(|e| e.payload), Some("a"));
-    assert!(p.cancel(a).is_none());
-    assert_eq!(of(p.answer(Some(1))), "stale", "the cancelled request's answer is dropped");
+    p.fill(Duration::ZERO, RESPONSE, &mut late);
+    assert_eq!(p.cancel(b, &mut late).map(|e| e.payload), Some("b"));
+    assert_eq!(p.cancel(a, &mut late).map(|e| e.payload), Some("a"));
+    assert!(p.cancel(a, &mut late).is_none());
+    assert_eq!(of(p.answer(Some(1), &mut late)), "stale", "the cancelled request's answer is dropped");
     assert!(p.is_empty());
 }
 
 #[test]
 fn serial_lines_have_one_request_on_the_wire_and_no_transaction_ids() {
     let mut p: Pipeline<&str> = Pipeline::new(Framing::Rtu);
+    let mut late = LateIds::default();
     assert!(p.set_max_in_flight(8));
     assert_eq!(p.max_in_flight(), 1);
     p.submit(&[1, 3, 0, 0, 0, 1, 0x84, 0x0A], &[], 0, false, "a").unwrap();
     p.submit(&[1, 3, 0, 1, 0, 1, 0xD5, 0xCA], &[], 0, false, "b").unwrap();
-    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 1);
-    assert_eq!(of(p.answer(None)), "a");
-    assert_eq!(of(p.answer(None)), "unexpected");
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE, &mut late), 1);
+    assert_eq!(of(p.answer(None, &mut late)), "a");
+    assert_eq!(of(p.answer(None, &mut late)), "unexpected");
     // A timed-out request on a serial line leaves no id to recognise its answer by.
-    p.fill(MS, RESPONSE);
-    p.due(MS + RESPONSE);
-    assert_eq!(of(p.answer(None)), "unexpected");
+    p.fill(MS, RESPONSE, &mut late);
+    p.due(MS + RESPONSE, &mut late);
+    assert_eq!(of(p.answer(None, &mut late)), "unexpected");
 }
 
 #[test]
 fn a_broadcast_completes_after_the_turnaround_and_holds_the_line_until_then() {
     let mut p: Pipeline<&str> = Pipeline::new(Framing::Rtu);
+    let mut late = LateIds::default();
     p.submit(&[0, 6, 0, 1, 0, 3, 0, 0], &[], 0, true, "bc").unwrap();
     p.submit(&[1, 3, 0, 1, 0, 1, 0xD5, 0xCA], &[], 0, false, "next").unwrap();
-    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 1);
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE, &mut late), 1);
     assert!(!p.awaits_answer());
     assert_eq!(p.deadline(), Some(TURNAROUND));
-    assert_eq!(p.fill(MS, RESPONSE), 0);
-    assert!(p.due(TURNAROUND - MS).is_empty());
-    let due = p.due(TURNAROUND);
+    assert_eq!(p.fill(MS, RESPONSE, &mut late), 0);
+    assert!(p.due(TURNAROUND - MS, &mut late).is_empty());
+    let due = p.due(TURNAROUND, &mut late);
     assert!(matches!(due[0].1, End::Sent));
-    assert_eq!(p.fill(TURNAROUND, RESPONSE), 1);
+    assert_eq!(p.fill(TURNAROUND, RESPONSE, &mut late), 1);
     assert!(p.awaits_answer());
 }
 
@@ -169,10 +177,11 @@ fn the_queue_is_bounded() {
 #[test]
 fn ascii_requests_go_out_as_characters_and_are_checked_as_bytes() {
     let mut p: Pipeline<&str> = Pipeline::new(Framing::Ascii);
+    let mut late = LateIds::default();
     p.submit(&[1, 3, 0, 0, 0, 1], b":010300000001FB\r\n", 0, false, "a").unwrap();
-    p.fill(Duration::ZERO, RESPONSE);
+    p.fill(Duration::ZERO, RESPONSE, &mut late);
     assert_eq!(p.output(), b":010300000001FB\r\n");
-    match p.answer(None) {
+    match p.answer(None, &mut late) {
         Answer::Of(e) => assert_eq!(e.adu(), &[1, 3, 0, 0, 0, 1]),
         _ => panic!("the request in flight"),
     }
@@ -181,35 +190,37 @@ fn ascii_requests_go_out_as_characters_and_are_checked_as_bytes() {
 #[test]
 fn a_continued_request_keeps_its_id_and_goes_next() {
     let mut p = tcp(1);
+    let mut late = LateIds::default();
     let first = submit(&mut p, 1, "stream");
     let other = submit(&mut p, 2, "other");
-    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 1);
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE, &mut late), 1);
     p.wrote(12);
-    let Answer::Of(e) = p.answer(Some(1)) else { panic!("the answer of the first") };
+    let Answer::Of(e) = p.answer(Some(1), &mut late) else { panic!("the answer of the first") };
     assert_eq!(e.id, first);
     // Its next round: same id, ahead of the request queued after it.
     assert_eq!(p.resubmit(first, &adu(3), &[], 3, "stream, round 2"), Some(first));
     assert_eq!(p.ids().collect::<Vec<_>>(), vec![first, other]);
-    assert_eq!(p.fill(MS, RESPONSE), 1);
+    assert_eq!(p.fill(MS, RESPONSE, &mut late), 1);
     assert_eq!(p.output(), &adu(3));
     // Cancelled by its id in its second round.
-    assert_eq!(p.cancel(first).map(|e| e.payload), Some("stream, round 2"));
+    assert_eq!(p.cancel(first, &mut late).map(|e| e.payload), Some("stream, round 2"));
     assert_eq!(p.pending(), 1);
 }
 
 #[test]
 fn a_write_that_took_time_restarts_the_clocks_of_the_requests_it_sent() {
     let mut p = tcp(2);
+    let mut late = LateIds::default();
     submit(&mut p, 1, "a");
-    assert_eq!(p.fill(Duration::ZERO, RESPONSE), 1);
+    assert_eq!(p.fill(Duration::ZERO, RESPONSE, &mut late), 1);
     assert_eq!(p.deadline(), Some(RESPONSE));
     submit(&mut p, 2, "b");
-    assert_eq!(p.fill(MS, RESPONSE), 1);
+    assert_eq!(p.fill(MS, RESPONSE, &mut late), 1);
     // The second write took 300 ms (an RTS sequence on a slow line): its request's
     // timeout starts at its end; the first request's stays.
     p.restart_clocks(1, 301 * MS, RESPONSE);
     assert_eq!(p.deadline(), Some(RESPONSE));
-    assert!(p.due(RESPONSE + MS).iter().map(|(e, _)| e.payload).eq(["a"]));
+    assert!(p.due(RESPONSE + MS, &mut late).iter().map(|(e, _)| e.payload).eq(["a"]));
     assert_eq!(p.deadline(), Some(301 * MS + RESPONSE));
-    assert!(p.due(300 * MS + RESPONSE).is_empty(), "b still has its whole response timeout");
+    assert!(p.due(300 * MS + RESPONSE, &mut late).is_empty(), "b still has its whole response timeout");
 }
