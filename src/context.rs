@@ -7,7 +7,9 @@ use std::sync::Arc;
 use crate::error::{Error, Result};
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::limits::TCP_SLAVE;
+use crate::proto::session::client::ClientSession;
 use crate::proto::session::receive::{LineCaps, Settings};
+use crate::proto::session::server::ServerSession;
 use crate::stdio::{self, DebugSink};
 use crate::stop::Stop;
 
@@ -43,16 +45,14 @@ pub struct Context {
     pub session: Settings,
     pub debug: bool,
     pub quirks: u32,
-    /// Last transaction id used (TCP).
-    pub t_id: u16,
     /// Read-ahead of the client side (see [`ReadAhead`]).
     pub rx: ReadAhead,
-    /// Length of header + PDU of the last diagnostics request sent on a serial
-    /// framing: its answer is as long, and its PDU says nothing of its length.
-    pub diagnostics_sent: Option<usize>,
-    /// A server on a shared bus saw a request for another slave: its answer comes
-    /// next and must be skipped.
-    pub confirmation_to_ignore: bool,
+    /// The client session: transaction ids, the late ids, a diagnostics answer's
+    /// length (see `proto::session::client`); every driver's.
+    pub client: ClientSession,
+    /// The server session: the other slave's answer to skip (see
+    /// `proto::session::server`); the blocking server's and the runner's.
+    pub server: ServerSession,
     /// Server-side configuration and diagnostics state beyond libmodbus (see
     /// [`crate::server_ext`]); `None` until a server configuration call, so an
     /// unconfigured context is exactly libmodbus and pays nothing for it.
@@ -70,45 +70,9 @@ pub struct Context {
     /// when it began. Calls on the context meanwhile see them pending; those that
     /// would change them fail with `EBUSY`.
     pub processing: Option<usize>,
-    /// The transaction ids of the last TCP requests whose answer did not come in
-    /// time: a late answer is dropped, never taken for the next request's.
-    pub timed_out: TimedOut,
     /// A server runner drives this context (`crate::runner`): nothing may wait in
     /// it (no sleep before a flush; writes are queued on the line).
     pub runner: bool,
-}
-
-/// The transaction ids of the last few requests that timed out (see
-/// [`Context::timed_out`]).
-#[derive(Debug, Default)]
-pub struct TimedOut {
-    ids: [u16; 8],
-    len: usize,
-    next: usize,
-}
-
-impl TimedOut {
-    pub fn push(&mut self, tid: u16) {
-        self.ids[self.next] = tid;
-        self.next = (self.next + 1) % self.ids.len();
-        self.len = (self.len + 1).min(self.ids.len());
-    }
-
-    /// True when `tid` was one of them (it is forgotten then).
-    pub fn take(&mut self, tid: u16) -> bool {
-        let n = self.ids.len();
-        for k in 0..self.len {
-            let i = (self.next + n - 1 - k) % n;
-            if self.ids[i] == tid {
-                // Forgotten: the slot gets a copy of the oldest kept id.
-                let oldest = (self.next + n - self.len) % n;
-                self.ids[i] = self.ids[oldest];
-                self.len -= 1;
-                return true;
-            }
-        }
-        false
-    }
 }
 
 /// Frame buffers a context lends to each transaction and takes back: a transaction
@@ -162,16 +126,14 @@ impl Context {
             },
             debug: false,
             quirks: 0,
-            t_id: 0,
             rx: ReadAhead::new(),
-            diagnostics_sent: None,
-            confirmation_to_ignore: false,
+            client: ClientSession::default(),
+            server: ServerSession::default(),
             server_ext: None,
             spare: SpareFrames::default(),
             stop,
             outstanding: None,
             processing: None,
-            timed_out: TimedOut::default(),
             runner: false,
         }
     }
@@ -360,6 +322,18 @@ impl Context {
         self.line.abandon()
     }
 
+    /// Requests of the event-driven client given and not completed (a blocking call
+    /// meanwhile fails with EBUSY).
+    pub fn pending(&self) -> usize {
+        self.processing.unwrap_or_else(|| self.outstanding.as_ref().map_or(0, |o| o.pending()))
+    }
+
+    /// A blocking call may run: nothing of the event-driven client is pending
+    /// (else EBUSY).
+    pub fn idle(&self) -> Result<()> {
+        if self.pending() > 0 { Err(Error(libc::EBUSY)) } else { Ok(()) }
+    }
+
     /// A call must end now with EBADF: the context is being closed under it (see
     /// [`crate::stop`]).
     #[inline]
@@ -403,7 +377,7 @@ mod tests {
     #[test]
     fn defaults() {
         let c = Context::new_tcp(Some(c"127.0.0.1"), 502).unwrap();
-        assert_eq!((c.session.slave, c.fd(), c.t_id), (0xFF, -1, 0));
+        assert_eq!((c.session.slave, c.fd(), c.client.tid()), (0xFF, -1, 0));
         assert_eq!(c.session.timeouts.response, Timeout::new(0, 500_000));
         assert_eq!(c.session.timeouts.byte, Timeout::new(0, 500_000));
         assert!(c.session.timeouts.indication.is_zero());

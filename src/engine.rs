@@ -4,17 +4,18 @@
 
 use std::time::Duration;
 
-use crate::context::{Context, RECOVERY_PROTOCOL, RtsHook};
+use crate::context::{Context, RtsHook};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
 use crate::proto::confirm::{self, Rejection};
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
-use crate::proto::request::{Request, next_tid};
-use crate::proto::session::receive::{self, Dest, Finished, Outcome, ReadAhead, ReadHow, Receiver, Step};
+use crate::proto::request::Request;
+use crate::proto::session::receive::{self, Finished, Receiver, Step};
 use crate::proto::session::{self, Recovery};
 use crate::proto::{Diag, ascii};
-use crate::transport::line::Line;
-use crate::transport::{self, Ready};
+use crate::session::{Driver, Received, Recovered, conclude, error_print, flush_reporting};
+use crate::session::{Waiting, execute, pause, recover, sleep_response_timeout, trace_sent};
+use crate::transport;
 
 /// A locked context. Functions that may call back into the application (the custom
 /// RTS callback) take the guard so they can release the lock around the call.
@@ -22,118 +23,6 @@ pub type Guard<'a> = OwnerGuard<'a, Context>;
 
 /// One ADU buffer, large enough for any framing.
 pub type AduBuf = [u8; MAX_ADU_LENGTH];
-
-/// libmodbus's `_error_print`: "ERROR <strerror>[: <context>]" on stderr, debug only.
-pub fn error_print(ctx: &Context, error: Error, context: Option<&str>) {
-    if !ctx.debug {
-        return;
-    }
-    let text = describe(error.0);
-    let mut diag = ctx.diag();
-    match context {
-        Some(c) => diag.err(format_args!("ERROR {text}: {c}\n")),
-        None => diag.err(format_args!("ERROR {text}\n")),
-    }
-}
-
-use crate::transport::describe;
-
-/// `modbus_connect`: the line opens (and, on a Modbus/TCP Security context, runs
-/// its handshake), bounded by the response timeout.
-pub fn connect(ctx: &mut Context) -> Result<()> {
-    ctx.rx.clear();
-    let mut diag = ctx.diag();
-    let timeout = ctx.session.timeouts.response.duration();
-    ctx.line.open(timeout, ctx.debug, &mut diag)
-}
-
-/// The event-driven client's connect: as [`connect`], but a TCP connect is only
-/// started (`Ok(false)`: under way, see `Line::connect_done`).
-pub fn connect_started(ctx: &mut Context) -> Result<bool> {
-    ctx.rx.clear();
-    let mut diag = ctx.diag();
-    let timeout = ctx.session.timeouts.response.duration();
-    ctx.line.open_started(timeout, ctx.debug, &mut diag)
-}
-
-/// The end of a connect [`connect_started`] left under way (on a Modbus/TCP Security
-/// context, the handshake starts: [`handshake_step`]).
-pub fn connect_done(ctx: &mut Context, timed_out: bool) -> Result<()> {
-    ctx.line.connect_done(timed_out)
-}
-
-/// The TLS handshake of a connect without waiting, as far as it goes (see
-/// `Line::handshake_step`).
-pub fn handshake_step(ctx: &mut Context, timed_out: bool) -> Result<Option<i16>> {
-    let mut diag = ctx.diag();
-    ctx.line.handshake_step(timed_out, ctx.debug, &mut diag)
-}
-
-/// `modbus_tcp_accept`: the client just accepted on `fd` becomes the context's (on
-/// a Modbus/TCP Security context once its handshake, bounded by the response
-/// timeout, is done).
-pub fn accepted(ctx: &mut Context, fd: i32, peer: Option<&str>) -> Result<()> {
-    let mut diag = ctx.diag();
-    crate::transport::listen::report_accept(&mut diag, peer);
-    let timeout = ctx.session.timeouts.response.duration();
-    ctx.line.accepted(fd, timeout, ctx.debug, &mut diag)
-}
-
-/// `modbus_close`: the line closes its descriptor (a serial line gets its saved
-/// settings back first).
-pub fn close(ctx: &mut Context) {
-    crate::event::cancel_all(ctx);
-    ctx.rx.clear();
-    ctx.line.close();
-}
-
-/// `modbus_flush`: discard what is pending on the line. Returns the bytes dropped
-/// (TCP) or 0 (RTU).
-pub fn flush(ctx: &mut Context) -> Result<usize> {
-    flush_reporting(ctx).0
-}
-
-/// [`flush`], and the error of its last failed system call, if any: the errno
-/// libmodbus's `modbus_flush` leaves behind. A socket's count overflowing 16 bits
-/// switches to PROTOCOL recovery (libmodbus 3.1.11+).
-fn flush_reporting(ctx: &mut Context) -> (Result<usize>, Option<Error>) {
-    let (rc, left) = ctx.line.flush(ctx.rx.available().len());
-    ctx.rx.clear();
-    if rc == Err(Error(libc::EOVERFLOW)) {
-        ctx.session.recovery = RECOVERY_PROTOCOL;
-    }
-    if let Ok(n) = rc {
-        ctx.diag().out(format_args!("Bytes flushed ({n})\n"));
-    }
-    (rc, left)
-}
-
-/// Sleeps the response timeout (error recovery); `Err(STOPPED)` as soon as the
-/// context is being closed under the call.
-pub fn sleep_response_timeout(ctx: &Context) -> Result<()> {
-    pause(ctx, ctx.session.timeouts.response.duration())
-}
-
-/// Sleeps `d`, resuming after signals, and ends early with `Err(STOPPED)` when the
-/// context is being closed under the call (the wake-up descriptor of
-/// [`crate::stop`] ends the wait).
-pub fn pause(ctx: &Context, d: Duration) -> Result<()> {
-    let wake = ctx.stop.wake_fd();
-    let mut left = transport::to_timespec(d);
-    loop {
-        if ctx.stopping() {
-            return Err(Error::STOPPED);
-        }
-        match transport::wait_or_wake(-1, 0, wake, Some(&mut left)) {
-            Ok(Ready::TimedOut) => return Ok(()),
-            Ok(_) => ctx.stop.drain_wake(),
-            // EINTR: the kernel counted `left` down; anything else cannot happen
-            // with no descriptor of ours but an eventfd.
-            Err(e) if e.0 == libc::EINTR => {}
-            Err(_) => return Ok(()),
-        }
-    }
-}
 
 /// Drives the RTS line of a serial context through the application's callback
 /// (with the context unlocked, so the callback may call `modbus_get_socket` and
@@ -233,34 +122,6 @@ fn send_traced_or_encoded(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
     }
 }
 
-/// The debug trace of a frame sent: each byte as `[XX]`, then a new line.
-pub fn trace_sent(bytes: &[u8]) {
-    use std::fmt::Write as _;
-    let mut line = String::with_capacity(bytes.len() * 4 + 1);
-    for b in bytes {
-        let _ = write!(line, "[{b:02X}]");
-    }
-    line.push('\n');
-    crate::stdio::out(format_args!("{line}"));
-}
-
-/// The debug trace of a message received: each byte as `<XX>`, and a new line when
-/// its framing ended (nothing when there is neither).
-pub fn trace_received(bytes: &[u8], ended: bool) {
-    if bytes.is_empty() && !ended {
-        return;
-    }
-    use std::fmt::Write as _;
-    let mut trace = String::with_capacity(bytes.len() * 4 + 1);
-    for b in bytes {
-        let _ = write!(trace, "<{b:02X}>");
-    }
-    if ended {
-        trace.push('\n');
-    }
-    crate::stdio::out(format_args!("{trace}"));
-}
-
 /// A send whose first write did not take the whole frame: a short write is
 /// EMBBADDATA; an error is printed and, under LINK recovery, the line is reopened
 /// (or flushed) and the write tried again until it goes out. Returns `len`, the
@@ -277,79 +138,17 @@ fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: R
             Ok(_) => return Err(Error::BAD_DATA),
             Err(e) => {
                 error_print(g, e, None);
-                match session::after_send(g.session.recovery, e) {
-                    Recovery::ReconnectAfterSleep => {
-                        close(g);
-                        sleep_response_timeout(g)?;
-                        let _ = connect(g);
-                    }
-                    Recovery::SleepFlush => {
-                        sleep_response_timeout(g)?;
-                        let _ = flush(g);
-                    }
-                    _ => return Err(e),
+                let recovery = session::after_send(g.session.recovery, e);
+                if recovery == Recovery::None {
+                    return Err(e);
+                }
+                // Reopened after a sleep, or flushed after one; then sent again.
+                if recover(g, recovery, Driver::Blocking) == Recovered::Stopped {
+                    return Err(Error::STOPPED);
                 }
             }
         }
         written = write_adu(g, wire);
-    }
-}
-
-/// What a receive got.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Received {
-    /// A complete, valid message of this length.
-    Frame(usize),
-    /// A valid serial frame addressed to another slave (libmodbus returns 0).
-    Ignored(usize),
-}
-
-/// Carries out the recovery a failure asks for (see `proto::session`), unless the
-/// context is being closed under the call.
-fn recover(ctx: &mut Context, recovery: Recovery) {
-    if recovery == Recovery::None || ctx.stopping() {
-        return;
-    }
-    match recovery {
-        Recovery::None => {}
-        // The sleep ends early when the context is being closed: then no flush.
-        Recovery::SleepFlush => {
-            if sleep_response_timeout(ctx).is_ok() {
-                let _ = flush(ctx);
-            }
-        }
-        // A bad checksum: the line's own flush, without `modbus_flush`'s trace.
-        Recovery::Flush => {
-            ctx.rx.clear();
-            ctx.line.purge();
-        }
-        Recovery::Reconnect | Recovery::ReconnectAfterSleep => {
-            close(ctx);
-            if recovery == Recovery::ReconnectAfterSleep && sleep_response_timeout(ctx).is_err() {
-                return;
-            }
-            let _ = connect(ctx);
-        }
-    }
-}
-
-/// Completes the context's session settings with those of this receive (its kind,
-/// what the line can do now) for the receive machine.
-#[inline]
-fn prepare_session(ctx: &mut Context, kind: MsgKind) {
-    let confirmation = kind == MsgKind::Confirmation;
-    let s = &mut ctx.session;
-    s.kind = kind;
-    s.line = ctx.line.caps(kind, s.timeouts.response);
-    s.expecting = None;
-    s.read_ahead = false;
-    if confirmation {
-        s.expecting = ctx.diagnostics_sent.take();
-        s.read_ahead = !ctx.confirmation_to_ignore;
-    }
-    if s.framing == Framing::Ascii {
-        s.ascii_delimiter =
-            ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
     }
 }
 
@@ -374,7 +173,8 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
         }
     }
     debug_assert!(buf.len() >= ctx.framing().max_adu_length());
-    prepare_session(ctx, kind);
+    let expecting = if kind == MsgKind::Confirmation { ctx.client.take_expecting() } else { None };
+    ctx.session = crate::session::settings(ctx, kind, Driver::Blocking, expecting);
     // The usual first steps need no state of the receive: it is built when a step
     // does not end the receive (see `receive::first_step`).
     let first = receive::first_step(&ctx.session, &ctx.rx, buf.len());
@@ -444,96 +244,14 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
     }
 }
 
-/// How a Wait step of the receive machine is carried out.
-pub enum Waiting<'a> {
-    /// In `ppoll`, until the line is readable or the deadline passes (the blocking
-    /// calls).
-    Block,
-    /// Not at all (the event-driven client): the line is readable when the
-    /// application's poll said so (`true`, taken once) or bytes are already read
-    /// (a TLS session's plaintext); at the deadline the wait has timed out; else the
-    /// step waits for the application's loop. Reads never wait either.
-    Ready(&'a mut bool),
-}
-
-/// Executes one step of the receive machine (`Peek`, `Read` or `Wait`) on `line`:
-/// the one executor of the machine's steps, for both drivers (`receive_msg` here,
-/// `event::receive`). `msg` is the message's buffer, `rx` the read-ahead. Returns the
-/// step's result for the machine, or `None` when, under [`Waiting::Ready`], the step
-/// must wait for the application's loop.
-#[inline(always)]
-pub fn execute(
-    line: &mut Line,
-    rx: &mut ReadAhead,
-    msg: &mut [u8],
-    step: Step,
-    debug: bool,
-    waiting: &mut Waiting<'_>,
-) -> Option<Result<usize>> {
-    let blocking = matches!(waiting, Waiting::Block);
-    Some(match step {
-        Step::Peek { block } => line.peek(&mut rx.buf, block && blocking),
-        Step::Read { dest, how } => {
-            let room = match dest {
-                Dest::Message { from, to } => &mut msg[from..to],
-                Dest::ReadAhead => &mut rx.buf[..],
-            };
-            line.read(room, if blocking { how } else { ReadHow::Queued }, debug)
-        }
-        Step::Wait { until } => match waiting {
-            Waiting::Block => line.wait(until, debug).map(|()| 0),
-            Waiting::Ready(readable) => {
-                if **readable || line.pending() > 0 {
-                    **readable = false;
-                    Ok(0)
-                } else if until.is_some_and(|u| transport::now() >= u) {
-                    Err(Error::TIMED_OUT)
-                } else {
-                    return None;
-                }
-            }
-        },
-        Step::Frame(_) | Step::Done(_) => unreachable!("the end of a receive is no step to execute"),
-    })
-}
-
-/// The end of a receive: the debug trace of the message (libmodbus prints its bytes
-/// as they arrive; printed at the end, the text is the same with fewer writes), the
-/// messages of a bad or foreign frame, the recovery.
+/// The end of a blocking receive: read by the one reader ([`conclude`]), then the
+/// recovery it names, carried out with its sleeps.
 #[inline]
 fn finish(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
-    match f.outcome {
-        Outcome::Frame(len) if !ctx.debug => Ok(Received::Frame(len)),
-        _ => finish_reporting(ctx, buf, f),
+    let result = conclude(ctx, buf, &f, Driver::Blocking);
+    if f.recovery != Recovery::None {
+        recover(ctx, f.recovery, Driver::Blocking);
     }
-}
-
-/// [`finish`] with something to print or to recover from.
-#[inline(never)]
-fn finish_reporting(ctx: &mut Context, buf: &[u8], f: Finished) -> Result<Received> {
-    if ctx.debug {
-        trace_received(&buf[..f.traced], f.ended);
-    }
-    let mut diag = ctx.diag();
-    let result = match f.outcome {
-        Outcome::Frame(len) => Ok(Received::Frame(len)),
-        Outcome::Ignored { len, theirs, ours } => {
-            diag.out(format_args!("Request for slave {theirs} ignored (not {ours})\n"));
-            Ok(Received::Ignored(len))
-        }
-        Outcome::BadChecksum { lrc, received, computed } => {
-            let what = if lrc { "LRC" } else { "CRC" };
-            diag.err(format_args!("ERROR {what} received 0x{received:0X} != {what} calculated 0x{computed:0X}\n"));
-            Err(Error::BAD_CRC)
-        }
-        Outcome::Failed { error, site } => {
-            if site.is_some() {
-                error_print(ctx, error, site);
-            }
-            Err(error)
-        }
-    };
-    recover(ctx, f.recovery);
     result
 }
 
@@ -544,10 +262,8 @@ fn unit(ctx: &Context) -> u8 {
 
 /// Encodes `req` with the next transaction id into `buf`; returns its unsealed length.
 pub fn build_request(ctx: &mut Context, req: &Request<'_>, buf: &mut AduBuf) -> usize {
-    if ctx.framing() == Framing::Tcp {
-        ctx.t_id = next_tid(ctx.t_id);
-    }
-    req.encode(ctx.framing(), unit(ctx), ctx.t_id, buf)
+    let tid = ctx.client.next_tid(ctx.framing());
+    req.encode(ctx.framing(), unit(ctx), tid, buf)
 }
 
 /// A complete client exchange: send `req`, wait for the confirmation, check it.
@@ -563,7 +279,7 @@ pub fn exchange(g: &mut Guard<'_>, req: &Request<'_>, rsp: &mut AduBuf) -> Resul
         g.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
     }
-    crate::event::idle(g)?;
+    g.idle()?;
     let mut out = g.spare.take();
     let result = exchange_with(g, req, &mut out, rsp);
     g.spare.give(out);
@@ -597,11 +313,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
             Err(e)
         }
         Err(Rejection::Mismatch(e)) => {
-            if session::after_mismatch(ctx.session.recovery) == Recovery::SleepFlush
-                && sleep_response_timeout(ctx).is_ok()
-            {
-                let _ = flush(ctx);
-            }
+            recover(ctx, session::after_mismatch(ctx.session.recovery), Driver::Blocking);
             Err(e)
         }
         Err(Rejection::Foreign(e)) => {
@@ -633,13 +345,13 @@ fn receive_answer(g: &mut Guard<'_>, rsp: &mut AduBuf, req: &[u8]) -> Result<Rec
                     g.diag().err(format_args!("Answer with transaction ID 0x{tid:X} dropped (not awaited)\n"));
                     continue;
                 }
-                if !g.timed_out.take(tid) {
+                if !g.client.late().take(tid) {
                     return Ok(Received::Frame(len));
                 }
                 g.diag().err(format_args!("Late answer with transaction ID 0x{tid:X} dropped\n"));
             }
             Err(e) if tcp && e == Error::TIMED_OUT => {
-                g.timed_out.push(u16::from_be_bytes([req[0], req[1]]));
+                g.client.late().push(u16::from_be_bytes([req[0], req[1]]));
                 return Err(e);
             }
             other => return other,
@@ -649,7 +361,7 @@ fn receive_answer(g: &mut Guard<'_>, rsp: &mut AduBuf, req: &[u8]) -> Result<Rec
 
 /// `modbus_send_raw_request[_tid]`: `raw[0]` is the unit, the rest is the PDU.
 pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
-    crate::event::idle(g)?;
+    g.idle()?;
     let mut out: AduBuf = [0; MAX_ADU_LENGTH];
     let h = g.framing().write_header(&mut out, raw[0], tid);
     let pdu = &raw[1..];
@@ -658,10 +370,9 @@ pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
     send_msg(g, &mut out, h + pdu.len())
 }
 
-/// Remembers the length of a diagnostics request about to go out on a serial
-/// framing, so that its answer can be framed (see `Context::diagnostics_sent`).
+/// Notes a request about to go out on its own, for its answer's receive (see
+/// `ClientSession::sending`).
 fn note_diagnostics(ctx: &mut Context, unsealed: &[u8]) {
-    let h = ctx.framing().header_length();
-    ctx.diagnostics_sent = (ctx.framing() != Framing::Tcp && unsealed.get(h) == Some(&crate::proto::fc::DIAGNOSTICS))
-        .then_some(unsealed.len());
+    let framing = ctx.framing();
+    ctx.client.sending(framing, unsealed);
 }

@@ -23,10 +23,12 @@ use crate::proto::confirm::{self, Rejection};
 use crate::proto::decode::counted_data;
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::request::Request;
+use crate::proto::session::client::answer_length;
 use crate::proto::session::pipeline::{Answer, End, Entry, MAX_PENDING};
 use crate::proto::session::receive::{Finished, Outcome, Receiver, Step};
-use crate::proto::session::{self, Recovery, Timeout};
+use crate::proto::session::{Recovery, Timeout};
 use crate::proto::{Diag, ascii};
+use crate::session::{self, Driver, Received, Recovered};
 use crate::transport;
 
 /// What to wait for before the next [`process`].
@@ -52,12 +54,7 @@ pub fn state(ctx: &mut Context) -> Result<&mut Outstanding> {
 
 /// Requests given and not completed.
 pub fn pending(ctx: &Context) -> usize {
-    ctx.processing.unwrap_or_else(|| ctx.outstanding.as_ref().map_or(0, |o| o.pending()))
-}
-
-/// A blocking call may run: nothing of the event-driven client is pending.
-pub fn idle(ctx: &Context) -> Result<()> {
-    if pending(ctx) > 0 { Err(Error(libc::EBUSY)) } else { Ok(()) }
+    ctx.pending()
 }
 
 /// `modbus_set_max_in_flight`.
@@ -114,7 +111,7 @@ fn queue(
     };
     let unit = req.own_unit().map_or(ctx.session.slave, i32::from);
     let broadcast = (framing != Framing::Tcp && unit == 0) || !answered;
-    let tid = ctx.t_id;
+    let tid = ctx.client.tid();
     let o = state(ctx)?;
     let id = match continuing {
         Some(id) => o.pipeline.resubmit(id, &buf[..len], wire, tid, completion),
@@ -136,15 +133,23 @@ pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
     if ctx.processing.is_some() {
         return Err(Error(libc::EBUSY));
     }
-    let o = ctx.outstanding.as_deref_mut().ok_or(Error::INVALID)?;
+    let Context { outstanding, client, .. } = ctx;
+    let o = outstanding.as_deref_mut().ok_or(Error::INVALID)?;
     mark(o);
-    let e = o.pipeline.cancel(id).ok_or(Error::INVALID)?;
+    let e = o.pipeline.cancel(id, client.late()).ok_or(Error::INVALID)?;
     if o.pipeline.in_flight() == 0 {
         // Nothing to receive for any more (a late answer is dropped by its id).
         o.receiving = None;
     }
     o.complete(Done { id: e.id, completion: e.payload, result: Err(libc::ECANCELED), data: Vec::new() });
     Ok(())
+}
+
+/// `modbus_close`: everything pending completes with ECANCELED (their callbacks
+/// run when the C layer next fires the completed ones), then the line closes.
+pub fn close(ctx: &mut Context) {
+    cancel_all(ctx);
+    session::close_line(ctx);
 }
 
 /// A close: everything pending completes with ECANCELED.
@@ -230,7 +235,7 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
     for _ in 0..4 * MAX_PENDING {
         let now = transport::now();
         let mut progress = false;
-        for (e, end) in o.pipeline.due(now) {
+        for (e, end) in o.pipeline.due(now, g.client.late()) {
             progress = true;
             let result = match end {
                 End::Sent => Ok(0),
@@ -240,15 +245,15 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
                 // A broadcast: rc as a write's.
                 complete_broadcast(o, e);
             } else {
-                if g.debug {
-                    engine::error_print(g, Error::TIMED_OUT, Some("select"));
-                }
+                session::error_print(g, Error::TIMED_OUT, Some("select"));
                 push(o, e, result, Vec::new());
                 // A serial line has no transaction id: the recovery after a wait
                 // that timed out (LINK: sleep and flush) keeps the line quiet for a
                 // response timeout, then flushes it.
                 let serial = g.framing() != Framing::Tcp;
-                if serial && session::after_wait(g.session.recovery, Error::TIMED_OUT) == Recovery::SleepFlush {
+                if serial
+                    && crate::proto::session::after_wait(g.session.recovery, Error::TIMED_OUT) == Recovery::SleepFlush
+                {
                     o.quiet_until = Some(now + g.session.timeouts.response.duration());
                 }
             }
@@ -264,14 +269,14 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
             // the line was lost: the connect starts, and goes on while the
             // application waits for the socket to be writable.
             o.receiving = None;
-            match engine::connect_started(g) {
+            match session::connect_started(g) {
                 Ok(true) => progress = true,
                 Ok(false) => {
                     o.connect_until = Some(now + g.session.timeouts.response.duration());
                     return;
                 }
                 Err(e) => {
-                    engine::error_print(g, e, Some("connect"));
+                    session::error_print(g, e, Some("connect"));
                     o.fail_all(e.errno());
                     return;
                 }
@@ -283,8 +288,8 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
                 return;
             }
             o.connect_until = None;
-            if let Err(e) = engine::connect_done(g, timed_out) {
-                engine::error_print(g, e, Some("connect"));
+            if let Err(e) = session::connect_done(g, timed_out) {
+                session::error_print(g, e, Some("connect"));
                 o.fail_all(e.errno());
                 return;
             }
@@ -293,7 +298,7 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
         if g.line.handshaking() {
             // Modbus/TCP Security: the handshake, as far as it goes without waiting.
             let until = *o.connect_until.get_or_insert(now + g.session.timeouts.response.duration());
-            match engine::handshake_step(g, now >= until) {
+            match session::handshake_step(g, now >= until) {
                 Ok(Some(events)) => {
                     o.handshake_wants = events;
                     return;
@@ -338,13 +343,13 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
         g.line.purge();
     }
     let response = g.session.timeouts.response.duration();
-    let moved = o.pipeline.fill(now, response);
+    let moved = o.pipeline.fill(now, response, g.client.late());
     let out = o.pipeline.output();
     if out.is_empty() {
         return false;
     }
     if g.debug {
-        engine::trace_sent(out);
+        session::trace_sent(out);
     }
     let written = match g.line.write_at_once(out) {
         Some(r) => r,
@@ -370,7 +375,7 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
         }
         Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => false,
         Err(e) => {
-            engine::error_print(g, e, None);
+            session::error_print(g, e, None);
             lost(g, o, e);
             true
         }
@@ -381,7 +386,7 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
 /// closed (the next request opens it again).
 fn lost(g: &mut Guard<'_>, o: &mut Outstanding, e: Error) {
     o.fail_all(e.errno());
-    engine::close(g);
+    session::close_line(g);
 }
 
 /// Drives the receive under way (or a new one) until it ends (`Some`) or must wait.
@@ -394,21 +399,14 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
         }
         let now = transport::now();
         let deadline = o.pipeline.answer_deadline().unwrap_or(now);
-        let mut s = g.session;
-        s.kind = MsgKind::Confirmation;
-        s.line = g.line.caps(MsgKind::Confirmation, s.timeouts.response);
-        // Never a blocking read under a kernel timeout: readiness decides.
-        s.line.timed_reads = false;
+        let first = o.pipeline.first_awaiting().map(|e| e.adu());
         // A diagnostics answer on a serial framing is as long as its request.
-        s.expecting = o.pipeline.first_awaiting().map(|e| e.adu()).and_then(|adu| {
-            let serial = s.framing != Framing::Tcp;
-            (serial && adu.get(1) == Some(&crate::proto::fc::DIAGNOSTICS))
-                .then(|| adu.len() - s.framing.checksum_length())
-        });
-        s.read_ahead = true;
+        let framing = g.framing();
+        let expecting = first.and_then(|adu| answer_length(framing, &adu[..adu.len() - framing.checksum_length()]));
+        let mut s = session::settings(g, MsgKind::Confirmation, Driver::Ready, expecting);
         // A serial answer must come from the unit asked: a raw request names its own.
         if s.framing != Framing::Tcp {
-            if let Some(unit) = o.pipeline.first_awaiting().and_then(|e| e.adu().first()) {
+            if let Some(unit) = first.and_then(|adu| adu.first()) {
                 s.slave = i32::from(*unit);
             }
         }
@@ -422,19 +420,7 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
         o.receiving = Some(r);
     }
     let r = o.receiving.as_mut().expect("made above");
-    let ctx: &mut Context = g;
-    let mut waiting = engine::Waiting::Ready(readable);
-    loop {
-        match r.step {
-            Step::Frame(len) => return Some(Finished::frame(len)),
-            Step::Done(f) => return Some(f),
-            step => {
-                let result =
-                    engine::execute(&mut ctx.line, &mut ctx.rx, &mut r.msg[..], step, ctx.debug, &mut waiting)?;
-                r.step = r.machine.next(&r.settings, result, &mut r.msg[..], &mut ctx.rx, transport::now);
-            }
-        }
-    }
+    session::drive_ready(g, r, readable)
 }
 
 /// Completes `e` with `result` and the answer's data.
@@ -483,28 +469,19 @@ fn values(framing: Framing, deliver: Deliver, rsp: &[u8], count: i32) -> (i32, V
     }
 }
 
-/// The recovery a failed receive or a mismatched answer asks for, without sleeping.
+/// The recovery a failed receive or a mismatched answer asks for, without sleeping
+/// (see `session::recover`): a reconnect completes everything with `e`.
 fn recover(g: &mut Guard<'_>, o: &mut Outstanding, recovery: Recovery, e: Error) {
-    match recovery {
-        Recovery::None => {}
-        Recovery::Flush | Recovery::SleepFlush => {
-            g.rx.clear();
-            g.line.purge();
-        }
-        Recovery::Reconnect | Recovery::ReconnectAfterSleep => lost(g, o, e),
+    if session::recover(g, recovery, Driver::Ready) == Recovered::Lost {
+        lost(g, o, e);
     }
-}
-
-/// A failure of the line itself (not of one answer).
-fn is_lost(e: Error) -> bool {
-    matches!(e.0, libc::ECONNRESET | libc::EPIPE | libc::ENOTCONN | libc::EBADF | libc::ECONNABORTED | libc::ENETDOWN)
 }
 
 /// Checks a frame against the request it answers and completes that request.
 fn answered(g: &mut Guard<'_>, o: &mut Outstanding, rsp: &[u8]) {
     let framing = g.framing();
     let tid = (framing == Framing::Tcp && rsp.len() >= 2).then(|| u16::from_be_bytes([rsp[0], rsp[1]]));
-    let e = match o.pipeline.answer(tid) {
+    let e = match o.pipeline.answer(tid, g.client.late()) {
         Answer::Of(e) => e,
         Answer::Stale | Answer::Unexpected => {
             if g.debug {
@@ -527,7 +504,7 @@ fn answered(g: &mut Guard<'_>, o: &mut Outstanding, rsp: &[u8]) {
             push(o, e, Ok(rc), data);
         }
         Err(Rejection::Exception(err)) => {
-            engine::error_print(g, err, None);
+            session::error_print(g, err, None);
             push(o, e, Err(err.errno()), Vec::new());
         }
         Err(Rejection::Mismatch(err)) | Err(Rejection::Foreign(err)) => {
@@ -552,38 +529,31 @@ fn answered_raw(g: &mut Guard<'_>, o: &mut Outstanding, e: Entry<Completion>, rs
         return;
     }
     let err = if same_unit { Error::BAD_DATA } else { Error::BAD_SLAVE };
-    engine::error_print(g, err, None);
+    session::error_print(g, err, None);
     push(o, e, Err(err.errno()), Vec::new());
     let recovery = crate::proto::session::after_mismatch(g.session.recovery);
     recover(g, o, recovery, err);
 }
 
-/// Writes the message of a receive that ended, and acts on its outcome.
+/// A receive that ended: read by the one reader (`session::conclude`), then acted
+/// on.
 fn finish(g: &mut Guard<'_>, o: &mut Outstanding, f: Finished, msg: &[u8]) {
-    if g.debug {
-        engine::trace_received(&msg[..f.traced], f.ended);
+    if let Outcome::Failed { error: Error::TIMED_OUT, .. } = f.outcome {
+        if f.traced == 0 {
+            // Nothing of an answer by the first request's deadline: `due` completes it.
+            return;
+        }
     }
-    match f.outcome {
-        Outcome::Frame(len) => answered(g, o, &msg[..len]),
+    match session::conclude(g, msg, &f, Driver::Ready) {
+        Ok(Received::Frame(len)) => answered(g, o, &msg[..len]),
         // A serial frame for another slave: not ours; keep listening.
-        Outcome::Ignored { .. } => {}
-        Outcome::Failed { error, .. } if error == Error::TIMED_OUT && f.traced == 0 => {
-            // The first request's deadline: `due` completes it.
-        }
-        Outcome::Failed { error, .. } if is_lost(error) => {
-            engine::error_print(g, error, Some("read"));
-            lost(g, o, error);
-        }
-        Outcome::BadChecksum { .. } | Outcome::Failed { .. } => {
-            let error = match f.outcome {
-                Outcome::Failed { error, .. } => error,
-                _ => Error::BAD_CRC,
-            };
-            engine::error_print(g, error, None);
+        Ok(Received::Ignored(_)) => {}
+        Err(error) if error.line_lost() => lost(g, o, error),
+        Err(error) => {
             // The oldest request in flight is the one this answer was for.
             let oldest = o.pipeline.ids().next();
             if let Some(id) = oldest {
-                if let Some(e) = o.pipeline.cancel(id) {
+                if let Some(e) = o.pipeline.cancel(id, g.client.late()) {
                     push(o, e, Err(error.errno()), Vec::new());
                 }
             }

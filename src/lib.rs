@@ -40,6 +40,7 @@ pub mod handle;
 pub mod outstanding;
 pub mod runner;
 mod server;
+pub mod session;
 mod stdio;
 pub mod transport;
 

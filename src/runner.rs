@@ -29,14 +29,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use crate::context::Context;
-use crate::engine::{self, Guard, Waiting};
+use crate::engine::{self, Guard};
 use crate::error::{Error, Result};
 use crate::handle::lock::OwnerMutex;
 use crate::outstanding::Receiving;
 use crate::proto::Diag;
 use crate::proto::frame::{MAX_ADU_LENGTH, MsgKind};
-use crate::proto::session::Timeout;
-use crate::proto::session::receive::{Finished, Outcome, Receiver, Step};
+use crate::proto::session::receive::{Finished, Receiver, Step};
+use crate::proto::session::server::Taken;
+use crate::proto::session::{Recovery, Timeout};
+use crate::session::{self, Driver};
 use crate::transport::{self, epoll, listen};
 
 /// What the runner asks of the C layer for each request.
@@ -165,9 +167,6 @@ struct Conn {
     receiving: Option<Box<Receiving>>,
     /// When it was accepted or its last whole request came.
     last: Duration,
-    /// A serial line: the next frame is the answer of the slave a request for
-    /// another unit addressed; it is read and dropped.
-    ignore_next: bool,
     /// The deadline a timer is set for (a receive's wait).
     timer: Option<Duration>,
     /// An accepted client of a server context configured beyond libmodbus
@@ -302,7 +301,7 @@ impl Runner {
                 let mut diag = g.diag();
                 g.line.bind(&mut diag)?;
             } else if g.fd() < 0 {
-                engine::connect(g)?;
+                crate::session::connect(g)?;
             }
             let fd = g.fd();
             epoll::control(epfd, libc::EPOLL_CTL_ADD, fd, libc::POLLIN, KEY_LINE)?;
@@ -416,7 +415,7 @@ impl Runner {
                 Err(e) => {
                     // Out of descriptors or memory: the listener rests until a client
                     // leaves (a level-triggered listener would report at once again).
-                    let _ = server(&mut |g| engine::error_print(g, e, Some("accept")));
+                    let _ = server(&mut |g| session::error_print(g, e, Some("accept")));
                     self.pause_listening();
                     return;
                 }
@@ -544,9 +543,13 @@ impl Runner {
         let mut sv = Serving { server: None, answer, answered: 0, next_id: &mut self.next_id, later: Vec::new() };
         let mut until = None;
         let _ = server(&mut |g| {
+            // A runner drives the context: nothing may wait in it (no sleep before
+            // a flush while other peers wait, a stop waits for no sleep).
+            let was = std::mem::replace(&mut g.runner, true);
             if let Ok((_, u)) = drive(g, conn, readable, spare, &mut sv) {
                 until = u;
             }
+            g.runner = was;
         });
         let answered = sv.answered;
         for (id, head, head_len, peer) in sv.later {
@@ -721,35 +724,20 @@ fn drive(
         // The client does not read its answers: nothing more is read from it.
         return Ok((libc::POLLOUT, None));
     }
-    let stream = g.line.is_stream();
     let datagrams = g.line.is_datagram();
     let mut until = None;
     loop {
+        let skipping = g.server.kind() == MsgKind::Confirmation;
         if c.receiving.is_none() {
             // (The wait for the answer of another unit's slave starts at once, as
             // libmodbus's next receive would start it.)
-            if !readable && g.line.pending() == 0 && g.rx.available().is_empty() && !c.ignore_next {
+            if !readable && g.line.pending() == 0 && g.rx.available().is_empty() && !skipping {
                 break;
             }
-            c.receiving = Some(start(g, c, spare, sv.answer.any_unit(), stream || datagrams));
+            c.receiving = Some(start(g, spare, sv.answer.any_unit()));
         }
         let r = c.receiving.as_mut().expect("made above");
-        let ctx: &mut Context = g;
-        let mut waiting = Waiting::Ready(&mut readable);
-        let finished = loop {
-            match r.step {
-                Step::Frame(len) => break Some(Finished::frame(len)),
-                Step::Done(f) => break Some(f),
-                step => {
-                    match engine::execute(&mut ctx.line, &mut ctx.rx, &mut r.msg[..], step, ctx.debug, &mut waiting) {
-                        Some(result) => {
-                            r.step = r.machine.next(&r.settings, result, &mut r.msg[..], &mut ctx.rx, transport::now);
-                        }
-                        None => break None,
-                    }
-                }
-            }
-        };
+        let finished = session::drive_ready(g, r, &mut readable);
         let Some(f) = finished else {
             // Waiting: a receive with nothing of its message is dropped (it starts
             // again when bytes come); one under way keeps its buffer and deadline.
@@ -763,7 +751,7 @@ fn drive(
                 g.rx.clear();
                 g.line.discard();
                 *spare = Some(r);
-            } else if r.machine.started() || c.ignore_next {
+            } else if r.machine.started() || skipping {
                 if let Step::Wait { until: Some(t) } = r.step {
                     until = Some(t);
                 }
@@ -792,32 +780,11 @@ fn drive(
     Ok((libc::POLLIN, until))
 }
 
-/// A receive that starts now on `g`'s line.
-fn start(
-    g: &mut Guard<'_>,
-    c: &Conn,
-    spare: &mut Option<Box<Receiving>>,
-    any_unit: bool,
-    read_ahead: bool,
-) -> Box<Receiving> {
+/// A receive that starts now on `g`'s line (see `session::settings`).
+fn start(g: &mut Guard<'_>, spare: &mut Option<Box<Receiving>>, any_unit: bool) -> Box<Receiving> {
     let now = transport::now();
-    let mut s = g.session;
-    s.kind = if c.ignore_next { MsgKind::Confirmation } else { MsgKind::Indication };
-    s.line = g.line.caps(s.kind, s.timeouts.response);
-    // Never a peek, never a read under a kernel timeout: read what is there, and on
-    // a stream keep what lies past a request for the next (several requests in one
-    // read); a datagram is read whole; a serial line is never read past its frame,
-    // as libmodbus reads it.
-    s.line.socket = false;
-    s.line.timed_reads = false;
-    s.read_ahead = read_ahead;
-    s.expecting = None;
-    // Unknown function codes are framed whole (MBAP length, ASCII frame), for the
-    // answerer's `other`.
-    s.extended = true;
+    let mut s = session::settings(g, g.server.kind(), Driver::Runner, None);
     s.any_unit = any_unit;
-    // The first wait has no end: the idle timeout governs a quiet client.
-    s.timeouts.indication = Timeout::new(0, 0);
     let machine = Receiver::new(&s, || now);
     let mut r = match spare.take() {
         Some(mut r) => {
@@ -834,89 +801,63 @@ fn start(
     r
 }
 
-/// A receive ended: a request is answered; a serial frame for another unit makes
-/// the next frame one to drop; a failure ends a client (a serial line recovers).
+/// A receive ended: read by the one reader (`session::conclude`) and the server
+/// session (`session::taken`, which counts it on the diagnostics bus counters): a
+/// request is answered; a serial frame for another unit makes the next frame one to
+/// skip; a failure ends a client (the context's own line drops what it holds).
 fn finish(g: &mut Guard<'_>, c: &mut Conn, f: Finished, msg: &[u8], sv: &mut Serving<'_, '_>) -> Result<()> {
-    if g.debug {
-        engine::trace_received(&msg[..f.traced], f.ended);
-    }
     // The context's own line (serial, UDP) recovers from what a client's
     // connection is closed for.
     let own = !g.line.is_stream();
-    let serial = g.line.serial().is_some();
-    if std::mem::take(&mut c.ignore_next) {
-        // The other slave's answer (or whatever came instead): dropped.
-        if g.debug {
-            g.diag().out(format_args!("Confirmation to ignore\n"));
+    let r = session::conclude(g, msg, &f, Driver::Runner);
+    // A client of a server context configured beyond libmodbus gets its
+    // configuration and counters, lent for the count and the answer.
+    let lend = sv.server.filter(|_| c.shares_ext);
+    let lent = |g: &mut Guard<'_>| {
+        if let Some(server) = lend {
+            let _ = server(&mut |s| std::mem::swap(&mut s.server_ext, &mut g.server_ext));
         }
-        return Ok(());
-    }
-    match f.outcome {
-        Outcome::Frame(len) => {
+    };
+    lent(g);
+    let any_unit = sv.answer.any_unit();
+    let answer = &mut *sv.answer;
+    let taken = session::taken(g, msg, &r, |unit| !any_unit || answer.accept_unit(unit));
+    let result = match taken {
+        Taken::Request(len) => {
             c.last = transport::now();
-            let req = &msg[..len];
-            if serial && req[0] != 0 && sv.answer.any_unit() && !sv.answer.accept_unit(req[0]) {
-                if g.debug {
-                    g.diag().out(format_args!("Request for slave {} ignored (not served)\n", req[0]));
-                }
-                c.ignore_next = g.line.shared_bus();
-                return Ok(());
-            }
             *sv.next_id = sv.next_id.wrapping_add(1).max(1);
             let id = *sv.next_id;
-            let lend = sv.server.filter(|_| c.shares_ext);
-            let lent = |g: &mut Guard<'_>| {
-                if let Some(server) = lend {
-                    let _ = server(&mut |s| std::mem::swap(&mut s.server_ext, &mut g.server_ext));
+            match sv.answer.answer(g, &msg[..len], id) {
+                Ok(Some(_)) => {
+                    sv.answered += 1;
+                    Ok(())
                 }
-            };
-            lent(g);
-            let answered_now = sv.answer.answer(g, req, id);
-            lent(g);
-            match answered_now {
-                Ok(Some(_)) => sv.answered += 1,
                 Ok(None) => {
                     let h = g.framing().header_length() + 1;
                     let mut head = [0u8; 8];
-                    head[..h].copy_from_slice(&req[..h]);
+                    head[..h].copy_from_slice(&msg[..h]);
                     sv.later.push((id, head, h as u8, g.line.peer()));
+                    Ok(())
                 }
-                Err(e) if !own && is_lost(e) => return Err(e),
-                Err(_) => {}
+                Err(e) if !own && e.line_lost() => Err(e),
+                Err(_) => Ok(()),
             }
+        }
+        Taken::Skipped | Taken::NotServed(_) | Taken::OtherSlave => Ok(()),
+        Taken::Failed(_) if own => {
+            // A bad checksum, a frame cut short or too long: what the line holds
+            // goes, and the next frame starts clean.
+            session::recover(g, Recovery::Flush, Driver::Runner);
             Ok(())
         }
-        Outcome::Ignored { theirs, ours, .. } => {
-            if g.debug {
-                g.diag().out(format_args!("Request for slave {theirs} ignored (not {ours})\n"));
-            }
-            c.ignore_next = g.line.shared_bus();
+        Taken::Failed(e) if e == Error::BAD_CRC => {
+            session::recover(g, Recovery::Flush, Driver::Runner);
             Ok(())
         }
-        Outcome::BadChecksum { lrc, received, computed } => {
-            if g.debug {
-                let what = if lrc { "LRC" } else { "CRC" };
-                g.diag()
-                    .err(format_args!("ERROR {what} received 0x{received:0X} != {what} calculated 0x{computed:0X}\n"));
-            }
-            g.rx.clear();
-            g.line.purge();
-            Ok(())
-        }
-        Outcome::Failed { error, site } => {
-            // (A client that leaves is no error worth a line.)
-            if g.debug && site.is_some() && (own || error != Error::CONN_RESET) {
-                engine::error_print(g, error, site);
-            }
-            if own {
-                g.rx.clear();
-                g.line.purge();
-                Ok(())
-            } else {
-                Err(error)
-            }
-        }
-    }
+        Taken::Failed(e) => Err(e),
+    };
+    lent(g);
+    result
 }
 
 /// Sends the answer given later to the request `p` on `g`'s line: true when it is
@@ -942,9 +883,4 @@ fn send_answer(g: &mut Guard<'_>, p: &Pending, later: Later) -> Result<bool> {
     }
     engine::send_msg(g, &mut out, len)?;
     g.line.send_queued()
-}
-
-/// A failure of the client's connection itself.
-fn is_lost(e: Error) -> bool {
-    matches!(e.0, libc::ECONNRESET | libc::EPIPE | libc::ENOTCONN | libc::EBADF | libc::ECONNABORTED)
 }

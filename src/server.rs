@@ -9,82 +9,44 @@
 //! responses sent or not from the replies (see [`crate::proto::diagnostics`]). A
 //! context without the extension pays one pointer test per call.
 
-use crate::context::Context;
-use crate::engine::{self, AduBuf, Guard, Received};
+use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result, exception};
 use crate::proto::Diag;
 use crate::proto::diagnostics::Delivery;
 use crate::proto::frame::{Framing, MsgKind};
 use crate::proto::reply::{Data, Outcome, Server, exception_response};
 use crate::proto::security;
-use crate::server_ext::BusEvent;
+use crate::proto::session::Recovery;
+use crate::proto::session::server::Taken;
+use crate::session::{self, Driver, Received, Recovered};
 
 /// `modbus_receive`: waits for one request and returns its length, or 0 for a frame
 /// libmodbus filters out (RTU: addressed to another slave, or the answer of that
 /// slave which follows it on a shared bus). With `units`, a serial request is kept
 /// when `units` accepts its unit (or it is a broadcast), whatever the context's
-/// slave (`modbus_receive_callbacks`).
+/// slave (`modbus_receive_callbacks`). The server session (`session::taken`) reads
+/// what came, as the runner's does.
 #[inline(always)]
 pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) -> Result<usize> {
-    if g.framing() == Framing::Tcp {
-        let r = engine::receive_msg(g, buf, MsgKind::Indication);
-        count_bus(g, &r);
-        return Ok(match r? {
-            Received::Frame(len) => len,
-            Received::Ignored(_) => 0,
-        });
-    }
-    let ignore_next = g.confirmation_to_ignore;
-    if ignore_next {
-        // The reply of the slave addressed by the previous request: read it as a
-        // confirmation, whatever happens, and drop it.
-        let r = engine::receive_msg(g, buf, MsgKind::Confirmation);
-        count_bus(g, &r);
-        set_confirmation_to_ignore(g, false);
-        g.diag().out(format_args!("Confirmation to ignore\n"));
-        return Ok(0);
-    }
-    g.session.any_unit = units.is_some();
-    let r = engine::receive_msg(g, buf, MsgKind::Indication);
+    let kind = g.server.kind();
+    let any_unit = units.is_some() && kind == MsgKind::Indication && g.framing() != Framing::Tcp;
+    g.session.any_unit = any_unit;
+    let r = engine::receive_msg(g, buf, kind);
     g.session.any_unit = false;
-    count_bus(g, &r);
-    match r? {
-        Received::Frame(len) => {
-            let unit = buf[0];
-            if unit == 0 || units.is_none_or(|u| u.accept_unit(unit)) {
-                return Ok(len);
-            }
-            g.diag().out(format_args!("Request for slave {unit} ignored (not served)\n"));
-            set_confirmation_to_ignore(g, true);
-            Ok(0)
-        }
-        Received::Ignored(_) => {
-            set_confirmation_to_ignore(g, true);
-            Ok(0)
+    if g.server_ext.is_none() && kind == MsgKind::Indication {
+        // The usual request: nothing to count, nothing to skip.
+        match r {
+            Ok(Received::Frame(len)) if g.framing() == Framing::Tcp || !any_unit || buf[0] == 0 => return Ok(len),
+            Err(e) => return Err(e),
+            _ => {}
         }
     }
-}
-
-/// Feeds the diagnostics counters (when enabled) with what a receive got.
-fn count_bus(ctx: &mut Context, r: &Result<Received>) {
-    let framing = ctx.framing();
-    let Some(ext) = ctx.server_ext.as_deref_mut() else { return };
-    let e = match r {
-        Ok(_) => BusEvent::Frame,
-        Err(e) if *e == Error::BAD_CRC => BusEvent::CommunicationError,
-        // ASCII: a frame that cannot be decoded; RTU and TCP: more bytes announced
-        // than the ADU holds.
-        Err(e) if *e == Error::BAD_DATA && framing == Framing::Ascii => BusEvent::CommunicationError,
-        Err(e) if *e == Error::BAD_DATA => BusEvent::CharacterOverrun,
-        Err(_) => return,
-    };
-    ext.bus_event(e);
-}
-
-/// On a shared bus, the answer to a request for another slave follows that
-/// request: the next receive skips it.
-fn set_confirmation_to_ignore(ctx: &mut Context, value: bool) {
-    ctx.confirmation_to_ignore = value && ctx.line.shared_bus();
+    let taken = session::taken(g, buf, &r, |unit| units.is_none_or(|u| u.accept_unit(unit)));
+    match taken {
+        Taken::Request(len) => Ok(len),
+        Taken::Skipped | Taken::NotServed(_) | Taken::OtherSlave => Ok(0),
+        Taken::Failed(e) => Err(e),
+    }
 }
 
 /// Carries out an outcome: flush first if asked, then send unless suppressed.
@@ -92,17 +54,15 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
     match outcome {
         Outcome::Fail(e) => (Err(e), Delivery::NotSent),
         Outcome::Respond { len, flush_first, suppressed, .. } => {
-            if flush_first && g.runner {
-                // A runner waits for no one: a serial line drops what it holds; a
-                // socket's requests were framed whole (by their MBAP length).
-                g.rx.clear();
-                g.line.purge();
-            } else if flush_first {
-                // The rest of a request libmodbus could not frame may still be arriving.
-                if let Err(e) = engine::sleep_response_timeout(g) {
-                    return (Err(e), Delivery::NotSent);
+            if flush_first {
+                // The rest of a request libmodbus could not frame may still be
+                // arriving: a blocking server sleeps, then flushes; a runner waits for
+                // no one (a serial line drops what it holds, a datagram its rest; a
+                // socket's requests were framed whole by their MBAP length).
+                let driver = if g.runner { Driver::Runner } else { Driver::Blocking };
+                if session::recover(g, Recovery::SleepFlush, driver) == Recovered::Stopped {
+                    return (Err(Error::STOPPED), Delivery::NotSent);
                 }
-                let _ = engine::flush(g);
             }
             if suppressed {
                 return (Ok(0), Delivery::NotSent);

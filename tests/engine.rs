@@ -10,6 +10,7 @@ use modbus::lock::OwnerMutex as Mutex;
 use modbus::proto::ascii;
 use modbus::proto::frame::{MAX_ADU_LENGTH, MsgKind};
 use modbus::proto::request::Request;
+use modbus::session::*;
 use modbus::transport;
 use std::time::{Duration, Instant};
 

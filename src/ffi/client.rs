@@ -4,7 +4,7 @@
 use std::ffi::c_int;
 use std::slice;
 
-use crate::engine::{self, AduBuf, Guard, Received};
+use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, with_ctx};
 use crate::proto::data::registers_from_be;
@@ -12,6 +12,7 @@ use crate::proto::fc;
 use crate::proto::frame::{MAX_ADU_LENGTH, MsgKind};
 use crate::proto::limits::{MAX_PDU_LENGTH, MAX_READ_BITS, MAX_READ_REGISTERS};
 use crate::proto::request::{Request, check_read_count, check_write_and_read_counts, check_write_count};
+use crate::session::Received;
 
 /// The request of a read of bits (FC 01, 02), its count checked as libmodbus checks it:
 /// the blocking call's and its `_async` form's.

@@ -3,7 +3,6 @@
 use std::ffi::{c_char, c_int, c_uint};
 
 use crate::context::{Context, Timeout};
-use crate::engine;
 use crate::error::{Error, strerror_modbus_c};
 use crate::ffi::{Modbus, fail, with_ctx};
 use crate::handle;
@@ -33,7 +32,7 @@ pub unsafe extern "C" fn modbus_free(ctx: *mut Modbus) {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_connect(ctx: *mut Modbus) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| engine::connect(g).map(|()| 0)) }
+    unsafe { with_ctx(ctx, |g| crate::session::connect(g).map(|()| 0)) }
 }
 
 /// Closes the connection. NULL is a no-op. Never waits for a call that waits on the
@@ -60,7 +59,7 @@ pub unsafe extern "C" fn modbus_close(ctx: *mut Modbus) {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_flush(ctx: *mut Modbus) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| engine::flush(g).map(|n| n as c_int)) }
+    unsafe { with_ctx(ctx, |g| crate::session::flush(g).map(|n| n as c_int)) }
 }
 
 /// Sets the slave (unit) id used for requests: 0..247 (0..255 with

@@ -20,7 +20,7 @@ use std::ffi::{CStr, c_char, c_int};
 use std::sync::Arc;
 
 use crate::context::Context;
-use crate::engine::{self, Guard};
+use crate::engine::Guard;
 use crate::error::{Error, Result};
 use crate::handle::{self, Closable, Handle};
 use crate::stop::Stop;
@@ -40,7 +40,7 @@ impl Closable for Context {
     }
 
     fn close(&mut self) {
-        engine::close(self);
+        crate::event::close(self);
     }
 
     /// The descriptor the handler closed is released and its number closed; when the
@@ -50,7 +50,7 @@ impl Closable for Context {
             let fd = self.release_descriptor();
             crate::transport::close(fd);
         } else {
-            engine::close(self);
+            crate::event::close(self);
         }
         self.rx.clear();
     }

@@ -170,6 +170,16 @@ pub enum Step {
     Frame(usize),
 }
 
+/// What a receive got, once its end was read (the drivers' one reader turns an
+/// [`Outcome`] into this, or into the error).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Received {
+    /// A complete, valid message of this length.
+    Frame(usize),
+    /// A valid serial frame addressed to another slave (libmodbus returns 0).
+    Ignored(usize),
+}
+
 /// How a receive ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Outcome {

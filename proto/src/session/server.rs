@@ -4,8 +4,8 @@
 //! counters count, and whether the next frame on a shared bus is another slave's
 //! answer to skip.
 
-use super::receive::Outcome;
-use crate::error::Error;
+use super::receive::Received;
+use crate::error::{Error, Result};
 use crate::frame::{Framing, MsgKind};
 use crate::server_ext::BusEvent;
 
@@ -22,12 +22,13 @@ pub struct ServerSession {
 pub enum Taken {
     /// A request to answer: `msg[..len]`.
     Request(usize),
-    /// The answer of another slave, skipped.
+    /// The answer of another slave (or whatever came instead), skipped.
     Skipped,
-    /// A serial request for a unit not served (`theirs`; `ours`: the context's
-    /// slave, or -1 when an application's filter said no).
-    NotServed { theirs: u8, ours: i32 },
-    /// Nothing to answer: a bad checksum or a failure (`Err`), reported as such.
+    /// A serial request for a unit the application does not serve.
+    NotServed(u8),
+    /// A serial frame for another slave than the context's.
+    OtherSlave,
+    /// Nothing to answer: the receive failed (a bad checksum among the reasons).
     Failed(Error),
 }
 
@@ -38,34 +39,39 @@ impl ServerSession {
         if self.skip_next { MsgKind::Confirmation } else { MsgKind::Indication }
     }
 
-    /// A receive ended with `outcome` (`msg` its bytes). `accept`: whether a request
-    /// for this unit, not a broadcast, is served (asked of serial framings only: the
+    /// A receive ended with `r` (`msg` its bytes). `accept`: whether a request for
+    /// this unit, not a broadcast, is served (asked of serial framings only: the
     /// context's slave was checked by the receive, an application serving several
     /// units decides here); `shared_bus`: a serial line, where the answer of another
     /// slave follows its request.
-    pub fn ended(&mut self, outcome: Outcome, msg: &[u8], shared_bus: bool, accept: impl FnOnce(u8) -> bool) -> Taken {
+    pub fn ended(
+        &mut self,
+        r: &Result<Received>,
+        msg: &[u8],
+        shared_bus: bool,
+        accept: impl FnOnce(u8) -> bool,
+    ) -> Taken {
         if core::mem::take(&mut self.skip_next) {
             return Taken::Skipped;
         }
-        match outcome {
-            Outcome::Frame(len) => {
+        match *r {
+            Ok(Received::Frame(len)) => {
                 let unit = msg[0];
                 if unit == 0 || accept(unit) {
                     return Taken::Request(len);
                 }
                 self.skip_next = shared_bus;
-                Taken::NotServed { theirs: unit, ours: -1 }
+                Taken::NotServed(unit)
             }
-            Outcome::Ignored { theirs, ours, .. } => {
+            Ok(Received::Ignored(_)) => {
                 self.skip_next = shared_bus;
-                Taken::NotServed { theirs, ours }
+                Taken::OtherSlave
             }
-            Outcome::BadChecksum { .. } => Taken::Failed(Error::BAD_CRC),
-            Outcome::Failed { error, .. } => Taken::Failed(error),
+            Err(e) => Taken::Failed(e),
         }
     }
 
-    /// Forgets the other slave's answer awaited (the line was flushed or closed).
+    /// Forgets the other slave's answer awaited.
     pub fn reset(&mut self) {
         self.skip_next = false;
     }
@@ -73,17 +79,15 @@ impl ServerSession {
 
 /// What the diagnostics bus counters count of a receive that ended (`None`:
 /// nothing; a timeout or a lost line is no message on the bus).
-pub fn bus_event(framing: Framing, outcome: &Outcome) -> Option<BusEvent> {
-    match outcome {
-        Outcome::Frame(_) | Outcome::Ignored { .. } => Some(BusEvent::Frame),
-        Outcome::BadChecksum { .. } => Some(BusEvent::CommunicationError),
+pub fn bus_event(framing: Framing, r: &Result<Received>) -> Option<BusEvent> {
+    match r {
+        Ok(_) => Some(BusEvent::Frame),
+        Err(e) if *e == Error::BAD_CRC => Some(BusEvent::CommunicationError),
         // ASCII: a frame that cannot be decoded; RTU and TCP: more bytes announced
         // than the ADU holds.
-        Outcome::Failed { error, .. } if *error == Error::BAD_DATA && framing == Framing::Ascii => {
-            Some(BusEvent::CommunicationError)
-        }
-        Outcome::Failed { error, .. } if *error == Error::BAD_DATA => Some(BusEvent::CharacterOverrun),
-        Outcome::Failed { .. } => None,
+        Err(e) if *e == Error::BAD_DATA && framing == Framing::Ascii => Some(BusEvent::CommunicationError),
+        Err(e) if *e == Error::BAD_DATA => Some(BusEvent::CharacterOverrun),
+        Err(_) => None,
     }
 }
 
@@ -95,31 +99,29 @@ mod tests {
     fn a_request_for_another_slave_on_a_shared_bus_skips_its_answer() {
         let mut s = ServerSession::default();
         let msg = [0x05, 0x03, 0, 0, 0, 1, 0, 0];
-        let other = Outcome::Ignored { len: 8, theirs: 5, ours: 1 };
-        assert_eq!(s.ended(other, &msg, true, |_| true), Taken::NotServed { theirs: 5, ours: 1 });
+        assert_eq!(s.ended(&Ok(Received::Ignored(8)), &msg, true, |_| true), Taken::OtherSlave);
         assert_eq!(s.kind(), MsgKind::Confirmation);
-        assert_eq!(s.ended(Outcome::Frame(7), &msg, true, |_| true), Taken::Skipped);
+        assert_eq!(s.ended(&Err(Error::BAD_CRC), &msg, true, |_| true), Taken::Skipped, "whatever came");
         assert_eq!(s.kind(), MsgKind::Indication);
         // Filtered by the application.
-        assert_eq!(s.ended(Outcome::Frame(8), &msg, true, |u| u != 5), Taken::NotServed { theirs: 5, ours: -1 });
+        assert_eq!(s.ended(&Ok(Received::Frame(8)), &msg, true, |u| u != 5), Taken::NotServed(5));
         assert_eq!(s.kind(), MsgKind::Confirmation);
         s.reset();
-        assert_eq!(s.ended(Outcome::Frame(8), &msg, true, |_| true), Taken::Request(8));
-        // Broadcasts are always taken; TCP has no shared bus.
-        assert_eq!(s.ended(Outcome::Frame(8), &[0, 3], true, |_| false), Taken::Request(8));
-        assert_eq!(s.ended(Outcome::Frame(8), &msg, false, |_| true), Taken::Request(8));
-        assert_eq!(s.ended(Outcome::Frame(8), &msg, false, |_| false), Taken::NotServed { theirs: 5, ours: -1 });
-        assert_eq!(s.kind(), MsgKind::Indication, "RTU over TCP: no other slave answers on the line");
+        assert_eq!(s.ended(&Ok(Received::Frame(8)), &msg, true, |_| true), Taken::Request(8));
+        // Broadcasts are always taken; RTU over TCP has no other slave on its line.
+        assert_eq!(s.ended(&Ok(Received::Frame(8)), &[0, 3], true, |_| false), Taken::Request(8));
+        assert_eq!(s.ended(&Ok(Received::Frame(8)), &msg, false, |_| false), Taken::NotServed(5));
+        assert_eq!(s.kind(), MsgKind::Indication);
+        assert_eq!(s.ended(&Err(Error::TIMED_OUT), &msg, false, |_| true), Taken::Failed(Error::TIMED_OUT));
     }
 
     #[test]
     fn bus_events() {
-        let failed = |error| Outcome::Failed { error, site: None };
-        assert_eq!(bus_event(Framing::Rtu, &Outcome::Frame(8)), Some(BusEvent::Frame));
-        let bad = Outcome::BadChecksum { lrc: false, received: 1, computed: 2 };
-        assert_eq!(bus_event(Framing::Rtu, &bad), Some(BusEvent::CommunicationError));
-        assert_eq!(bus_event(Framing::Rtu, &failed(Error::BAD_DATA)), Some(BusEvent::CharacterOverrun));
-        assert_eq!(bus_event(Framing::Ascii, &failed(Error::BAD_DATA)), Some(BusEvent::CommunicationError));
-        assert_eq!(bus_event(Framing::Tcp, &failed(Error::TIMED_OUT)), None);
+        assert_eq!(bus_event(Framing::Rtu, &Ok(Received::Frame(8))), Some(BusEvent::Frame));
+        assert_eq!(bus_event(Framing::Rtu, &Ok(Received::Ignored(8))), Some(BusEvent::Frame));
+        assert_eq!(bus_event(Framing::Rtu, &Err(Error::BAD_CRC)), Some(BusEvent::CommunicationError));
+        assert_eq!(bus_event(Framing::Rtu, &Err(Error::BAD_DATA)), Some(BusEvent::CharacterOverrun));
+        assert_eq!(bus_event(Framing::Ascii, &Err(Error::BAD_DATA)), Some(BusEvent::CommunicationError));
+        assert_eq!(bus_event(Framing::Tcp, &Err(Error::TIMED_OUT)), None);
     }
 }

@@ -39,7 +39,7 @@ unsafe fn accept(ctx: *mut Modbus, s: *mut c_int) -> c_int {
         Ok((fd, peer)) => {
             // Modbus/TCP Security: the client is served only once it has
             // authenticated (a failure closes its socket).
-            crate::engine::accepted(g, fd, peer.as_deref())?;
+            crate::session::accepted(g, fd, peer.as_deref())?;
             Ok(fd)
         }
         Err(e) => {
