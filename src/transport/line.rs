@@ -320,7 +320,7 @@ impl Line {
             if fd >= 0 {
                 // The current session when it is this very socket's, else one parked.
                 let current = if self.fd == fd {
-                    self.held.session.take().filter(|s| s.cookie() == socket_cookie(fd))
+                    self.held.session.take().filter(|s| s.cookie() == super::socket_cookie(fd))
                 } else {
                     None
                 };
@@ -511,7 +511,7 @@ impl Line {
         match done {
             Ok(Handshake { conn, cut }) => {
                 let described = debug.then(|| tls::describe_session(&conn));
-                let session = Box::new(Session::new(conn, cut, socket_cookie(fd)));
+                let session = Box::new(Session::new(conn, cut, super::socket_cookie(fd)));
                 if let Some(described) = described {
                     let role = session.role().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
                     diag.out(format_args!("TLS handshake done: {described}, peer role {role}\n"));
@@ -860,19 +860,6 @@ fn drain_socket(fd: i32) -> (Result<usize>, Option<Error>) {
             return (Ok(total as usize), left);
         }
     }
-}
-
-/// The socket's cookie (`SO_COOKIE`): the kernel's number for the socket itself,
-/// never reused while the system runs; 0 when the kernel gives none.
-pub fn socket_cookie(fd: i32) -> u64 {
-    /// `SO_COOKIE` of asm-generic/socket.h (x86, ARM, RISC-V...).
-    const SO_COOKIE: libc::c_int = 57;
-    let mut cookie: u64 = 0;
-    let mut len = size_of::<u64>() as libc::socklen_t;
-    // SAFETY: the kernel writes at most `len` bytes into the live u64 and updates
-    // `len`, a live socklen_t.
-    let rc = unsafe { libc::getsockopt(fd, libc::SOL_SOCKET, SO_COOKIE, (&mut cookie as *mut u64).cast(), &mut len) };
-    if rc == 0 { cookie } else { 0 }
 }
 
 /// [`Line::wait`] on the parts of a line it needs.

@@ -161,6 +161,19 @@ pub fn close(fd: i32) {
     unsafe { libc::close(fd) };
 }
 
+/// The socket's cookie (`SO_COOKIE`): the kernel's number for the socket itself,
+/// never reused while the system runs; 0 when the kernel gives none.
+pub fn socket_cookie(fd: i32) -> u64 {
+    /// `SO_COOKIE` of asm-generic/socket.h (x86, ARM, RISC-V...).
+    const SO_COOKIE: libc::c_int = 57;
+    let mut cookie: u64 = 0;
+    let mut len = size_of::<u64>() as libc::socklen_t;
+    // SAFETY: the kernel writes at most `len` bytes into the live u64 and updates
+    // `len`, a live socklen_t.
+    let rc = unsafe { libc::getsockopt(fd, libc::SOL_SOCKET, SO_COOKIE, (&mut cookie as *mut u64).cast(), &mut len) };
+    if rc == 0 { cookie } else { 0 }
+}
+
 #[cfg(test)]
 mod tests {
     use crate::error::errno;

@@ -505,7 +505,7 @@ pub struct Session {
     role: Option<CString>,
     /// A server's reads stop at record boundaries (see [`RecordCut`]).
     cut: Option<RecordCut>,
-    /// The socket's cookie (see `line::socket_cookie`).
+    /// The socket's cookie (see `transport::socket_cookie`).
     cookie: u64,
 }
 
@@ -700,7 +700,7 @@ impl Tls {
     /// cookie tells; a session of an earlier socket with the same number is dropped).
     pub fn unpark(&mut self, fd: i32) -> Option<Box<Session>> {
         let session = self.parked.remove(&fd)?;
-        (session.cookie() == super::line::socket_cookie(fd)).then_some(session)
+        (session.cookie() == super::socket_cookie(fd)).then_some(session)
     }
 
     /// Drops the session parked for `fd`: that number is a new socket's now.
