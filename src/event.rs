@@ -52,6 +52,15 @@ pub fn state(ctx: &mut Context) -> Result<&mut Outstanding> {
     Ok(ctx.outstanding.get_or_insert_with(|| Box::new(Outstanding::new(framing))))
 }
 
+/// The context's event-driven state if it was made (`None`: no asynchronous call
+/// yet); `EBUSY` while `modbus_process` has it, as [`state`].
+pub fn state_if_made(ctx: &mut Context) -> Result<Option<&mut Outstanding>> {
+    if ctx.processing.is_some() {
+        return Err(Error(libc::EBUSY));
+    }
+    Ok(ctx.outstanding.as_deref_mut())
+}
+
 /// Requests given and not completed.
 pub fn pending(ctx: &Context) -> usize {
     ctx.pending()
