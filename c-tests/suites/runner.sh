@@ -8,9 +8,10 @@
 # that never reads, idle clients), Modbus/TCP Security clients beside 50 handshakes
 # that stall, an RTU line on a pty pair with three units, 10,000 clients at once, a
 # stop from a signal handler and from a callback, the server in the application's
-# own poll loop, Modbus/UDP (our client and runner against pymodbus' server and
-# client, and through a proxy that loses and repeats datagrams), and the server
-# under AddressSanitizer.
+# own poll loop, the runner beside the blocking server (c-tests/runner/runner-diag.c:
+# diagnostics counters, the ASCII input delimiter, a stop during a flush), Modbus/UDP
+# (our client and runner against pymodbus' server and client, and through a proxy
+# that loses and repeats datagrams), and the server under AddressSanitizer.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -187,6 +188,30 @@ if socat_pair "$WORK/socat.log" "$WORK/socat.log" "$WORK/ttyA" "$WORK/ttyB"; the
 else
     bad "RTU: a pty pair" "socat"
 fi
+
+section "the runner as the blocking server (c-tests/runner/runner-diag.c): counters, ASCII delimiter, stop"
+# runner-diag runs a blocking server (modbus_receive + modbus_reply) and a runner of
+# ours in its own threads, on pty pairs it opens (openpty) and on loopback.
+diag() {
+    local name=$1 log rc=0
+    shift
+    log=$WORK/diag-$name.log
+    env LD_LIBRARY_PATH="$LIBDIR" EXPECT_LIB=ours timeout -k 5 120 "$BIN/runner-diag" "$@" >"$log" 2>&1 || rc=$?
+    libinfo_ours "diag-$name" "$log"
+    grep '^#' "$log"
+    program_checks "diag-$name" "$log" "$rc"
+}
+# The diagnostics bus counters (0x0B, 0x0C, 0x12) of a runner: the blocking server's,
+# for the same requests, bad checksums and an overrun.
+diag counters-rtu counters rtu
+diag counters-ascii counters ascii
+diag counters-tcp counters tcp
+# FC 08/03 (Change ASCII Input Delimiter), then a request ended by CR and the new one.
+diag delimiter delimiter
+# modbus_server_stop while the runner handles a request libmodbus answers after
+# sleeping the response timeout (3 s) and flushing; on UDP, another peer meanwhile.
+diag stop-rtu stop rtu
+diag stop-udp stop udp
 
 section "pymodbus clients (MBAP, RTU framing over TCP, asyncio)"
 if pymodbus_venv "$ROOT/target/interop/venv" "$ROOT/c-tests/interop/requirements.txt" "$WORK" "$INSTALL"; then
