@@ -15,6 +15,10 @@
  *   event-test tls PORT       mb-server tls (Modbus/TCP Security; certificates from
  *                             MB_TLS_CA, MB_TLS_CERT, MB_TLS_KEY), then a peer that
  *                             stalls its handshake
+ *   event-test fc41 MODE ADDR a user-defined function code (0x41) whose answer libmodbus
+ *                             cannot size: c-tests/event/fc41_device.py on MODE rtu|ascii
+ *                             (pty end ADDR) or tcp|rtutcp (port ADDR), or a gateway
+ *                             in front of it (tcp); the whole answer must come back
  *   event-test threads PORT N mb-server tcp: two threads per context, one giving
  *                             requests, one processing them (N), on a context and
  *                             on a context of a multi handle (also run by "tcp"; the
@@ -1190,6 +1194,107 @@ static void two_threads(int port, int n)
     }
 }
 
+/* ---------------------------------------------------------------- a user-defined function code */
+/* fc41 MODE ADDR: c-tests/event/fc41_device.py (MODE rtu|ascii on the pty end ADDR,
+ * tcp|rtutcp on 127.0.0.1 port ADDR; or a gateway in front of it, MODE tcp) answers
+ * the request PDU 41 00 08 to unit 1 with the 9-byte PDU 41 01 02 03 04 05 06 07 08.
+ * The whole answer's ADU, byte for byte, must come from modbus_send_raw_request +
+ * modbus_receive_confirmation and from modbus_send_raw_request_async: RTU and RTU
+ * over TCP 01 41 01 .. 08 + CRC (12 bytes), ASCII 01 41 01 .. 08 + LRC (11 bytes:
+ * the ADU decoded), TCP the MBAP header (transaction id, 00 00, length 00 0A, unit
+ * 01) + the PDU (16 bytes; the transaction id is not compared). Each call on a line
+ * flushed first, so that one failure does not make the next. */
+static void hex(char *out, size_t max, const uint8_t *p, int n)
+{
+    size_t len = 0;
+    out[0] = '\0';
+    for (int i = 0; i < n && len + 4 < max; i++) {
+        len += (size_t) snprintf(out + len, max - len, "%s%02X", i ? " " : "", p[i]);
+    }
+}
+
+static int fc41(const char *mode, const char *addr)
+{
+    static const uint8_t pdu[9] = {0x41, 1, 2, 3, 4, 5, 6, 7, 8};
+    const uint8_t req[4] = {1, 0x41, 0x00, 0x08};
+    uint8_t want[32], rsp[1024];
+    char got_hex[3200], want_hex[128];
+    int rtu = strcmp(mode, "rtu") == 0, ascii = strcmp(mode, "ascii") == 0, tcp = strcmp(mode, "tcp") == 0;
+    int rtutcp = strcmp(mode, "rtutcp") == 0, n = 0, skip = 0, rc, round;
+    modbus_t *ctx = rtu      ? modbus_new_rtu(addr, 115200, 'N', 8, 1)
+                    : ascii  ? modbus_new_ascii(addr, 115200, 'N', 8, 1)
+                    : rtutcp ? modbus_new_rtu_tcp("127.0.0.1", atoi(addr))
+                    : tcp    ? modbus_new_tcp("127.0.0.1", atoi(addr))
+                             : NULL;
+    chk_set_prefix(rtu ? "fc41 rtu: " : ascii ? "fc41 ascii: " : rtutcp ? "fc41 rtutcp: " : "fc41 tcp: ");
+    if (!EXPECT(ctx != NULL && modbus_set_slave(ctx, 1) == 0 && modbus_connect(ctx) == 0, "connect to %s",
+                addr)) {
+        chk_set_prefix("");
+        return chk_summary();
+    }
+    modbus_set_response_timeout(ctx, 2, 0);
+    if (tcp) {
+        const uint8_t mbap[7] = {0, 0, 0, 0, 0, 10, 1};
+        memcpy(want, mbap, 7);
+        n = 7;
+        skip = 2;
+    } else {
+        want[n++] = 1;
+    }
+    memcpy(want + n, pdu, 9);
+    n += 9;
+    if (rtu || rtutcp) {
+        uint16_t crc = 0xFFFF;
+        for (int i = 0; i < n; i++) {
+            crc ^= want[i];
+            for (int b = 0; b < 8; b++) {
+                crc = (crc & 1) ? (uint16_t) ((crc >> 1) ^ 0xA001) : (uint16_t) (crc >> 1);
+            }
+        }
+        want[n++] = (uint8_t) (crc & 0xFF);
+        want[n++] = (uint8_t) (crc >> 8);
+    } else if (ascii) {
+        uint8_t lrc = 0;
+        for (int i = 0; i < n; i++) {
+            lrc = (uint8_t) (lrc + want[i]);
+        }
+        want[n++] = (uint8_t) -lrc;
+    }
+    hex(want_hex, sizeof want_hex, want + skip, n - skip);
+    for (round = 0; round < 2; round++) {
+        /* Blocking: modbus_send_raw_request + modbus_receive_confirmation. */
+        memset(rsp, 0, sizeof rsp);
+        errno = 0;
+        rc = modbus_send_raw_request(ctx, req, 4);
+        if (rc > 0) {
+            rc = modbus_receive_confirmation(ctx, rsp);
+        }
+        hex(got_hex, sizeof got_hex, rsp + skip, rc > skip ? rc - skip : 0);
+        EXPECT(rc == n && memcmp(rsp + skip, want + skip, (size_t) (n - skip)) == 0,
+               "modbus_send_raw_request + modbus_receive_confirmation (%d): the whole answer to FC 0x41, %d bytes "
+               "(rc %d%s%s; got %s; expected %s)",
+               round + 1, n, rc, rc == -1 ? ", " : "", rc == -1 ? modbus_strerror(errno) : "", got_hex, want_hex);
+        usleep(300000);
+        modbus_flush(ctx);
+        /* Without waiting: modbus_send_raw_request_async + modbus_process. */
+        memset(rsp, 0, sizeof rsp);
+        reset();
+        struct result a = one(ctx, modbus_send_raw_request_async(ctx, req, 4, rsp, on_done, NULL));
+        hex(got_hex, sizeof got_hex, rsp + skip, a.rc > skip ? a.rc - skip : 0);
+        EXPECT(a.done == 1 && a.rc == n && memcmp(rsp + skip, want + skip, (size_t) (n - skip)) == 0,
+               "modbus_send_raw_request_async (%d): the whole answer to FC 0x41, %d bytes (rc %d%s%s; got %s; "
+               "expected %s)",
+               round + 1, n, a.rc, a.rc == -1 ? ", " : "", a.rc == -1 ? modbus_strerror(a.error) : "", got_hex,
+               want_hex);
+        usleep(300000);
+        modbus_flush(ctx);
+    }
+    modbus_close(ctx);
+    modbus_free(ctx);
+    chk_set_prefix("");
+    return chk_summary();
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3) {
@@ -1206,6 +1311,9 @@ int main(int argc, char **argv)
     if (!mbt_is_rsmodbus()) {
         fprintf(stderr, "the event-driven client is rsmodbus': this is not it\n");
         return 97;
+    }
+    if (strcmp(argv[1], "fc41") == 0 && argc > 3) {
+        return fc41(argv[2], argv[3]);
     }
     if (strcmp(argv[1], "threads") == 0) {
         two_threads(atoi(argv[2]), argc > 3 ? atoi(argv[3]) : 2000);

@@ -6,7 +6,8 @@
 # answers late) and RTU on a pty pair. Every asynchronous result is compared with the
 # blocking call's on the same context; against pymodbus' server too (target/interop/venv,
 # made as the interop suite makes it). Modbus/TCP Security against our server (the
-# handshake without waiting, and a peer that stalls it). Once more under valgrind;
+# handshake without waiting, and a peer that stalls it). A user-defined function code
+# (0x41, c-tests/event/fc41_device.py) through the raw calls, on every framing. Once more under valgrind;
 # two threads on a context under ThreadSanitizer.
 #
 # Usage: c-tests/suites/event.sh [--no-cargo] [--no-valgrind] [--no-tsan] [--only REGEX]
@@ -124,6 +125,35 @@ if selected rtu-late; then
     fi
     stop pty
 fi
+
+section "a user-defined function code (0x41): the whole answer (c-tests/event/fc41_device.py)"
+# The device answers the PDU 41 01 02 03 04 05 06 07 08 (9 bytes), which libmodbus
+# cannot size: modbus_send_raw_request + modbus_receive_confirmation and
+# modbus_send_raw_request_async must return it whole, on RTU and ASCII (pty pairs),
+# Modbus/TCP and RTU over TCP.
+for mode in rtu ascii tcp rtutcp; do
+    selected "fc41-$mode" || continue
+    WORK=$OUT/fc41-$mode
+    mkdir -p "$WORK"
+    if [ "$mode" = rtu ] || [ "$mode" = ascii ]; then
+        if ! pty_pair pty "$WORK/dev" "$WORK/client"; then
+            result "fc41-$mode: pty pair" FAIL "see $WORK/pty.log"
+            continue
+        fi
+        start device python3 "$ROOT/c-tests/event/fc41_device.py" "$mode" "$WORK/dev"
+        where=$WORK/client
+    else
+        start device python3 "$ROOT/c-tests/event/fc41_device.py" "$mode"
+    fi
+    if wait_ready device READY 10; then
+        [ "$mode" = rtu ] || [ "$mode" = ascii ] || where=$(sed -n 's/^READY //p' "$WORK/device.log" | head -n 1)
+        event_test "fc41-$mode" 60 -- fc41 "$mode" "$where"
+    else
+        result "fc41-$mode: fc41_device.py ready" FAIL "$(tail -n 3 "$WORK/device.log")"
+    fi
+    stop device
+    stop pty
+done
 
 section "1,000 devices from one thread, every 10th dead (c-tests/event/sim-devices.c)"
 if selected many; then

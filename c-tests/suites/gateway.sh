@@ -12,7 +12,9 @@
 #     (ours; mbusd's spread reported);
 #   - a master that leaves while its request is on the line; 100 masters held;
 #   - the Modbus/TCP Security front (tls_* keys): roles mapped to units and access;
-#   - the configuration file (mbusd's keys) and -h.
+#   - the configuration file (mbusd's keys) and -h;
+#   - a user-defined function code (0x41) answered whole (c-tests/event/fc41_device.py
+#     on the line, c-tests/event/event-test.c fc41 as the master).
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -229,6 +231,29 @@ for which in ours ${MBUSD:+mbusd}; do
     fi
     done_with "fault-$which"
 done
+
+section "a user-defined function code (0x41) through the gateway: the whole answer"
+# c-tests/event/fc41_device.py on the RTU line answers FC 0x41 with a 9-byte PDU
+# (41 01 02 03 04 05 06 07 08) libmodbus cannot size; a master over TCP
+# (c-tests/event/event-test.c fc41, our library: modbus_send_raw_request and
+# modbus_send_raw_request_async) must get it whole: 16 bytes, MBAP length 10.
+if socat_pair "$WORK/socat-fc41.log" "$WORK/socat-fc41.log" "$WORK/fc41-D" "$WORK/fc41-G"; then
+    SOCAT=$LAST_PID
+    start fc41-device python3 "$ROOT/c-tests/event/fc41_device.py" rtu "$WORK/fc41-D"
+    if wait_ready fc41-device READY 10 && gateway fc41 ours "${GW_ARGS[@]}"; then
+        rc=0
+        env LD_LIBRARY_PATH="$LIBDIR" EXPECT_LIB=ours timeout -k 5 60 "$BIN/event-test" fc41 tcp "$PORT" \
+            >"$WORK/fc41-master.log" 2>&1 || rc=$?
+        libinfo_ours "fc41 master" "$WORK/fc41-master.log"
+        program_checks "ours: FC 0x41 answered whole through the gateway" "$WORK/fc41-master.log" "$rc"
+        echo "# the device saw: $(grep -c 'fc 0x41' "$WORK/fc41-device.log") requests for FC 0x41"
+    else
+        bad "fc41: the device and the gateway start" "$(tail -n 3 "$WORK/fc41-device.log")"
+    fi
+    done_with fc41
+else
+    bad "fc41: a pty pair" "socat"
+fi
 
 section "Modbus/TCP Security front: roles mapped to units and access"
 C=$WORK/certs
