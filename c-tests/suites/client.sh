@@ -19,8 +19,11 @@
 #   --only REGEX       only the tests whose name matches REGEX
 #   --skip-mbpoll, --skip-scenarios
 #   --keep-going-logs  print every failing diff in full (default: first 40 lines)
-# Environment: MBTEST_OUT (default target/c-tests), MBTEST_PORT (first port tried, 15020),
-#   MBTEST_OURS_DIR (our library's directory, default target/release)
+# Environment: MBTEST_OUT (default target/c-tests), MBTEST_PORT (first port tried for the
+#   auxiliary port, 15020), MBTEST_OURS_DIR (our library's directory, default target/release)
+# Ports: every run's mbtest-server binds port 0 and reports the port it got; the
+# auxiliary port (nothing listens there: connection refused) is found free just before
+# each run. Both are masked in the compared outputs (mask_ports).
 # Debian's own unit-test-client/server run in c-tests/suites/server.sh (section 3),
 # every client x server library combination.
 #
@@ -113,6 +116,16 @@ pick_port() { # pick_port START -> prints a free port
     while ! port_free "$p"; do p=$((p + 1)); done
     echo "$p"
 }
+# mask_ports FILE: FILE with the ports of its run (the file "ports" beside it: the
+# server's, then the auxiliary one) replaced by @PORT@ and @AUXPORT@ where they are
+# printed: "Connecting to HOST:PORT" (the library's debug trace) and ", port PORT,"
+# (mbpoll). Two runs of a test get different ports; nothing else of theirs may differ.
+mask_ports() {
+    local f=$1 port aux
+    read -r port aux 2>/dev/null <"$(dirname "$f")/ports" || { cat "$f"; return; }
+    sed -e "s/\(Connecting to [^ ]*\):$port\b/\1:@PORT@/g" -e "s/, port $port,/, port @PORT@,/g" \
+        -e "s/\(Connecting to [^ ]*\):$aux\b/\1:@AUXPORT@/g" -e "s/, port $aux,/, port @AUXPORT@,/g" "$f"
+}
 
 # ---------------------------------------------------------------- dependencies
 ensure_deps() {
@@ -148,18 +161,19 @@ load_allowed() {
     done <"$ALLOWED_FILE"
 }
 
-# normalize IN OUT: applies the sed rules then the tag masking (not in --oracle-only).
+# normalize IN OUT: masks the run's ports, then applies the sed rules and the tag
+# masking (not in --oracle-only).
 normalize() {
     if [ "$ORACLE_ONLY" = 1 ]; then
-        cp "$1" "$2"
+        mask_ports "$1" >"$2"
         return
     fi
     local args=() r
     for r in "${SED_RULES[@]}"; do args+=(-e "$r"); done
     if [ ${#args[@]} -gt 0 ]; then
-        sed "${args[@]}" "$1" | awk -v allowed="$ALLOWED_TAGS" -f "$NORMALIZE" >"$2"
+        mask_ports "$1" | sed "${args[@]}" | awk -v allowed="$ALLOWED_TAGS" -f "$NORMALIZE" >"$2"
     else
-        awk -v allowed="$ALLOWED_TAGS" -f "$NORMALIZE" "$1" >"$2"
+        mask_ports "$1" | awk -v allowed="$ALLOWED_TAGS" -f "$NORMALIZE" >"$2"
     fi
 }
 
@@ -189,8 +203,8 @@ observe() {
     for f in "$@"; do
         [ -f "$a/$f" ] && [ -f "$b/$f" ] || continue
         for name in $ALLOWED_TAGS; do
-            if ! cmp -s <(awk -f "$CT/tools/extract-tags.awk" "$a/$f" | grep "^$name	") \
-                <(awk -f "$CT/tools/extract-tags.awk" "$b/$f" | grep "^$name	"); then
+            if ! cmp -s <(mask_ports "$a/$f" | awk -f "$CT/tools/extract-tags.awk" | grep "^$name	") \
+                <(mask_ports "$b/$f" | awk -f "$CT/tools/extract-tags.awk" | grep "^$name	"); then
                 OBSERVED[$name]="${OBSERVED[$name]:-}${OBSERVED[$name]:+, }$test"
             fi
         done
@@ -275,6 +289,7 @@ build_ours() {
 }
 
 # ---------------------------------------------------------------- servers
+# The ports of the current run: the server's (reported by it) and the auxiliary one.
 PORT=0
 AUXPORT=0
 RTU_SLAVE=17
@@ -283,23 +298,30 @@ RELAY_PID=
 LINK0=
 LINK1=
 
-# start_mbtest_server BACKEND DIR [SERVER_LIB]: mbtest-server (Debian's lib unless told)
+# start_mbtest_server BACKEND DIR [SERVER_LIB]: mbtest-server (Debian's lib unless told).
+# A TCP server binds port 0: PORT is the port it reports in its ready file, so that no
+# other program (nor a server of an earlier run still exiting) can hold it. AUXPORT is
+# then found free, below the kernel's range of ephemeral ports (a connection to a port
+# of that range may get it as its own source port, and connect to itself). Both are
+# written to DIR/ports for mask_ports.
 start_mbtest_server() {
     local backend=$1 dir=$2 slib=${3:-debian}
     SRV_PID=
     RELAY_PID=
-    rm -f "$dir/ready" "$dir/relay-ready"
+    PORT=0
+    AUXPORT=0
+    rm -f "$dir/ready" "$dir/relay-ready" "$dir/ports"
     case "$backend" in
     tcp)
         # shellcheck disable=SC2046
         start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") MBTEST_LIBINFO="$dir/libinfo-server" \
-            "$BIN/mbtest-server" tcp 127.0.0.1 "$PORT" "$dir/ready"
+            "$BIN/mbtest-server" tcp 127.0.0.1 0 "$dir/ready"
         SRV_PID=$LAST_PID
         ;;
     tcppi)
         # shellcheck disable=SC2046
         start_bg "$dir/server.out" "$dir/server.err" $(lib_env "$slib") MBTEST_LIBINFO="$dir/libinfo-server" \
-            "$BIN/mbtest-server" tcppi "::" "$PORT" "$dir/ready"
+            "$BIN/mbtest-server" tcppi "::" 0 "$dir/ready"
         SRV_PID=$LAST_PID
         ;;
     rtu)
@@ -331,6 +353,17 @@ start_mbtest_server() {
         sed 's/^/    | /' "$dir/libinfo-server" "$dir/server.err"
         return 1
     fi
+    if [ "$backend" = tcp ] || [ "$backend" = tcppi ]; then
+        read -r PORT <"$dir/ready"
+        case "$PORT" in
+        '' | 0 | *[!0-9]*)
+            log "mbtest-server ($backend) reported no port: '$PORT'"
+            return 1
+            ;;
+        esac
+    fi
+    AUXPORT=$(pick_port "${MBTEST_PORT:-15020}")
+    echo "$PORT $AUXPORT" >"$dir/ports"
     return 0
 }
 stop_mbtest_server() {
@@ -594,9 +627,7 @@ build_all || true
 if [ "$ORACLE_ONLY" = 0 ]; then
     build_ours
 fi
-PORT=$(pick_port "${MBTEST_PORT:-15020}")
-AUXPORT=$(pick_port $((PORT + 1)))
-log "ports: server $PORT, auxiliary (nothing listens) $AUXPORT; logs in $LOGS"
+log "ports: each server's own (port 0), an auxiliary one (nothing listens) found free from ${MBTEST_PORT:-15020} for each run; logs in $LOGS"
 
 if [ "$VALGRIND_ONLY" = 0 ]; then
     [ "$SKIP_SCEN" = 1 ] || run_scenarios
