@@ -364,7 +364,7 @@ class Run:
 
 def tool_prefix(metric, out):
     if metric == "strace":
-        return ["strace", "-f", "-c", "-U", "name,calls", "-o", out]
+        return ["strace", "-f", "-o", out]
     if metric == "callgrind":
         return ["valgrind", "--tool=callgrind", "--callgrind-out-file=" + out, "--dump-instr=no", "--quiet"]
     return []
@@ -372,19 +372,45 @@ def tool_prefix(metric, out):
 
 def parse_metric(metric, out):
     if metric == "strace":
-        calls = {}
-        with open(out) as f:
-            for line in f:
-                parts = line.split()
-                if len(parts) == 2 and parts[1].isdigit():
-                    calls[parts[0]] = int(parts[1])
-        return calls
+        return calls_after_mark(out)
     if metric == "callgrind":
         return callgrind_costs(out)
     with open(out) as f:
         text = f.read()
     m = re.findall(r"allocs=(\d+)", text)
     return {"total": int(m[-1])} if m else {"total": 0}
+
+
+# The measured program's mark (MB_MARK_SETUP: mb-server and bench-client call getppid()
+# once their connection is set up), after which its system calls are counted.
+SETUP_MARK = "getppid"
+
+
+def calls_after_mark(path):
+    """System calls by name in an `strace -f -o` log after the measured program's set-up
+    mark: those of the transactions and the exit (a server's also of the client's
+    warm-up), not those of the start and of the connection, whose number depends on
+    timing. A TLS handshake makes an EAGAIN read and a ppoll each time the peer's next
+    flight has not arrived yet: the server waits 0 to 3 times (the ClientHello, the
+    client's ChangeCipherSpec, its Finished flight), so that the set-ups of two runs
+    differ by up to 6 calls, which the difference of the runs (`per_tx`) would count as
+    the transactions'. A TLS client's first read may take the server's session tickets
+    alone (a read with no data, a wait, a read): bench-client marks after its warm-up."""
+    calls, marked = {}, False
+    with open(path) as f:
+        for line in f:
+            # "PID name(args) = result", or "name(..." <unfinished ...>; not the
+            # "<... name resumed>" halves, signals ("---") or exits ("+++").
+            m = re.match(r"(?:\d+ +)?([a-z_][a-z0-9_]*)\(", line)
+            if m is None:
+                continue
+            if marked:
+                calls[m.group(1)] = calls.get(m.group(1), 0) + 1
+            elif m.group(1) == SETUP_MARK:
+                marked = True
+    if not marked:
+        raise RuntimeError(f"{path}: the measured program made no set-up mark ({SETUP_MARK}())")
+    return calls
 
 
 def callgrind_costs(path):
@@ -446,6 +472,8 @@ def cost_run(metric, side, transport, case, lib, n, warm=20, peer="debian"):
             if metric == "allocs":
                 e["LD_PRELOAD"] = bin_("alloc-count.so")
                 e["ALLOC_COUNT_OUT"] = out
+            if metric == "strace":
+                e["MB_MARK_SETUP"] = "1"
             return e
         if side == "client":
             srv = start([bin_("mb-server"), transport, "0" if net else line.a],
@@ -500,18 +528,12 @@ def syscalls(counts):
     return total, calls
 
 
-# A run's setup and teardown vary by a system call or two with timing, whatever its
-# length (strace of the TLS server, read 125 registers, runs of 500 transactions:
-# recvfrom 1047 or 1048, ppoll 2 or 3; runs of 1000: 2047 or 2048, 2 or 3), so the
-# difference of two runs carries up to 2 calls that no transaction made: a bound on
-# system calls per transaction allows 2 / n over it.
-RUN_NOISE_CALLS = 2
-
-
-def within_calls(measured, bound, metric="strace"):
-    """A system-call count per transaction from `per_tx` meets `bound`."""
-    n = METRIC_N[metric] // (2 if QUICK else 1)
-    return measured <= bound + RUN_NOISE_CALLS / n
+def within_calls(measured, bound):
+    """A system-call count per transaction from `per_tx` meets `bound`. The count is
+    exact: the calls after the set-up mark (`calls_after_mark`) are the same in every
+    run of a length (30 runs each, TLS and TCP, client and server, also beside two
+    busy loops), so that the bound needs no allowance for the set-up."""
+    return measured <= bound
 
 
 def per_tx(metric, side, transport, case, lib, peer="debian"):
@@ -723,7 +745,9 @@ def main():
         lines.append("\n### Cost per transaction (steady state)\n")
         lines.append("Each side is measured against a Debian peer, for N and 2N transactions after the same "
                      "warm-up; the figure is (count(2N) - count(N)) / N, so start-up and teardown cancel out. "
-                     "System calls: `strace -f -c` of the measured process. Instructions: `valgrind "
+                     "System calls: `strace -f` of the measured process, the calls after its mark that the "
+                     "connection is set up (the client's after its warm-up): a TLS handshake's calls depend on "
+                     "timing. Instructions: `valgrind "
                      "--tool=callgrind`, total Ir of the whole process (program + libmodbus + libc), with the "
                      "libmodbus.so object's own share in brackets. Allocations: an LD_PRELOAD counter of "
                      "malloc/calloc/realloc/memalign calls.\n")
