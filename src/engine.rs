@@ -174,7 +174,7 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
     }
     debug_assert!(buf.len() >= ctx.framing().max_adu_length());
     let expecting = if kind == MsgKind::Confirmation { ctx.client.take_expecting() } else { None };
-    ctx.session = crate::session::settings(ctx, kind, Driver::Blocking, expecting);
+    crate::session::prepare(ctx, kind, expecting);
     // The usual first steps need no state of the receive: it is built when a step
     // does not end the receive (see `receive::first_step`).
     let first = receive::first_step(&ctx.session, &ctx.rx, buf.len());

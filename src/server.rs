@@ -28,6 +28,14 @@ use crate::session::{self, Driver, Received, Recovered};
 /// what came, as the runner's does.
 #[inline(always)]
 pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) -> Result<usize> {
+    if g.framing() == Framing::Tcp && g.server_ext.is_none() {
+        // The usual server: a request, nothing to count (no other slave's answer
+        // follows a request on TCP).
+        return match engine::receive_msg(g, buf, MsgKind::Indication)? {
+            Received::Frame(len) => Ok(len),
+            Received::Ignored(_) => Ok(0),
+        };
+    }
     let kind = g.server.kind();
     let any_unit = units.is_some() && kind == MsgKind::Indication && g.framing() != Framing::Tcp;
     g.session.any_unit = any_unit;

@@ -43,18 +43,41 @@ pub enum Driver {
 #[inline]
 pub fn settings(ctx: &Context, kind: MsgKind, driver: Driver, expecting: Option<usize>) -> Settings {
     let mut s = ctx.session;
+    let ext = ctx.server_ext.as_deref();
+    complete(&mut s, &ctx.line, ext, ctx.server.kind(), kind, driver, expecting);
+    s
+}
+
+/// [`settings`] for the blocking driver, completed in place in the context's own
+/// (`Context::session`), which its receive reads.
+#[inline]
+pub fn prepare(ctx: &mut Context, kind: MsgKind, expecting: Option<usize>) {
+    let ext = ctx.server_ext.as_deref();
+    complete(&mut ctx.session, &ctx.line, ext, ctx.server.kind(), kind, Driver::Blocking, expecting);
+}
+
+/// What [`settings`] adds to the context's settings `s`.
+#[inline(always)]
+fn complete(
+    s: &mut Settings,
+    line: &Line,
+    ext: Option<&crate::server_ext::ServerExt>,
+    server_kind: MsgKind,
+    kind: MsgKind,
+    driver: Driver,
+    expecting: Option<usize>,
+) {
     s.kind = kind;
-    s.line = ctx.line.caps(kind, s.timeouts.response);
+    s.line = line.caps(kind, s.timeouts.response);
     s.expecting = expecting;
     if s.framing == Framing::Ascii {
-        s.ascii_delimiter =
-            ctx.server_ext.as_ref().and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
+        s.ascii_delimiter = ext.and_then(|e| e.diagnostics()).map_or(b'\n', |d| d.ascii_delimiter());
     }
     match driver {
         Driver::Blocking => {
             // A client that owns its line reads ahead; a server reading the other
             // slave's answer to skip never reads past it.
-            s.read_ahead = kind == MsgKind::Confirmation && ctx.server.kind() == MsgKind::Indication;
+            s.read_ahead = kind == MsgKind::Confirmation && server_kind == MsgKind::Indication;
         }
         Driver::Ready => {
             // Readiness decides: never a read under a kernel timeout.
@@ -68,7 +91,7 @@ pub fn settings(ctx: &Context, kind: MsgKind, driver: Driver, expecting: Option<
             // read past its frame, as libmodbus reads it.
             s.line.socket = false;
             s.line.timed_reads = false;
-            s.read_ahead = !ctx.line.shared_bus();
+            s.read_ahead = !line.shared_bus();
             // Unknown function codes are framed whole (MBAP length, ASCII frame,
             // CRC), for the answerer's `other`.
             s.extended = true;
@@ -76,7 +99,6 @@ pub fn settings(ctx: &Context, kind: MsgKind, driver: Driver, expecting: Option<
             s.timeouts.indication = crate::proto::session::Timeout::new(0, 0);
         }
     }
-    s
 }
 
 /// How a Wait step of the receive machine is carried out.

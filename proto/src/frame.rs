@@ -192,6 +192,30 @@ pub const fn layout(kind: MsgKind, extended: bool, function: u8) -> Layout {
     }
 }
 
+/// [`layout`] for every function code, kind and `extended`, computed at compile
+/// time: the readers of messages look a row up instead of walking the match.
+static TABLE: [[Layout; 256]; 4] = {
+    let mut t = [[Layout::Fixed(0); 256]; 4];
+    let mut i = 0;
+    while i < 4 {
+        let kind = if i < 2 { MsgKind::Indication } else { MsgKind::Confirmation };
+        let mut f = 0;
+        while f < 256 {
+            t[i][f] = layout(kind, i % 2 == 1, f as u8);
+            f += 1;
+        }
+        i += 1;
+    }
+    t
+};
+
+/// [`layout`], looked up.
+#[inline(always)]
+fn row(kind: MsgKind, extended: bool, function: u8) -> Layout {
+    let i = (kind == MsgKind::Confirmation) as usize * 2 + extended as usize;
+    TABLE[i][function as usize]
+}
+
 /// The function codes beyond libmodbus, as the table says: those whose requests or
 /// responses the `extended` flag frames differently (see [`layout`]). The one list
 /// of them; the response checks ask it.
@@ -238,7 +262,7 @@ impl Rules {
             return None;
         }
         let &function = msg.get(self.framing.header_length())?;
-        match layout(self.kind, true, function) {
+        match row(self.kind, true, function) {
             Layout::Open => Some(1),
             _ if self.kind == MsgKind::Indication && function == fc::DIAGNOSTICS => Some(2),
             _ => None,
@@ -273,7 +297,7 @@ pub fn message_length(rules: Rules, msg: &[u8]) -> Length {
     let checksum = rules.framing.checksum_length();
     let Some(&function) = msg.get(h) else { return Length::Need(h + 1) };
     let fc_end = h + 1;
-    let pdu_end = match layout(rules.kind, rules.extended, function) {
+    let pdu_end = match row(rules.kind, rules.extended, function) {
         Layout::Fixed(n) => fc_end + n as usize,
         Layout::Counted(n) => {
             let meta_end = fc_end + n as usize;
@@ -287,7 +311,7 @@ pub fn message_length(rules: Rules, msg: &[u8]) -> Length {
             _ => return Length::Need(fc_end + 2),
         },
         Layout::Known(min) => known_end(rules, msg, fc_end + min as usize),
-        Layout::Open => known_end(rules, msg, fc_end),
+        Layout::Open => open_end(rules, msg, fc_end),
         Layout::DeviceId => match msg.get(fc_end) {
             None => return Length::Need(fc_end + 1),
             Some(&mei) if mei != MEI_READ_DEVICE_ID => known_end(rules, msg, fc_end + 1),
@@ -308,6 +332,20 @@ pub fn message_length(rules: Rules, msg: &[u8]) -> Length {
         },
     };
     Length::Total(pdu_end + checksum)
+}
+
+/// The end of the PDU of a function code the table does not know
+/// ([`Layout::Open`]): as [`known_end`], but a TCP message whose protocol identifier
+/// is not Modbus's has no MBAP length to trust (bytes of another message, out of
+/// step): libmodbus's one byte after the code. Apart, so that the usual messages'
+/// length stays a short function.
+#[cold]
+#[inline(never)]
+fn open_end(rules: Rules, msg: &[u8], fc_end: usize) -> usize {
+    match (rules.framing, msg.get(2..4)) {
+        (Framing::Tcp, Some(&[hi, lo])) if (hi, lo) != (0, 0) => fc_end + 1,
+        _ => known_end(rules, msg, fc_end),
+    }
 }
 
 /// The end of a PDU whose length comes from outside it ([`Layout::Known`]): the MBAP
@@ -740,6 +778,9 @@ mod tests {
         for chunk in [1, 7, 256] {
             assert_eq!(assemble(Framing::Tcp, c, &tcp, chunk), Ok(16), "chunk {chunk}");
         }
+        // Out of step (a protocol identifier that is not 0): libmodbus's one byte.
+        let garbage = [0x06, 0xFF, 0x03, 0x14, 0x00, 0x64, 0x01, 0x41, 1, 2, 3, 4, 5, 6, 7, 8];
+        assert_eq!(assemble(Framing::Tcp, c, &garbage, 256), Ok(9));
         // Exception answers and Read Exception Status keep one byte after the code.
         let exception = rtu(&[0x11, 0xC1, 0x01]);
         assert_eq!(assemble(Framing::Rtu, c, &exception, 1), Ok(5));
