@@ -22,25 +22,10 @@ import sys
 import termios
 import tty
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "common"))
+from mbframe import crc_ok, lrc, rtu  # noqa: E402
+
 PDU = bytes([0x41, 1, 2, 3, 4, 5, 6, 7, 8])
-
-
-def crc16(data):
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc
-
-
-def rtu(body):
-    c = crc16(body)
-    return body + bytes([c & 0xFF, c >> 8])
-
-
-def lrc(body):
-    return (-sum(body)) & 0xFF
 
 
 def ascii_frame(body):
@@ -69,7 +54,7 @@ def serial(mode, path):
                 if not r:
                     break
                 req += os.read(fd, 256)
-            if len(req) < 4 or crc16(req[:-2]) != req[-2] | (req[-1] << 8):
+            if not crc_ok(req):
                 log("rtu: garbage of %d bytes" % len(req))
                 continue
             body = req[:-2]
@@ -126,7 +111,7 @@ def tcp(mode):
                     answer = req[:4] + bytes([0, 1 + len(PDU), unit]) + PDU
                 else:
                     # RTU framing over TCP: the shortest prefix with a right CRC.
-                    ends = (k for k in range(4, len(buf) + 1) if crc16(buf[: k - 2]) == buf[k - 2] | (buf[k - 1] << 8))
+                    ends = (k for k in range(4, len(buf) + 1) if crc_ok(buf[:k]))
                     n = next(ends, 0)
                     if n == 0:
                         break

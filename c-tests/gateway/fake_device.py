@@ -17,19 +17,9 @@ import sys
 import termios
 import tty
 
-
-def crc16(data):
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc
-
-
-def frame(body):
-    c = crc16(body)
-    return body + bytes([c & 0xFF, c >> 8])
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "common"))
+from mbframe import crc_ok  # noqa: E402
+from mbframe import rtu as frame  # noqa: E402
 
 
 def main():
@@ -54,7 +44,7 @@ def main():
             if not r:
                 break
             req += os.read(fd, 256)
-        if len(req) < 4 or crc16(req[:-2]) != req[-2] | (req[-1] << 8):
+        if not crc_ok(req):
             print("garbage of %d bytes" % len(req), flush=True)
             continue
         seen["requests"] += 1
