@@ -5,6 +5,7 @@ use std::ffi::CStr;
 use std::sync::Arc;
 
 use crate::error::{Error, Result};
+use crate::outstanding::Outstanding;
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
 use crate::proto::limits::TCP_SLAVE;
 use crate::proto::session::client::ClientSession;
@@ -62,17 +63,25 @@ pub struct Context {
     /// What a close from a signal handler or another thread needs without the lock
     /// (see [`crate::stop`]); shared with the handle and the line.
     pub stop: Arc<Stop>,
-    /// The event-driven client's requests and state (see [`crate::outstanding`]);
-    /// `None` until the first asynchronous call.
-    pub outstanding: Option<Box<crate::outstanding::Outstanding>>,
-    /// While `modbus_process` works on [`Context::outstanding`] (taken out of the
-    /// context) and has let go of the lock (an RTS hook runs): the requests pending
-    /// when it began. Calls on the context meanwhile see them pending; those that
-    /// would change them fail with `EBUSY`.
-    pub processing: Option<usize>,
+    /// The event-driven client's requests and state (see [`crate::outstanding`]),
+    /// private to the context: made on the first asynchronous call, lent to
+    /// `modbus_process` while it runs ([`Context::lend_async`]).
+    asynchronous: Async,
     /// A server runner drives this context (`crate::runner`): nothing may wait in
     /// it (no sleep before a flush; writes are queued on the line).
     pub runner: bool,
+}
+
+/// Where a context's event-driven state is (see [`Context::lend_async`]).
+enum Async {
+    /// No asynchronous call yet: a blocking context pays nothing for it.
+    None,
+    Here(Box<Outstanding>),
+    /// Lent to the `modbus_process` under way, with the requests pending when it
+    /// began (what calls from its RTS hook see).
+    Lent {
+        pending: usize,
+    },
 }
 
 /// Frame buffers a context lends to each transaction and takes back: a transaction
@@ -132,8 +141,7 @@ impl Context {
             server_ext: None,
             spare: SpareFrames::default(),
             stop,
-            outstanding: None,
-            processing: None,
+            asynchronous: Async::None,
             runner: false,
         }
     }
@@ -325,7 +333,63 @@ impl Context {
     /// Requests of the event-driven client given and not completed (a blocking call
     /// meanwhile fails with EBUSY).
     pub fn pending(&self) -> usize {
-        self.processing.unwrap_or_else(|| self.outstanding.as_ref().map_or(0, |o| o.pending()))
+        match &self.asynchronous {
+            Async::None => 0,
+            Async::Here(o) => o.pending(),
+            Async::Lent { pending } => *pending,
+        }
+    }
+
+    /// The event-driven client's state, if made; `EBUSY` while `modbus_process` has
+    /// it (a call from the RTS hook it runs).
+    pub fn async_state(&mut self) -> Result<Option<&mut Outstanding>> {
+        match &mut self.asynchronous {
+            Async::None => Ok(None),
+            Async::Here(o) => Ok(Some(o)),
+            Async::Lent { .. } => Err(Error(libc::EBUSY)),
+        }
+    }
+
+    /// [`Context::async_state`], with the client session (its late ids) beside it.
+    pub fn async_with_client(&mut self) -> Result<Option<(&mut Outstanding, &mut ClientSession)>> {
+        match &mut self.asynchronous {
+            Async::None => Ok(None),
+            Async::Here(o) => Ok(Some((o, &mut self.client))),
+            Async::Lent { .. } => Err(Error(libc::EBUSY)),
+        }
+    }
+
+    /// [`Context::async_state`], made on first use.
+    pub fn async_state_made(&mut self) -> Result<&mut Outstanding> {
+        if let Async::None = self.asynchronous {
+            self.asynchronous = Async::Here(Box::new(Outstanding::new(self.framing())));
+        }
+        Ok(self.async_state()?.expect("made above"))
+    }
+
+    /// The event-driven client's state to look at (`None`: not made, or lent).
+    pub fn async_view(&self) -> Option<&Outstanding> {
+        match &self.asynchronous {
+            Async::Here(o) => Some(o),
+            _ => None,
+        }
+    }
+
+    /// Lends the event-driven client's state to `modbus_process` (`None`: not made,
+    /// or lent already). Until it comes back ([`Context::give_back_async`]), its
+    /// requests count as pending and calls that would change them fail with EBUSY.
+    pub fn lend_async(&mut self) -> Option<Box<Outstanding>> {
+        let Async::Here(o) = &self.asynchronous else { return None };
+        let pending = o.pending();
+        match std::mem::replace(&mut self.asynchronous, Async::Lent { pending }) {
+            Async::Here(o) => Some(o),
+            _ => unreachable!("checked above"),
+        }
+    }
+
+    /// The state [`Context::lend_async`] lent comes back.
+    pub fn give_back_async(&mut self, o: Box<Outstanding>) {
+        self.asynchronous = Async::Here(o);
     }
 
     /// A blocking call may run: nothing of the event-driven client is pending

@@ -43,22 +43,15 @@ pub struct Interest {
 }
 
 /// The context's event-driven state, made on first use; `EBUSY` while
-/// `modbus_process` has it (from the RTS hook it calls: [`Context::processing`]).
+/// `modbus_process` has it (from the RTS hook it calls: [`Context::lend_async`]).
 pub fn state(ctx: &mut Context) -> Result<&mut Outstanding> {
-    if ctx.processing.is_some() {
-        return Err(Error(libc::EBUSY));
-    }
-    let framing = ctx.framing();
-    Ok(ctx.outstanding.get_or_insert_with(|| Box::new(Outstanding::new(framing))))
+    ctx.async_state_made()
 }
 
 /// The context's event-driven state if it was made (`None`: no asynchronous call
 /// yet); `EBUSY` while `modbus_process` has it, as [`state`].
 pub fn state_if_made(ctx: &mut Context) -> Result<Option<&mut Outstanding>> {
-    if ctx.processing.is_some() {
-        return Err(Error(libc::EBUSY));
-    }
-    Ok(ctx.outstanding.as_deref_mut())
+    ctx.async_state()
 }
 
 /// Requests given and not completed.
@@ -139,11 +132,7 @@ fn mark(o: &Outstanding) {
 
 /// `modbus_cancel`: completes request `id` with ECANCELED.
 pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
-    if ctx.processing.is_some() {
-        return Err(Error(libc::EBUSY));
-    }
-    let Context { outstanding, client, .. } = ctx;
-    let o = outstanding.as_deref_mut().ok_or(Error::INVALID)?;
+    let (o, client) = ctx.async_with_client()?.ok_or(Error::INVALID)?;
     mark(o);
     let e = o.pipeline.cancel(id, client.late()).ok_or(Error::INVALID)?;
     if o.pipeline.in_flight() == 0 {
@@ -163,7 +152,7 @@ pub fn close(ctx: &mut Context) {
 
 /// A close: everything pending completes with ECANCELED.
 pub fn cancel_all(ctx: &mut Context) {
-    if let Some(o) = ctx.outstanding.as_deref_mut() {
+    if let Ok(Some(o)) = ctx.async_state() {
         o.fail_all(libc::ECANCELED);
         mark(o);
     }
@@ -171,13 +160,13 @@ pub fn cancel_all(ctx: &mut Context) {
 
 /// The next completed request, for the C layer to deliver and call back.
 pub fn take_done(ctx: &mut Context) -> Option<Done> {
-    ctx.outstanding.as_deref_mut()?.done.pop_front()
+    ctx.async_state().ok()??.done.pop_front()
 }
 
 /// What to wait for (see [`Interest`]).
 pub fn interest(ctx: &Context) -> Interest {
     let fd = ctx.fd();
-    let Some(o) = ctx.outstanding.as_deref() else { return Interest { fd, events: 0, until: None } };
+    let Some(o) = ctx.async_view() else { return Interest { fd, events: 0, until: None } };
     if o.pending() == 0 {
         return Interest { fd, events: 0, until: None };
     }
@@ -223,20 +212,16 @@ pub fn interest(ctx: &Context) -> Interest {
 /// Returns the number of requests completed (their results wait in the context for
 /// the C layer: [`take_done`]).
 pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
-    if g.processing.is_some() {
-        // modbus_process from the RTS hook of a modbus_process.
-        return Err(Error(libc::EBUSY));
-    }
-    let Some(mut o) = g.outstanding.take() else { return Ok(0) };
-    g.processing = Some(o.pending());
+    // (From the RTS hook of a modbus_process: EBUSY.)
+    g.async_state()?;
+    let Some(mut o) = g.lend_async() else { return Ok(0) };
     let before = o.done.len();
     let mut readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
     let writable = revents & (libc::POLLOUT | libc::POLLERR | libc::POLLHUP) != 0;
     run(g, &mut o, &mut readable, writable);
-    g.processing = None;
     let completed = o.done.len() - before;
     mark(&o);
-    g.outstanding = Some(o);
+    g.give_back_async(o);
     Ok(completed)
 }
 

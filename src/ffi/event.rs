@@ -551,7 +551,7 @@ unsafe fn complete_on_close(ctx: *mut Modbus, freeing: bool) {
     // SAFETY: forwarded caller contract (`try_call` takes NULL).
     unsafe {
         crate::handle::try_call(ctx, |g| {
-            let Some(o) = g.outstanding.as_deref_mut() else { return };
+            let Ok(Some(o)) = g.async_state() else { return };
             if freeing {
                 if let Some((members, key)) = o.multi.take() {
                     members.remove(key);
