@@ -819,9 +819,9 @@ fn finish(g: &mut Guard<'_>, c: &mut Conn, f: Finished, msg: &[u8], sv: &mut Ser
         }
     };
     lent(g);
-    let any_unit = sv.answer.any_unit();
+    // (Asked of serial framings only.)
     let answer = &mut *sv.answer;
-    let taken = session::taken(g, msg, &r, |unit| !any_unit || answer.accept_unit(unit));
+    let taken = session::taken(g, msg, &r, |unit| !answer.any_unit() || answer.accept_unit(unit));
     let result = match taken {
         Taken::Request(len) => {
             c.last = transport::now();

@@ -157,6 +157,7 @@ pub fn execute(
 /// Drives the receive `r` on `ctx`'s line by readiness (the event-driven client's,
 /// the runner's): its steps are carried out until it ends (`Some`) or must wait for
 /// the application's loop (`None`: `r.step` says for what).
+#[inline(always)]
 pub fn drive_ready(ctx: &mut Context, r: &mut Receiving, readable: &mut bool) -> Option<Finished> {
     let mut waiting = Waiting::Ready(readable);
     loop {
