@@ -18,6 +18,10 @@
 #include <sys/param.h>
 #endif
 
+/* size_t (the structs' struct_size, modbus_get_tls_peer_role): not left to
+   <sys/param.h>, which only unix builds include. */
+#include <stddef.h>
+
 #ifndef _MSC_VER
 #include <stdint.h>
 #else

@@ -12,9 +12,10 @@
 #               extensions"). The signatures beyond Debian's are pinned by the
 #               SYNOPSIS of their pages (c-tests/suites/man.sh) and, for libmodbus'
 #               own, by the ABI probe
-#   c-alone     each header compiles on its own as C89, C99 and C11 with
+#   c-alone     each header compiles on its own as C89, C99 and C11 (also without
+#               the unix macros: -U__unix__ -Uunix) with
 #               -Wall -Wextra -Werror -pedantic-errors
-#   cxx-alone   each header compiles on its own as C++98 and C++17, same flags
+#   cxx-alone   each header compiles on its own as C++98, C++11 and C++17, same flags
 #   cxx-linkage a C++ file using the API references the functions unmangled
 #               (extern "C" guards work) and links against the built library
 #   examples    Debian's libmodbus example programs (unit tests, random tests,
@@ -189,25 +190,33 @@ fi
 end "$(wc -l <"$TMP/ours.protos" 2>/dev/null || echo 0) prototypes: $(wc -l <"$TMP/deb.protos" 2>/dev/null || echo 0) as in Debian's headers + ${nadd:-0} beyond them, each a row of $EXPORTS; ${#row_header[@]} rows, each declared in its header"
 
 # --- c-alone / cxx-alone: each header is self-contained -----------------------------
+# Each also without the unix macros (-U__unix__ -Uunix): then <sys/param.h>, which
+# brings size_t along on glibc, is not included, and the header must stand alone.
 begin c-alone
 for h in "${HEADERS[@]}"; do
     printf '#include <%s>\ntypedef int translation_unit_not_empty;\n' "$h" >"$TMP/alone.c"
     for std in c89 c99 c11; do
-        "$CC" -std=$std -pedantic-errors "${WFLAGS[@]}" -Iinclude -fsyntax-only "$TMP/alone.c" \
-            2>"$TMP/cc.log" || { err "$h alone, -std=$std:"; current_errors+=("$(excerpt "$TMP/cc.log")"); }
+        for unix in "" "-U__unix__ -Uunix"; do
+            # shellcheck disable=SC2086 # $unix: two flags or none
+            "$CC" -std=$std $unix -pedantic-errors "${WFLAGS[@]}" -Iinclude -fsyntax-only "$TMP/alone.c" \
+                2>"$TMP/cc.log" || { err "$h alone, -std=$std $unix:"; current_errors+=("$(excerpt "$TMP/cc.log")"); }
+        done
     done
 done
-end "4 headers x C89/C99/C11"
+end "${#HEADERS[@]} headers x C89/C99/C11, with and without the unix macros"
 
 begin cxx-alone
 for h in "${HEADERS[@]}"; do
     printf '#include <%s>\n' "$h" >"$TMP/alone.cpp"
-    for std in c++98 c++17; do
-        "$CXX" -std=$std -pedantic-errors "${WFLAGS[@]}" -Iinclude -fsyntax-only "$TMP/alone.cpp" \
-            2>"$TMP/cc.log" || { err "$h alone, -std=$std:"; current_errors+=("$(excerpt "$TMP/cc.log")"); }
+    for std in c++98 c++11 c++17; do
+        for unix in "" "-U__unix__ -Uunix"; do
+            # shellcheck disable=SC2086 # $unix: two flags or none
+            "$CXX" -std=$std $unix -pedantic-errors "${WFLAGS[@]}" -Iinclude -fsyntax-only "$TMP/alone.cpp" \
+                2>"$TMP/cc.log" || { err "$h alone, -std=$std $unix:"; current_errors+=("$(excerpt "$TMP/cc.log")"); }
+        done
     done
 done
-end "4 headers x C++98/C++17"
+end "${#HEADERS[@]} headers x C++98/C++11/C++17, with and without the unix macros"
 
 # --- cxx-linkage: extern "C" guards ------------------------------------------------
 begin cxx-linkage
