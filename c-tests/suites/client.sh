@@ -103,7 +103,7 @@ wait_listen() { # wait_listen PORT SECONDS
 wait_pts_open() { # wait_pts_open PID SECONDS: the process has a /dev/pts/* open
     local i
     for i in $(seq 1 $(($2 * 10))); do
-        ls -l /proc/"$1"/fd 2>/dev/null | grep -q '/dev/pts/' && return 0
+        [[ $(ls -l /proc/"$1"/fd 2>/dev/null) == *"/dev/pts/"* ]] && return 0
         sleep 0.1
     done
     return 1
@@ -250,9 +250,9 @@ check_libinfo() { # check_libinfo FILE debian|ours -> 0 if every line names that
     local f=$1 want=$2
     [ -s "$f" ] || return 1
     if [ "$want" = ours ]; then
-        ! grep -v "libmodbus.so.5 = $OURS_DIR/libmodbus.so[.0-9]* (rsmodbus " "$f" | grep -q .
+        [ -z "$(grep -v "libmodbus.so.5 = $OURS_DIR/libmodbus.so[.0-9]* (rsmodbus " "$f" | grep .)" ]
     else
-        ! grep -v "libmodbus.so.5 = /[^ ]*/libmodbus.so[.0-9]* (debian libmodbus, no rsmodbus_version)" "$f" | grep -q . &&
+        [ -z "$(grep -v "libmodbus.so.5 = /[^ ]*/libmodbus.so[.0-9]* (debian libmodbus, no rsmodbus_version)" "$f" | grep .)" ] &&
             ! grep -q "libmodbus.so.5 = $OURS_DIR/" "$f"
     fi
 }
@@ -280,7 +280,7 @@ build_ours() {
     if link_so5 "$OURS_DIR"; then
         OURS_AVAILABLE=1
         log "using $OURS_DIR/libmodbus.so.5 -> $(readlink -f "$OURS_DIR/libmodbus.so.5")"
-        if ! nm -D --defined-only "$OURS_DIR/libmodbus.so" 2>/dev/null | grep -q ' rsmodbus_version$'; then
+        if [[ $'\n'$(nm -D --defined-only "$OURS_DIR/libmodbus.so" 2>/dev/null)$'\n' != *" rsmodbus_version"$'\n'* ]]; then
             log "WARNING: our library does not export rsmodbus_version(); EXPECT_LIB=ours checks will fail"
         fi
     else
@@ -580,8 +580,12 @@ run_mbpoll() {
         # Second, independent proof: the dynamic loader's own log.
         local want_path
         if [ "$blib" = ours ]; then want_path="$OURS_DIR/libmodbus.so.5"; else want_path="/lib/x86_64-linux-gnu/libmodbus.so.5"; fi
-        if ! cat "$db"/lddebug.* 2>/dev/null | grep -q "calling init: .*$(basename "$want_path")" ||
-            ! cat "$db"/lddebug.* 2>/dev/null | grep "calling init: .*libmodbus" | grep -q "$(dirname "$want_path")"; then
+        # (No `| grep -q` under pipefail: a grep that stops at its first match leaves the
+        # writer a SIGPIPE, and the pipeline fails though the line was there.)
+        local inits
+        inits=$(cat "$db"/lddebug.* 2>/dev/null | grep "calling init: .*libmodbus")
+        if [[ $inits != *"calling init: "*"$(basename "$want_path")"* ]] ||
+            [[ $inits != *"$(dirname "$want_path")"* ]]; then
             why="$why LD_DEBUG=libs does not show $want_path being initialised;"
         fi
         compare_streams "$da" "$db" exit stdout stderr server.out server.err || why="$why differs:$COMPARE_BAD"
