@@ -1,9 +1,14 @@
-"""The checksums of Modbus serial frames, for the test programs that play a device
+"""Modbus serial frames for the test programs that play a device
 (c-tests/event/fc41_device.py, c-tests/gateway/fake_device.py): CRC-16 (RTU) and LRC
-(ASCII), written from the specification's description.
+(ASCII), written from the specification's description; the pty they answer on, and
+an RTU frame read up to its silence.
 
 SPDX-License-Identifier: MIT OR Apache-2.0
 """
+import os
+import select
+import termios
+import tty
 
 
 def crc16(data):
@@ -30,3 +35,25 @@ def crc_ok(frame):
 def lrc(body):
     """The LRC of an ASCII frame's bytes: the two's complement of their sum."""
     return (-sum(body)) & 0xFF
+
+
+def open_raw(path):
+    """`path` (a pty) opened raw at 115200 baud."""
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(fd)
+    attrs = termios.tcgetattr(fd)
+    attrs[4] = attrs[5] = termios.B115200
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    return fd
+
+
+def read_rtu_frame(fd, silence=0.005):
+    """The bytes of the next RTU frame on `fd`: waits for the first, then reads until
+    the line is quiet for `silence` seconds."""
+    select.select([fd], [], [])
+    frame = b""
+    while True:
+        r, _, _ = select.select([fd], [], [], silence)
+        if not r:
+            return frame
+        frame += os.read(fd, 256)

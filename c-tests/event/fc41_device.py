@@ -19,11 +19,9 @@ import select
 import signal
 import socket
 import sys
-import termios
-import tty
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "common"))
-from mbframe import crc_ok, lrc, rtu  # noqa: E402
+from mbframe import crc_ok, lrc, open_raw, read_rtu_frame, rtu  # noqa: E402
 
 PDU = bytes([0x41, 1, 2, 3, 4, 5, 6, 7, 8])
 
@@ -37,28 +35,19 @@ def log(text):
 
 
 def serial(mode, path):
-    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
-    tty.setraw(fd)
-    attrs = termios.tcgetattr(fd)
-    attrs[4] = attrs[5] = termios.B115200
-    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    fd = open_raw(path)
     log("READY")
     buf = b""
     while True:
-        select.select([fd], [], [])
         if mode == "rtu":
             # A frame ends with 5 ms of silence.
-            req = b""
-            while True:
-                r, _, _ = select.select([fd], [], [], 0.005)
-                if not r:
-                    break
-                req += os.read(fd, 256)
+            req = read_rtu_frame(fd)
             if not crc_ok(req):
                 log("rtu: garbage of %d bytes" % len(req))
                 continue
             body = req[:-2]
         else:
+            select.select([fd], [], [])
             buf += os.read(fd, 1024)
             if b"\n" not in buf:
                 continue

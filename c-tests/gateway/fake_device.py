@@ -11,23 +11,16 @@
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 import os
-import select
 import signal
 import sys
-import termios
-import tty
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "common"))
-from mbframe import crc_ok  # noqa: E402
+from mbframe import crc_ok, open_raw, read_rtu_frame  # noqa: E402
 from mbframe import rtu as frame  # noqa: E402
 
 
 def main():
-    fd = os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY)
-    tty.setraw(fd)
-    attrs = termios.tcgetattr(fd)
-    attrs[4] = attrs[5] = termios.B115200
-    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    fd = open_raw(sys.argv[1])
     seen = {"requests": 0}
 
     def done(*_):
@@ -37,13 +30,7 @@ def main():
     signal.signal(signal.SIGTERM, done)
     print("READY", flush=True)
     while True:
-        select.select([fd], [], [])
-        req = b""
-        while True:
-            r, _, _ = select.select([fd], [], [], 0.005)
-            if not r:
-                break
-            req += os.read(fd, 256)
+        req = read_rtu_frame(fd)
         if not crc_ok(req):
             print("garbage of %d bytes" % len(req), flush=True)
             continue
