@@ -48,12 +48,6 @@ pub fn state(ctx: &mut Context) -> Result<&mut Outstanding> {
     ctx.async_state_made()
 }
 
-/// The context's event-driven state if it was made (`None`: no asynchronous call
-/// yet); `EBUSY` while `modbus_process` has it, as [`state`].
-pub fn state_if_made(ctx: &mut Context) -> Result<Option<&mut Outstanding>> {
-    ctx.async_state()
-}
-
 /// Requests given and not completed.
 pub fn pending(ctx: &Context) -> usize {
     ctx.pending()

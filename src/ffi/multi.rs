@@ -131,7 +131,7 @@ pub unsafe extern "C" fn modbus_multi_remove(m: *mut Multi, ctx: *mut Modbus) ->
     // SAFETY: forwarded caller contract.
     status(unsafe {
         crate::handle::call(ctx, |g| {
-            let o = event::state_if_made(g)?.ok_or(Error::INVALID)?;
+            let o = g.async_state()?.ok_or(Error::INVALID)?;
             match &o.multi {
                 Some((own, key)) if Arc::ptr_eq(own, &m.members) => {
                     m.members.remove(*key);
@@ -265,7 +265,7 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
         // SAFETY: a member is a live context.
         let _ = unsafe {
             crate::handle::call(key as *mut Modbus, |g| {
-                if let Ok(Some(o)) = event::state_if_made(g) {
+                if let Ok(Some(o)) = g.async_state() {
                     o.multi = None;
                 }
                 Ok::<(), Error>(())
