@@ -167,7 +167,7 @@ case "${1:-}" in
 *)
     t=$1
     secs=${2:?seconds}
-    printf '%s\n' "${TARGETS[@]}" | grep -qx "$t" || { echo "unknown target $t"; exit 2; }
+    grep -qx "$t" <<<"$(printf '%s\n' "${TARGETS[@]}")" || { echo "unknown target $t"; exit 2; }
     build_replay || exit 1
     build_targets
     run_target "$t" "$secs"

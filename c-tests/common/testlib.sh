@@ -260,7 +260,7 @@ program_checks() {
 }
 
 valgrind_clean() {
-    if cat "$2"/valgrind.*.log 2>/dev/null | grep -q .; then
+    if grep -q . <<<"$(cat "$2"/valgrind.*.log 2>/dev/null)"; then
         result "$1: valgrind memcheck clean" FAIL "see $2/valgrind.*.log"
         cat "$2"/valgrind.*.log | head -n 30 | sed 's/^/    | /'
     else

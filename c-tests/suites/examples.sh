@@ -215,7 +215,7 @@ check "compile tcp-client statically with libmodbus.a (pkg-config --static)" \
     $(pkg-config --cflags "$PC") -Wl,--gc-sections -Wl,-Bstatic -lmodbus -Wl,-Bdynamic \
     -Wl,--as-needed $(pkg-config --static --libs "$PC")
 if [ -x "$WORK/tcp-client-static" ]; then
-    if readelf -d "$WORK/tcp-client-static" | grep -q 'NEEDED.*libmodbus'; then
+    if grep -q 'NEEDED.*libmodbus' <<<"$(readelf -d "$WORK/tcp-client-static")"; then
         bad "static tcp-client does not need libmodbus.so.5" "$(readelf -d "$WORK/tcp-client-static" | grep NEEDED)"
     else
         ok "static tcp-client does not need libmodbus.so.5"
@@ -228,7 +228,7 @@ check "compile tcp-client fully static (gcc -static)" \
     "$CC" "${CFLAGS_W[@]}" -static examples/tcp-client.c -o "$WORK/tcp-client-full-static" \
     $(pkg-config --cflags "$PC") -Wl,--gc-sections -lmodbus $(pkg-config --static --libs "$PC" | sed 's/-lgcc_s//')
 if [ -x "$WORK/tcp-client-full-static" ]; then
-    if readelf -d "$WORK/tcp-client-full-static" 2>/dev/null | grep -q NEEDED; then
+    if grep -q NEEDED <<<"$(readelf -d "$WORK/tcp-client-full-static" 2>/dev/null)"; then
         bad "fully static tcp-client needs no shared library" "$(readelf -d "$WORK/tcp-client-full-static" | grep NEEDED)"
     else
         ok "fully static tcp-client needs no shared library"

@@ -98,12 +98,12 @@ expect_field "$GW" Version "$version"
 expect_field "$GW" Section net
 # The gateway uses rsmodbus' own calls: it needs librsmodbus5 (dpkg-shlibdeps adds
 # libmodbus5 (>= 3.1.4) for libmodbus' calls, which librsmodbus5 provides).
-if field "$GW" Depends | grep -q "^librsmodbus5 (= $version), libc6 (>= "; then
+if grep -q "^librsmodbus5 (= $version), libc6 (>= " <<<"$(field "$GW" Depends)"; then
     ok "rsmodbus-gateway: Depends: $(field "$GW" Depends)"
 else
     bad "rsmodbus-gateway: Depends on librsmodbus5 (= $version) and libc6" "got: $(field "$GW" Depends)"
 fi
-if field "$RUNTIME" Depends | grep -q 'libc6 (>= '; then
+if grep -q 'libc6 (>= ' <<<"$(field "$RUNTIME" Depends)"; then
     ok "librsmodbus5: Depends (from dpkg-shlibdeps): $(field "$RUNTIME" Depends)"
 else
     bad "librsmodbus5: Depends lists libc6" "got: $(field "$RUNTIME" Depends)"
@@ -231,7 +231,7 @@ if diff -q "$WORK/exported" "$WORK/exported.pkg" >/dev/null; then
 else
     bad "extracted library exports the built symbols" "$(diff "$WORK/exported" "$WORK/exported.pkg" | head)"
 fi
-if ! readelf -S "$so" | grep -q -e '\.symtab' -e '\.debug_'; then
+if ! grep -q -e '\.symtab' -e '\.debug_' <<<"$(readelf -S "$so")"; then
     ok "libmodbus.so.5.1.0 is stripped: $(stat -c %s "$so") bytes ($BUILT/libmodbus.so: $(stat -c %s $BUILT/libmodbus.so))"
 else
     bad "libmodbus.so.5.1.0 is stripped" "$(readelf -S "$so" | grep -e symtab -e debug_)"
@@ -295,7 +295,7 @@ fi
 # relocation table, besides the PIE gcc makes anyway.
 gw_bin=$R/usr/bin/rsmodbus-gateway
 fortified=$(nm -D "$gw_bin" 2>/dev/null | grep -c '__[a-z]*_chk')
-if [ "$fortified" -gt 0 ] && readelf -l "$gw_bin" | grep -q GNU_RELRO &&
+if [ "$fortified" -gt 0 ] && grep -q GNU_RELRO <<<"$(readelf -l "$gw_bin")" &&
     [ "$(readelf -h "$gw_bin" | awk '$1 == "Type:" {print $2}')" = DYN ]; then
     ok "rsmodbus-gateway is built with Debian's hardening flags: $fortified fortified calls, RELRO, PIE"
 else
@@ -323,7 +323,7 @@ for prog in tcp-client tcp-server; do
         -Wl,-Bstatic -lmodbus -Wl,-Bdynamic -Wl,--as-needed $slibs
 done
 if [ -x "$B/tcp-client-static" ]; then
-    if readelf -d "$B/tcp-client-static" | grep -q 'NEEDED.*libmodbus'; then
+    if grep -q 'NEEDED.*libmodbus' <<<"$(readelf -d "$B/tcp-client-static")"; then
         bad "static tcp-client does not need libmodbus.so.5"
     else
         ok "static tcp-client needs no libmodbus.so.5 ($(stat -c %s "$B/tcp-client-static") bytes; NEEDED: $(readelf -d "$B/tcp-client-static" | sed -n 's/.*NEEDED.*\[\(.*\)\]/\1/p' | tr '\n' ' '))"
@@ -364,7 +364,7 @@ tcp_run "static tcp" "$B/tcp-server-static" "$B/tcp-client-static"
 
 # --- Debian's mbpoll on the extracted library --------------------------------------------
 MBPOLL=/usr/bin/mbpoll
-if [ -x "$MBPOLL" ] && dpkg -S "$MBPOLL" 2>/dev/null | grep -q '^mbpoll:'; then
+if [ -x "$MBPOLL" ] && grep -q '^mbpoll:' <<<"$(dpkg -S "$MBPOLL" 2>/dev/null)"; then
     if dpkg --verify mbpoll >/dev/null 2>&1; then
         ok "mbpoll is Debian's, unmodified ($(dpkg-query -W -f='${Version}' mbpoll), dpkg --verify)"
     else

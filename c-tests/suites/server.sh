@@ -238,7 +238,7 @@ valgrind_run() { # valgrind_run TRANSPORT
     if [ -s "$d/loaded" ]; then
         check_loaded "$d/loaded" ours >"$d/loaded.check" || { ok=0; why="$why server did not load ours;"; }
     fi
-    if cat "$d"/valgrind.*.log 2>/dev/null | grep -q .; then
+    if grep -q . <<<"$(cat "$d"/valgrind.*.log 2>/dev/null)"; then
         ok=0
         why="$why valgrind reported errors (see $d/valgrind.*.log);"
         cat "$d"/valgrind.*.log | head -n 30 | sed 's/^/    | /'
@@ -294,9 +294,9 @@ unit_start() {
     UT_SRV[$key]=$LAST_PID
     for i in $(seq 1 100); do
         if [ "$t" = rtu ]; then
-            ls -l /proc/"$LAST_PID"/fd 2>/dev/null | grep -q '/dev/pts/' && break
+            grep -q '/dev/pts/' <<<"$(ls -l /proc/"$LAST_PID"/fd 2>/dev/null)" && break
         else
-            ss -ltnH 2>/dev/null | grep -q ":$port " && break
+            grep -q ":$port " <<<"$(ss -ltnH 2>/dev/null)" && break
         fi
         sleep 0.05
     done
