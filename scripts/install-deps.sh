@@ -3,11 +3,12 @@
 # libmodbus is the oracle of the differential tests; mbpoll is an unmodified
 # consumer of libmodbus5; debhelper and dpkg-dev build the .deb packages
 # (scripts/build-deb.sh). python3-venv holds the interoperability tests' pinned pymodbus
-# (c-tests/suites/interop.sh, from PyPI). At the end: llvm-profdata for
-# scripts/build-pgo.sh.
+# (c-tests/suites/interop.sh, from PyPI). abigail-tools (abidw, abidiff) compares the
+# ABI with its baseline (c-tests/suites/abi-check.sh, scripts/abi-update.sh). At the
+# end: llvm-profdata for scripts/build-pgo.sh.
 set -euo pipefail
 packages=(gcc g++ make pkg-config binutils libmodbus-dev libmodbus5 socat mbpoll valgrind man-db
-    python3 debhelper dpkg-dev python3-venv)
+    python3 debhelper dpkg-dev python3-venv abigail-tools)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")

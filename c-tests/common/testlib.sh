@@ -12,6 +12,10 @@
 #   summary                 print "N passed, M failed", write the counts for c-tests/run
 #                           (write_counts) and return non-zero on failure
 #   write_counts P F        "P F" into the file $MBT_COUNTS (when c-tests/run set it)
+#   begin NAME; err TEXT; err_file FILE [N]; end [DETAIL]   one check made of several
+#                           findings: err (or err_file: FILE's first N (40) lines,
+#                           indented) records a problem; end counts NAME as ok, or as
+#                           bad with every line recorded since begin
 #
 # Command line and our library (the run-*.sh suites; they set ROOT)
 #   parse_flags [FLAG...] -- "$@"   every suite takes -h/--help (prints the script's
@@ -130,6 +134,25 @@ summary() {
     echo "$passed passed, $failed failed"
     write_counts "$passed" "$failed"
     [ "$failed" -eq 0 ]
+}
+
+CHECK_NAME=
+CHECK_ERRORS=()
+begin() {
+    CHECK_NAME=$1
+    CHECK_ERRORS=()
+}
+err() { CHECK_ERRORS+=("$*"); }
+err_file() {
+    local line
+    while IFS= read -r line; do CHECK_ERRORS+=("  | $line"); done < <(head -n "${2:-40}" "$1")
+}
+end() {
+    if [ ${#CHECK_ERRORS[@]} -eq 0 ]; then
+        ok "$CHECK_NAME${1:+: $1}"
+    else
+        bad "$CHECK_NAME" "${CHECK_ERRORS[@]}"
+    fi
 }
 
 # write_counts PASSED FAILED: the counts c-tests/run adds to its totals, into the file
