@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# abi-check.sh: the library's ABI is the committed baseline.
+# abi-check.sh: the library's ABI is the committed baseline, and a C++ program on the
+# extensions compiles and runs (docs/abi.md).
 #
 # Checks:
 #   baseline-library  abidw of the built library (debug information dropped: its ELF
@@ -13,9 +14,14 @@
 #                     or does not report (an object's size...): then the dumps'
 #                     diff -u is shown. If the change is intended, run
 #                     scripts/abi-update.sh and commit abi/*.abi with it.
+#   cxx-extensions    c-tests/abi/cxx-extensions.cpp compiles as C++11 and as C++17 with
+#                     -Wall -Wextra -Werror -pedantic against include/, links against
+#                     the built library and runs: a server runner on a thread, an
+#                     event-driven client (poll + modbus_process), a multi handle; it
+#                     must load this tree's libmodbus.so.5 and pass all its checks
 #
 # Usage: c-tests/suites/abi-check.sh   (after `cargo build --release`; takes seconds)
-# Env:   PROFILE (release), CARGO_TARGET_DIR (target), ABI_CC (gcc: the
+# Env:   PROFILE (release), CARGO_TARGET_DIR (target), CXX (g++), ABI_CC (gcc: the
 #        witness's compiler, see scripts/abi-update.sh)
 # Needs: abigail-tools (abidw, abidiff; scripts/install-deps.sh installs it), python3
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -32,6 +38,7 @@ NAME=check-abi-baseline
 PROFILE=${PROFILE:-release}
 LIBDIR=${CARGO_TARGET_DIR:-$ROOT/target}/$PROFILE
 LIB=$LIBDIR/libmodbus.so
+CXX=${CXX:-g++}
 UPDATE_HINT="if intended, run scripts/abi-update.sh and commit the baseline (abi/*.abi) with the change (docs/abi.md)"
 
 # shellcheck source=../common/testlib.sh
@@ -41,7 +48,7 @@ trap '_cleanup_pids; rm -rf "$TMP"' EXIT
 
 verdict() {
     if summary; then
-        echo "PASS: $NAME: the ABI is the baseline's"
+        echo "PASS: $NAME: the ABI is the baseline's; the C++ program on the extensions builds and runs"
         exit 0
     fi
     echo "FAIL: $NAME: ${FAILED[*]}"
@@ -95,5 +102,34 @@ end "$LIB = abi/libmodbus.abi (SONAME $(sed -n "s/.*soname='\([^']*\)'.*/\1/p; T
 begin baseline-headers
 compare headers abi/headers.abi "$TMP/now/headers.abi"
 end "include/ = abi/headers.abi ($(grep -c "<var-decl name='fn_" "$TMP/now/headers.abi") functions, $(grep -c "<var-decl name='type_" "$TMP/now/headers.abi") typedefs, $(grep -c "<var-decl name='tag_" "$TMP/now/headers.abi") tags, $(grep -c "<var-decl name='const_" "$TMP/now/headers.abi") constants)"
+
+# --- cxx-extensions: the extensions from C++ -------------------------------------------
+begin cxx-extensions
+real_lib=$(readlink -f "$LIB")
+ran=()
+for std in c++11 c++17; do
+    bin=$TMP/cxx-extensions-$std
+    if ! "$CXX" -std=$std -Wall -Wextra -Werror -pedantic -Iinclude -Ic-tests/common \
+        c-tests/abi/cxx-extensions.cpp -o "$bin" -pthread -L"$LIBDIR" -lmodbus \
+        -Wl,-rpath,"$LIBDIR" 2>"$TMP/cxx-$std.log"; then
+        err "cxx-extensions.cpp does not build as -std=$std:"
+        err_file "$TMP/cxx-$std.log" 20
+        continue
+    fi
+    rc=0
+    timeout 30 "$bin" >"$TMP/run-$std.log" 2>&1 || rc=$?
+    sed "s/^/         $std | /" "$TMP/run-$std.log"
+    loaded=$(sed -n 's/^LOADED \([^ ]*\) (rsmodbus .*/\1/p; T; q' "$TMP/run-$std.log")
+    summary=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$TMP/run-$std.log" | tail -n 1 || true)
+    if [[ -z $loaded || $(readlink -f "$loaded") != "$real_lib" ]]; then
+        err "-std=$std: loaded '${loaded:-nothing}', not $real_lib"
+    fi
+    if [[ $rc -ne 0 || -z $summary || $summary != *" 0 failed" ]]; then
+        err "-std=$std: exit $rc, ${summary:-no summary line}"
+    else
+        ran+=("$std: ${summary%%,*}")
+    fi
+done
+end "built with -Wall -Wextra -Werror -pedantic, ran against $real_lib (${ran[*]:-})"
 
 verdict
