@@ -605,6 +605,8 @@ int modbus_send_raw_request_async(modbus_t *ctx,
  * `modbus_process` is due even without an event (-1: no deadline; 0: call it now).
  * Returns the number of requests pending, or -1 with errno.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `ctx` must be NULL or a live context; `pfd` NULL or writable; `timeout_ms` NULL or
  * writable.
@@ -895,11 +897,15 @@ int modbus_read_device_identification_async(modbus_t *ctx,
 
 /**
  * Makes a multi handle; NULL with errno on failure.
+ *
+ * Linux only (epoll).
  */
 MODBUS_API modbus_multi_t *modbus_multi_new(void);
 
 /**
  * Adds `ctx` to `m`; a context is in one multi handle at most (EBUSY).
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `m` NULL or a live multi handle; `ctx` NULL or a live context.
@@ -908,6 +914,8 @@ MODBUS_API int modbus_multi_add(modbus_multi_t *m, modbus_t *ctx);
 
 /**
  * Takes `ctx` out of `m` (EINVAL when it is not in it).
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `m` NULL or a live multi handle; `ctx` NULL or a live context.
@@ -919,6 +927,8 @@ MODBUS_API int modbus_multi_remove(modbus_multi_t *m, modbus_t *ctx);
  * the application's loop, then call `modbus_multi_perform(m, 0)`); -1 with EINVAL for
  * NULL. Deadlines do not make it readable: wait at most `modbus_multi_timeout`.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `m` NULL or a live multi handle.
  */
@@ -928,6 +938,8 @@ MODBUS_API int modbus_multi_get_fd(modbus_multi_t *m);
  * Milliseconds until a context of `m` has something due without I/O (a timeout, a
  * connect, a request to send): 0 at once, -1 none. Brings the registrations up to
  * date.
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `m` NULL or a live multi handle.
@@ -941,6 +953,8 @@ MODBUS_API int modbus_multi_timeout(modbus_multi_t *m);
  * passed (as `modbus_process`, callbacks included). Returns the number of requests
  * completed, or -1 with errno.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `m` NULL or a live multi handle.
  */
@@ -948,6 +962,8 @@ MODBUS_API int modbus_multi_perform(modbus_multi_t *m, int timeout_ms);
 
 /**
  * Frees `m`; its contexts leave it (they are not closed or freed).
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `m` NULL or a live multi handle, not used afterwards.
@@ -1199,6 +1215,8 @@ int modbus_set_report_slave_id(modbus_t *ctx,
  * `max_clients` < 1), EMBTLSCONFIG (TLS settings missing), or the error of the
  * listen or open.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `ctx` must be NULL or a live context.
  */
@@ -1209,6 +1227,8 @@ MODBUS_API modbus_server_t *modbus_server_new(modbus_t *ctx, int max_clients);
  * `modbus_reply_callbacks`), with `user_data`, in place of a mapping. With
  * `accept_unit` set, a serial server answers the units it accepts (broadcasts
  * too), whatever the context's slave.
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `s` must be NULL or a live runner; `cb` NULL or valid for `cb->struct_size` bytes.
@@ -1222,6 +1242,8 @@ int modbus_server_set_callbacks(modbus_server_t *s,
  * Answers the requests from `map` (which must outlive the server's runs), as
  * `modbus_reply` does, in place of callbacks.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `s` must be NULL or a live runner; `map` NULL or a mapping whose tables hold
  * their `nb_*` items.
@@ -1233,6 +1255,8 @@ MODBUS_API int modbus_server_set_mapping(modbus_server_t *s, modbus_mapping_t *m
  * that sends a byte now and then, or never ends its TLS handshake, too). 0, 0:
  * never. The default is 60 s. EINVAL: `usec` above 999999.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `s` must be NULL or a live runner.
  */
@@ -1241,6 +1265,8 @@ MODBUS_API int modbus_server_set_idle_timeout(modbus_server_t *s, uint32_t sec, 
 /**
  * The server's epoll descriptor, for the application's own loop: readable when
  * `modbus_server_run(s, 0)` has work (a client, a request, a deadline).
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `s` must be NULL or a live runner.
@@ -1256,6 +1282,8 @@ MODBUS_API int modbus_server_get_fd(modbus_server_t *s);
  * or -1 with errno: EINVAL (no mapping or callbacks set, `timeout_ms` below -1),
  * EBUSY (a run is under way), or the error of the wait.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `s` must be NULL or a live runner.
  */
@@ -1264,6 +1292,8 @@ MODBUS_API int modbus_server_run(modbus_server_t *s, int timeout_ms);
 /**
  * Ends the run under way (or the next) as soon as the request being answered is.
  * Safe from a callback, another thread, or a signal handler.
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `s` must be NULL or a live runner.
@@ -1280,6 +1310,8 @@ MODBUS_API int modbus_server_stop(modbus_server_t *s);
  * `rc` none of those (a PDU longer than 253 bytes, an exception code out of range),
  * `rsp_pdu` NULL with `rc` > 0.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `s` must be NULL or a live runner; `rsp_pdu` NULL or valid for `rc` bytes.
  */
@@ -1293,6 +1325,8 @@ int modbus_server_answer(modbus_server_t *s,
  * Closes every client (and the listening socket the server opened) and frees the
  * server; the context stays as it was. From a callback, the server is freed when
  * the run returns.
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `s` must be NULL or a live runner, not used afterwards.

@@ -16,6 +16,8 @@
 #               the unix macros: -U__unix__ -Uunix) with
 #               -Wall -Wextra -Werror -pedantic-errors
 #   cxx-alone   each header compiles on its own as C++98, C++11 and C++17, same flags
+#   linux-only  the comment of every epoll-based call in modbus.h (modbus_multi_*,
+#               modbus_server_*, modbus_get_pollfd) says "Linux only (epoll)."
 #   cxx-linkage a C++ file using the API references the functions unmangled
 #               (extern "C" guards work) and links against the built library
 #   examples    Debian's libmodbus example programs (unit tests, random tests,
@@ -217,6 +219,32 @@ for h in "${HEADERS[@]}"; do
     done
 done
 end "${#HEADERS[@]} headers x C++98/C++11/C++17, with and without the unix macros"
+
+# --- linux-only: the epoll-based calls are marked -----------------------------------
+# The doc comment just before each declaration (cbindgen's copy of the Rust one).
+begin linux-only
+awk '
+    /^\/\*/ { doc = ""; incomment = 1 }
+    incomment { doc = doc " " $0; if ($0 ~ /\*\//) incomment = 0; next }
+    /^MODBUS_API/ { decl = "" }
+    /^MODBUS_API/ || decl != "" {
+        decl = decl " " $0
+        if (decl ~ /\(/) {
+            sub(/\(.*/, "", decl)
+            n = split(decl, w, /[ *]+/)
+            print w[n], (doc ~ /Linux only \(epoll\)\./ ? "marked" : "unmarked")
+            decl = ""; doc = ""
+        }
+    }' include/modbus.h >"$TMP/linux-only"
+nlinux=0
+while read -r name marked; do
+    case $name in modbus_multi_* | modbus_server_* | modbus_get_pollfd) ;; *) continue ;; esac
+    nlinux=$((nlinux + 1))
+    [[ $marked == marked ]] ||
+        err "$name: its comment in include/modbus.h does not say \"Linux only (epoll).\" (add it to its doc comment in src/ffi/, then RSMODBUS_UPDATE_HEADERS=1 cargo build --release)"
+done <"$TMP/linux-only"
+[[ $nlinux -gt 0 ]] || err "no modbus_multi_*, modbus_server_* or modbus_get_pollfd declaration found in include/modbus.h"
+end "$nlinux epoll-based calls, each marked \"Linux only (epoll).\""
 
 # --- cxx-linkage: extern "C" guards ------------------------------------------------
 begin cxx-linkage

@@ -452,6 +452,8 @@ pub unsafe extern "C" fn modbus_send_raw_request_async(
 /// `modbus_process` is due even without an event (-1: no deadline; 0: call it now).
 /// Returns the number of requests pending, or -1 with errno.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `ctx` must be NULL or a live context; `pfd` NULL or writable; `timeout_ms` NULL or
 /// writable.

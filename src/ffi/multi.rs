@@ -80,6 +80,8 @@ fn holds(list: &HashMap<usize, Member>, key: usize, t: Duration) -> bool {
 }
 
 /// Makes a multi handle; NULL with errno on failure.
+///
+/// Linux only (epoll).
 #[unsafe(no_mangle)]
 pub extern "C" fn modbus_multi_new() -> *mut Multi {
     match epoll::create() {
@@ -96,6 +98,8 @@ pub extern "C" fn modbus_multi_new() -> *mut Multi {
 }
 
 /// Adds `ctx` to `m`; a context is in one multi handle at most (EBUSY).
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `m` NULL or a live multi handle; `ctx` NULL or a live context.
@@ -121,6 +125,8 @@ pub unsafe extern "C" fn modbus_multi_add(m: *mut Multi, ctx: *mut Modbus) -> c_
 }
 
 /// Takes `ctx` out of `m` (EINVAL when it is not in it).
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `m` NULL or a live multi handle; `ctx` NULL or a live context.
@@ -148,6 +154,8 @@ pub unsafe extern "C" fn modbus_multi_remove(m: *mut Multi, ctx: *mut Modbus) ->
 /// the application's loop, then call `modbus_multi_perform(m, 0)`); -1 with EINVAL for
 /// NULL. Deadlines do not make it readable: wait at most `modbus_multi_timeout`.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `m` NULL or a live multi handle.
 #[unsafe(no_mangle)]
@@ -162,6 +170,8 @@ pub unsafe extern "C" fn modbus_multi_get_fd(m: *mut Multi) -> c_int {
 /// Milliseconds until a context of `m` has something due without I/O (a timeout, a
 /// connect, a request to send): 0 at once, -1 none. Brings the registrations up to
 /// date.
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `m` NULL or a live multi handle.
@@ -181,6 +191,8 @@ pub unsafe extern "C" fn modbus_multi_timeout(m: *mut Multi) -> c_int {
 /// the contexts of `m`, then processes each context with I/O ready or a deadline
 /// passed (as `modbus_process`, callbacks included). Returns the number of requests
 /// completed, or -1 with errno.
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `m` NULL or a live multi handle.
@@ -250,6 +262,8 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
 }
 
 /// Frees `m`; its contexts leave it (they are not closed or freed).
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `m` NULL or a live multi handle, not used afterwards.

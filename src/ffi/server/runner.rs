@@ -107,6 +107,8 @@ unsafe fn inner<'a>(s: *mut ServerRunner) -> Result<&'a mut Inner> {
 /// `max_clients` < 1), EMBTLSCONFIG (TLS settings missing), or the error of the
 /// listen or open.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
@@ -137,6 +139,8 @@ pub unsafe extern "C" fn modbus_server_new(ctx: *mut Modbus, max_clients: c_int)
 /// `accept_unit` set, a serial server answers the units it accepts (broadcasts
 /// too), whatever the context's slave.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `s` must be NULL or a live runner; `cb` NULL or valid for `cb->struct_size` bytes.
 #[unsafe(no_mangle)]
@@ -159,6 +163,8 @@ pub unsafe extern "C" fn modbus_server_set_callbacks(
 /// Answers the requests from `map` (which must outlive the server's runs), as
 /// `modbus_reply` does, in place of callbacks.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `s` must be NULL or a live runner; `map` NULL or a mapping whose tables hold
 /// their `nb_*` items.
@@ -179,6 +185,8 @@ pub unsafe extern "C" fn modbus_server_set_mapping(s: *mut ServerRunner, map: *m
 /// A client from which no whole request came for this long is closed (a client
 /// that sends a byte now and then, or never ends its TLS handshake, too). 0, 0:
 /// never. The default is 60 s. EINVAL: `usec` above 999999.
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `s` must be NULL or a live runner.
@@ -201,6 +209,8 @@ pub unsafe extern "C" fn modbus_server_set_idle_timeout(s: *mut ServerRunner, se
 /// The server's epoll descriptor, for the application's own loop: readable when
 /// `modbus_server_run(s, 0)` has work (a client, a request, a deadline).
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `s` must be NULL or a live runner.
 #[unsafe(no_mangle)]
@@ -221,6 +231,8 @@ pub unsafe extern "C" fn modbus_server_get_fd(s: *mut ServerRunner) -> c_int {
 /// callbacks run on this thread and must not block. Returns the requests answered,
 /// or -1 with errno: EINVAL (no mapping or callbacks set, `timeout_ms` below -1),
 /// EBUSY (a run is under way), or the error of the wait.
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `s` must be NULL or a live runner.
@@ -264,6 +276,8 @@ pub unsafe extern "C" fn modbus_server_run(s: *mut ServerRunner, timeout_ms: c_i
 /// Ends the run under way (or the next) as soon as the request being answered is.
 /// Safe from a callback, another thread, or a signal handler.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `s` must be NULL or a live runner.
 #[unsafe(no_mangle)]
@@ -286,6 +300,8 @@ pub unsafe extern "C" fn modbus_server_stop(s: *mut ServerRunner) -> c_int {
 /// for a client that has left, or for an unknown id, is dropped. EINVAL: `s` NULL,
 /// `rc` none of those (a PDU longer than 253 bytes, an exception code out of range),
 /// `rsp_pdu` NULL with `rc` > 0.
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `s` must be NULL or a live runner; `rsp_pdu` NULL or valid for `rc` bytes.
@@ -316,6 +332,8 @@ pub unsafe extern "C" fn modbus_server_answer(
 /// Closes every client (and the listening socket the server opened) and frees the
 /// server; the context stays as it was. From a callback, the server is freed when
 /// the run returns.
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `s` must be NULL or a live runner, not used afterwards.
