@@ -16,7 +16,9 @@
 #   - faults: garbage instead of a handshake, a client that stops halfway through
 #     the handshake (the server goes on serving others), a connection cut under a
 #     client (the next connect works), records cut in the middle (FIN or RST) on
-#     both sides and peers that leave without close_notify (c-tests/tls/cut.py);
+#     both sides and peers that leave without close_notify (c-tests/tls/cut.py),
+#     a refusal (and reset) while the client still writes its flight: the alert,
+#     not the failed write, is reported (c-tests/tls/alert_server.py);
 #   - interoperability with pymodbus, both directions, IPv4 and IPv6;
 #   - AddressSanitizer (with its leak checker) on the C programs: the test client's
 #     scenarios and the example server, built with -fsanitize=address.
@@ -300,6 +302,34 @@ else
 fi
 kill "$CUT_PID" 2>/dev/null
 wait "$CUT_PID" 2>/dev/null
+
+# A TLS 1.2 server that refuses the client's certificate while the client is still
+# writing its flight, then resets the connection (c-tests/tls/alert_server.py): the
+# client's write fails first, yet it reports the server's alert (issue 39, item 12).
+# The client certificate "bulky" carries a chain of some 7 MB, more than the client's
+# send buffer can hold (at most tcp_wmem's 4 MB), so that the client is still writing.
+cp "$C/rogue.key" "$C/bulky.key"
+{
+    cat "$C/rogue.pem"
+    for _ in $(seq 12000); do cat "$C/rogue-ca.pem"; done
+} >"$C/bulky.pem"
+PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+python3 c-tests/tls/alert_server.py "$C" "$PORT" 20 >"$WORK/alert-server.out" 2>&1 &
+ALERT_PID=$!
+for _ in $(seq 100); do grep -q READY "$WORK/alert-server.out" && break; sleep 0.05; done
+if grep -q READY "$WORK/alert-server.out"; then
+    scenario alert 20
+    what="alert server: each of 20 alerts sent while the client's flight was arriving"
+    if [ "$(grep -c "client's flight arriving, alert sent, reset" "$WORK/alert-server.out")" = 20 ]; then
+        ok "$what"
+    else
+        bad "$what" "$(grep '^#' "$WORK/alert-server.out" | tail -n 3)"
+    fi
+else
+    bad "alert_server.py started" "$(cat "$WORK/alert-server.out")"
+fi
+kill "$ALERT_PID" 2>/dev/null
+wait "$ALERT_PID" 2>/dev/null
 
 # AddressSanitizer on both C programs: an instrumented server that exits by itself
 # after its requests (so that the leak checker runs), and the instrumented client's

@@ -14,6 +14,11 @@
  *   nocert     no client certificate: EMBTLSNOCERT (at connect or at the first request:
  *              with TLS 1.3 the client's handshake ends before the server's verdict)
  *   rogue      a client of another CA: EMBTLSUNKNOWNCA
+ *   alert N    against c-tests/tls/alert_server.py, which refuses the client's
+ *              certificate while the client is still writing its flight (TLS 1.2; the
+ *              client certificate "bulky": a chain of megabytes) and resets the
+ *              connection: each of N connects fails with EMBTLSUNKNOWNCA, the alert
+ *              the server sent, not with the failed write's ECONNRESET or EPIPE
  *   expired    an expired client certificate: EMBTLSEXPIRED
  *   wrongname  the server's certificate is for another name: modbus_connect fails
  *              with EMBTLSNAME
@@ -747,6 +752,19 @@ int main(int argc, char *argv[])
         expect_refusal(host, port, NULL, EMBTLSNOCERT, "nocert: refused, EMBTLSNOCERT");
     } else if (strcmp(scenario, "rogue") == 0) {
         expect_refusal(host, port, "rogue", EMBTLSUNKNOWNCA, "rogue: refused, EMBTLSUNKNOWNCA");
+    } else if (strcmp(scenario, "alert") == 0) {
+        int n = argc > 5 ? atoi(argv[5]) : 1, right = 0;
+        for (int i = 0; i < n; i++) {
+            modbus_t *ctx = client(host, port, "bulky", 1);
+            int rc = modbus_connect(ctx), e = errno;
+            printf("# connect %d: rc %d errno %d (%s)\n", i, rc, e, rc == -1 ? modbus_strerror(e) : "none");
+            right += rc == -1 && e == EMBTLSUNKNOWNCA;
+            modbus_close(ctx);
+            modbus_free(ctx);
+        }
+        snprintf(detail, sizeof detail, "%d of %d", right, n);
+        EXPECT_DETAIL(n > 0 && right == n, "alert: a refusal while the client writes is EMBTLSUNKNOWNCA every time",
+                      detail);
     } else if (strcmp(scenario, "expired") == 0) {
         expect_refusal(host, port, "expired", EMBTLSEXPIRED, "expired: refused, EMBTLSEXPIRED");
     } else if (strcmp(scenario, "wrongname") == 0) {

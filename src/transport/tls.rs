@@ -459,7 +459,7 @@ pub fn handshake_step(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut
                 Ok(_) => {}
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(Progress::Wants(libc::POLLOUT)),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(io_error(e)),
+                Err(e) => return Err(refusal_after_failed_write(fd, conn, cut.as_deref_mut(), io_error(e))),
             }
         }
         if !conn.is_handshaking() {
@@ -482,6 +482,35 @@ pub fn handshake_step(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut
             return Err(error_of(&e));
         }
     }
+}
+
+/// Records a failed handshake write leaves unread, at most (an alert is one record;
+/// what the peer sent before it, a flight of a few).
+const MAX_RECORDS_AFTER_FAILED_WRITE: usize = 16;
+
+/// The error of a handshake whose write failed with `failed` (EPIPE, ECONNRESET): a
+/// peer that refuses us (our certificate, say) sends its alert and closes, and when
+/// our writes are still going out, the close resets the connection and the next
+/// write fails before we have read the alert, which waits in the socket's receive
+/// queue. What the peer sent is read without waiting (a bounded number of reads)
+/// and given to rustls: an alert among it is the error (EMBTLSUNKNOWNCA for a
+/// refused certificate); without one, `failed`.
+fn refusal_after_failed_write(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut>, failed: Error) -> Error {
+    let mut cut = cut;
+    for _ in 0..MAX_RECORDS_AFTER_FAILED_WRITE {
+        match conn.read_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: cut.as_deref_mut() }) {
+            Ok(0) => break,
+            Ok(_) => {}
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(_) => break,
+        }
+        match conn.process_new_packets() {
+            Err(e @ rustls::Error::AlertReceived(_)) => return error_of(&e),
+            Err(_) => break,
+            Ok(_) => {}
+        }
+    }
+    failed
 }
 
 /// What a handshake agreed on, for the debug trace.
