@@ -1204,6 +1204,18 @@ int modbus_set_report_slave_id(modbus_t *ctx,
                                int length);
 
 /**
+ * rsmodbus extension: binds a Modbus/UDP context (`modbus_new_udp`,
+ * `modbus_new_udp_pi`) to its address and port, and makes the socket the
+ * context's (a socket it had is closed first): `modbus_receive` then reads each
+ * request, and `modbus_reply` answers it to its sender. Returns the socket, which
+ * `modbus_close` closes. EINVAL on a context of another kind.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_udp_bind(modbus_t *ctx);
+
+/**
  * Makes a server that runs itself over `ctx` for up to `max_clients` clients at
  * once: a TCP, TCP-PI, RTU-over-TCP or Modbus/TCP Security context (its listening
  * socket when `modbus_set_socket` gave it one, else one the server opens on the
@@ -1359,8 +1371,8 @@ MODBUS_API modbus_t *modbus_new_rtu_tcp_pi(const char *node, const char *service
  * each answer is one datagram holding the MBAP header and the PDU. A client's
  * `modbus_connect` makes a socket that talks to this address only; a lost datagram
  * is a timeout, an answer that is not the one awaited (a duplicate) is dropped. A
- * server runs with modbus_server_new(3), or binds with `modbus_tcp_listen` and gives
- * the socket to `modbus_set_socket`, then answers each request to its sender.
+ * server runs with modbus_server_new(3), or binds with `modbus_udp_bind`, then
+ * answers each request (`modbus_reply`) to its sender.
  *
  * # Safety
  * `ip_address` must be NULL or a NUL-terminated string.
@@ -1369,7 +1381,7 @@ MODBUS_API modbus_t *modbus_new_udp(const char *ip_address, int port);
 
 /**
  * rsmodbus extension: Modbus/UDP over any address family (names resolved with
- * getaddrinfo), like `modbus_new_tcp_pi`; `modbus_tcp_pi_listen` binds.
+ * getaddrinfo), like `modbus_new_tcp_pi`; `modbus_udp_bind` binds.
  *
  * # Safety
  * `node` and `service` must each be NULL or a NUL-terminated string.

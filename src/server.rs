@@ -88,9 +88,11 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
 /// Returns the bytes sent, 0 for a suppressed RTU broadcast, a unit `data` does not
 /// serve on a serial line, an answer `data` withholds (and, with diagnostics, in
 /// listen-only mode). On TCP, a unit not served is answered with exception 0B
-/// (gateway target device failed to respond), as gateways answer it.
+/// (gateway target device failed to respond), as gateways answer it. On a UDP
+/// server's socket the answer goes to the sender of `req` (`Line::answering`).
 #[inline]
 pub fn reply<D: Data>(g: &mut Guard<'_>, req: &[u8], req_length: i32, data: &mut D) -> Result<usize> {
+    g.line.answering(req)?;
     let framing = g.framing();
     let unit = req.get(framing.header_length() - 1).copied().unwrap_or(0);
     let broadcast = framing.is_serial() && unit == 0;
@@ -99,12 +101,12 @@ pub fn reply<D: Data>(g: &mut Guard<'_>, req: &[u8], req_length: i32, data: &mut
             g.diag().out(format_args!("Request for slave {unit} not served\n"));
             return Ok(0);
         }
-        return reply_exception(g, req, exception::GATEWAY_TARGET as u32);
+        return exception_reply(g, req, exception::GATEWAY_TARGET as u32);
     }
     if g.line.authorizes() && !authorized(g, req)? {
         // Exception 01, nothing changed; as modbus_reply_exception sends it
         // (not in listen-only mode, counted by the diagnostics).
-        return reply_exception(g, req, exception::ILLEGAL_FUNCTION as u32);
+        return exception_reply(g, req, exception::ILLEGAL_FUNCTION as u32);
     }
     let server = Server { framing: g.framing(), quirks: g.quirks };
     let mut sink = g.diag();
@@ -162,8 +164,18 @@ fn authorized(g: &mut Guard<'_>, req: &[u8]) -> Result<bool> {
 
 /// `modbus_reply_exception`: sends exception `code` (below `MODBUS_EXCEPTION_MAX`,
 /// else EINVAL) for `req`, without flushing and even for a broadcast. With
-/// diagnostics in listen-only mode nothing is sent and 0 is returned.
+/// diagnostics in listen-only mode nothing is sent and 0 is returned. On a UDP
+/// server's socket the answer goes to the sender of `req` (`Line::answering`).
 pub fn reply_exception(g: &mut Guard<'_>, req: &[u8], code: u32) -> Result<usize> {
+    if code >= exception::MAX as u32 {
+        return Err(Error::INVALID);
+    }
+    g.line.answering(req)?;
+    exception_reply(g, req, code)
+}
+
+/// [`reply_exception`] once the answer's destination is set.
+fn exception_reply(g: &mut Guard<'_>, req: &[u8], code: u32) -> Result<usize> {
     if code >= exception::MAX as u32 {
         return Err(Error::INVALID);
     }

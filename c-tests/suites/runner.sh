@@ -9,9 +9,10 @@
 # that stall, an RTU line on a pty pair with three units, 10,000 clients at once, a
 # stop from a signal handler and from a callback, the server in the application's
 # own poll loop, the runner beside the blocking server (c-tests/runner/runner-diag.c:
-# diagnostics counters, the ASCII input delimiter, a stop during a flush), Modbus/UDP
-# (our client and runner against pymodbus' server and client, and through a proxy
-# that loses and repeats datagrams), and the server under AddressSanitizer.
+# diagnostics counters, the ASCII input delimiter, a stop during a flush), a
+# hand-written Modbus/UDP loop answering two peers (c-tests/runner/server-setup.c),
+# Modbus/UDP (our client and runner against pymodbus' server and client, and through
+# a proxy that loses and repeats datagrams), and the server under AddressSanitizer.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -149,6 +150,22 @@ else
     bad "given: the server starts" "$(tail -n 5 "$WORK/given.log")"
 fi
 halt given "stopped by a signal"
+
+section "Modbus/UDP, a hand-written loop: each answer to its request's sender"
+# setup NAME ARGS...: server-setup (a server of ours and its client in one process).
+setup() {
+    local name=$1 log rc=0
+    shift
+    log=$WORK/setup-$name.log
+    env LD_LIBRARY_PATH="$LIBDIR" EXPECT_LIB=ours timeout -k 5 60 "$BIN/server-setup" "$@" >"$log" 2>&1 || rc=$?
+    libinfo_ours "setup-$name" "$log"
+    program_checks "setup-$name" "$log" "$rc"
+}
+# Two peers' requests received, then answered (first, second, exception): each
+# peer gets its own answer; the socket from modbus_tcp_listen or modbus_udp_bind.
+for how in listen bind; do
+    setup "udp-loop-$how" udp-loop "$how"
+done
 
 section "idle clients"
 serve idle tcp port --idle 500

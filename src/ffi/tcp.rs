@@ -60,8 +60,8 @@ pub unsafe extern "C" fn modbus_new_rtu_tcp_pi(node: *const c_char, service: *co
 /// each answer is one datagram holding the MBAP header and the PDU. A client's
 /// `modbus_connect` makes a socket that talks to this address only; a lost datagram
 /// is a timeout, an answer that is not the one awaited (a duplicate) is dropped. A
-/// server runs with modbus_server_new(3), or binds with `modbus_tcp_listen` and gives
-/// the socket to `modbus_set_socket`, then answers each request to its sender.
+/// server runs with modbus_server_new(3), or binds with `modbus_udp_bind`, then
+/// answers each request (`modbus_reply`) to its sender.
 ///
 /// # Safety
 /// `ip_address` must be NULL or a NUL-terminated string.
@@ -73,7 +73,7 @@ pub unsafe extern "C" fn modbus_new_udp(ip_address: *const c_char, port: c_int) 
 }
 
 /// rsmodbus extension: Modbus/UDP over any address family (names resolved with
-/// getaddrinfo), like `modbus_new_tcp_pi`; `modbus_tcp_pi_listen` binds.
+/// getaddrinfo), like `modbus_new_tcp_pi`; `modbus_udp_bind` binds.
 ///
 /// # Safety
 /// `node` and `service` must each be NULL or a NUL-terminated string.

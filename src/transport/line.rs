@@ -173,6 +173,21 @@ impl Line {
         }
     }
 
+    /// On a server's UDP socket: the next write is the reply to the request `req`
+    /// (as received, header first) and goes to that request's sender, whatever came
+    /// since (see `udp::Senders`); EDESTADDRREQ when `req` is none of the last
+    /// `udp::SENDERS` datagrams received. Nothing on other lines.
+    #[inline]
+    pub fn answering(&mut self, req: &[u8]) -> Result<()> {
+        if self.kind != Kind::Datagram {
+            return Ok(());
+        }
+        match self.held.datagram.as_deref_mut() {
+            Some(d) if !self.held.connected => d.answering(req),
+            _ => Ok(()),
+        }
+    }
+
     /// A stream socket (plain or TLS): a connection of its own per client.
     pub fn is_stream(&self) -> bool {
         matches!(self.kind, Kind::Socket | Kind::Tls)
@@ -199,7 +214,7 @@ impl Line {
     /// answers each request to its sender.
     pub fn bind(&mut self, diag: &mut dyn Diag) -> Result<i32> {
         let fd = udp::open(&self.settings, true, diag)?;
-        self.install(fd, Held { datagram: Some(Box::default()), ..Held::default() });
+        self.install(fd, Held { datagram: Some(Box::new(Datagram::serving())), ..Held::default() });
         Ok(fd)
     }
 
@@ -328,8 +343,8 @@ impl Line {
             }
         }
         if self.kind == Kind::Datagram && fd >= 0 {
-            held.datagram = Some(Box::default());
             held.connected = udp::has_peer(fd);
+            held.datagram = Some(Box::new(if held.connected { Datagram::default() } else { Datagram::serving() }));
         }
         self.install(fd, held);
     }
@@ -929,9 +944,6 @@ fn no_session(fd: i32) -> Error {
     }
 }
 
-/// [`Line::peek`] on a TLS session: the plaintext, decrypted from the socket's
-/// records as needed.
-#[inline(never)]
 /// [`Line::peek`] on a UDP socket: the datagram being read (the next one when none is).
 fn datagram_peek(fd: i32, held: &mut Held, room: &mut [u8], block: bool) -> Result<usize> {
     let Some(d) = held.datagram.as_deref_mut() else { return Err(Error(libc::EBADF)) };
@@ -967,6 +979,9 @@ fn datagram_write(fd: i32, held: &Held, frame: &[u8]) -> Result<usize> {
     }
 }
 
+/// [`Line::peek`] on a TLS session: the plaintext, decrypted from the socket's
+/// records as needed.
+#[inline(never)]
 fn tls_peek(fd: i32, session: &mut Option<Box<Session>>, room: &mut [u8], block: bool) -> Result<usize> {
     let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
     let flags = if block { 0 } else { libc::MSG_DONTWAIT };

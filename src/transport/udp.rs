@@ -129,33 +129,107 @@ pub struct Peer {
     len: libc::socklen_t,
 }
 
+/// How many recent requests a server's socket remembers the sender of (see
+/// [`Senders`]): a reply to a request older than the last `SENDERS` datagrams
+/// received fails (EDESTADDRREQ).
+pub const SENDERS: usize = 64;
+
+/// A datagram a server received: its sender and its bytes.
+struct Sent {
+    peer: Peer,
+    len: u16,
+    bytes: [u8; MAX_ADU_LENGTH],
+    /// A reply went to it.
+    answered: bool,
+}
+
+/// The senders of the last [`SENDERS`] datagrams a server's socket received, with
+/// the datagrams (oldest first), so that a reply goes to the sender of the request
+/// it answers, however many datagrams came since (a hand-written loop may receive
+/// from several peers before it replies). A request is known by its bytes as
+/// `modbus_receive` handed them over: the MBAP transaction id, the unit and the PDU
+/// (a datagram that starts with them).
+#[derive(Default)]
+struct Senders {
+    recent: std::collections::VecDeque<Sent>,
+}
+
+impl Senders {
+    fn record(&mut self, peer: Peer, datagram: &[u8]) {
+        let mut sent = if self.recent.len() == SENDERS {
+            self.recent.pop_front().expect("full")
+        } else {
+            Sent { peer, len: 0, bytes: [0; MAX_ADU_LENGTH], answered: false }
+        };
+        sent.peer = peer;
+        sent.len = datagram.len() as u16;
+        sent.bytes[..datagram.len()].copy_from_slice(datagram);
+        sent.answered = false;
+        self.recent.push_back(sent);
+    }
+
+    /// The sender of the request `req`: of the datagrams that start with it, the
+    /// oldest not answered yet (requests alike to the byte from several peers get
+    /// one answer each, in the order they came; a reply that sees only the header
+    /// and function code, `modbus_reply_exception`'s, tells apart requests that
+    /// differ there), else the newest (a request answered again).
+    fn answering(&mut self, req: &[u8]) -> Option<Peer> {
+        if req.is_empty() {
+            return None;
+        }
+        let is = |s: &Sent| s.bytes[..s.len as usize].starts_with(req);
+        if let Some(s) = self.recent.iter_mut().find(|s| !s.answered && is(s)) {
+            s.answered = true;
+            return Some(s.peer);
+        }
+        self.recent.iter().rev().find(|s| is(s)).map(|s| s.peer)
+    }
+}
+
 /// The datagram being read, and where the answer goes.
 pub struct Datagram {
     buf: Box<[u8; MAX_ADU_LENGTH]>,
     start: usize,
     end: usize,
-    /// The sender of the last datagram (a server answers it).
-    peer: libc::sockaddr_storage,
-    peer_len: libc::socklen_t,
+    /// The sender of the last datagram read.
+    from: Option<Peer>,
+    /// Where the next answer goes when not to `from`: the sender of the request it
+    /// answers ([`Datagram::answering`], [`Datagram::set_peer`]).
+    to: Option<Peer>,
+    /// A server's socket: the senders of the recent requests.
+    senders: Option<Box<Senders>>,
 }
 
 impl Default for Datagram {
     fn default() -> Self {
-        // SAFETY: all-zero is a valid sockaddr_storage.
-        Datagram { buf: Box::new([0; MAX_ADU_LENGTH]), start: 0, end: 0, peer: unsafe { zeroed() }, peer_len: 0 }
+        Datagram { buf: Box::new([0; MAX_ADU_LENGTH]), start: 0, end: 0, from: None, to: None, senders: None }
     }
 }
 
 impl Datagram {
+    /// The datagrams of a server's socket, which answers each request to its sender.
+    pub fn serving() -> Self {
+        Datagram { senders: Some(Box::default()), ..Datagram::default() }
+    }
+
     /// The sender of the last datagram read (`None` before any).
     pub fn peer(&self) -> Option<Peer> {
-        (self.peer_len > 0).then_some(Peer { addr: self.peer, len: self.peer_len })
+        self.from
     }
 
     /// The next answer goes to `peer` (a request answered later).
     pub fn set_peer(&mut self, peer: Peer) {
-        self.peer = peer.addr;
-        self.peer_len = peer.len;
+        self.to = Some(peer);
+    }
+
+    /// On a server's socket: the next answer is the reply to `req` (the request as
+    /// received: header first) and goes to its sender. EDESTADDRREQ when `req` is
+    /// none of the last [`SENDERS`] datagrams received.
+    pub fn answering(&mut self, req: &[u8]) -> Result<()> {
+        let Some(senders) = self.senders.as_deref_mut() else { return Ok(()) };
+        let peer = senders.answering(req).ok_or(Error(libc::EDESTADDRREQ))?;
+        self.to = Some(peer);
+        Ok(())
     }
 }
 
@@ -169,7 +243,8 @@ impl Datagram {
     /// one ADU is cut off (it is no Modbus message). An empty datagram counts as
     /// nothing read (EAGAIN).
     pub fn fill(&mut self, fd: i32, flags: i32) -> Result<()> {
-        let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+        // SAFETY: all-zero is a valid sockaddr_storage.
+        let mut from = Peer { addr: unsafe { zeroed() }, len: size_of::<libc::sockaddr_storage>() as libc::socklen_t };
         // SAFETY: the kernel writes at most the buffer's length and `len` bytes of
         // address into the live buffers.
         let n = unsafe {
@@ -178,17 +253,24 @@ impl Datagram {
                 self.buf.as_mut_ptr().cast(),
                 self.buf.len(),
                 flags,
-                (&mut self.peer as *mut libc::sockaddr_storage).cast(),
-                &mut len,
+                (&mut from.addr as *mut libc::sockaddr_storage).cast(),
+                &mut from.len,
             )
         };
         if n < 0 {
             return Err(last_error());
         }
-        self.peer_len = len;
         self.start = 0;
         self.end = n as usize;
-        if n == 0 { Err(Error(libc::EAGAIN)) } else { Ok(()) }
+        if n == 0 {
+            return Err(Error(libc::EAGAIN));
+        }
+        self.from = Some(from);
+        self.to = None;
+        if let Some(senders) = self.senders.as_deref_mut() {
+            senders.record(from, &self.buf[..self.end]);
+        }
+        Ok(())
     }
 
     /// Copies what is left of the datagram into `room` without taking it.
@@ -213,25 +295,109 @@ impl Datagram {
     }
 
     /// Sends `frame`: on a connected socket to its peer, else to the sender of the
-    /// last datagram read (EDESTADDRREQ before any).
+    /// request it answers ([`Datagram::answering`], [`Datagram::set_peer`]), or of
+    /// the last datagram read (EDESTADDRREQ before any).
     pub fn send(&self, fd: i32, frame: &[u8], connected: bool) -> Result<usize> {
         if connected {
             return super::send(fd, frame, 0);
         }
-        if self.peer_len == 0 {
-            return Err(Error(libc::EDESTADDRREQ));
-        }
-        // SAFETY: the kernel reads `frame` and `peer_len` bytes of the stored address.
+        let Some(to) = self.to.as_ref().or(self.from.as_ref()) else { return Err(Error(libc::EDESTADDRREQ)) };
+        // SAFETY: the kernel reads `frame` and `len` bytes of the stored address.
         let n = unsafe {
             libc::sendto(
                 fd,
                 frame.as_ptr().cast(),
                 frame.len(),
                 libc::MSG_NOSIGNAL,
-                (&self.peer as *const libc::sockaddr_storage).cast(),
-                self.peer_len,
+                (&to.addr as *const libc::sockaddr_storage).cast(),
+                to.len,
             )
         };
         if n < 0 { Err(last_error()) } else { Ok(n as usize) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sender told apart by its port.
+    fn peer(port: u16) -> Peer {
+        // SAFETY: all-zero is a valid sockaddr_storage.
+        let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
+        addr.ss_family = libc::AF_INET as libc::sa_family_t;
+        // SAFETY: the storage holds a sockaddr_in (its family says so).
+        unsafe { (*(&mut addr as *mut libc::sockaddr_storage).cast::<libc::sockaddr_in>()).sin_port = port.to_be() };
+        Peer { addr, len: size_of::<libc::sockaddr_in>() as libc::socklen_t }
+    }
+
+    fn port(p: Option<Peer>) -> Option<u16> {
+        p.map(|p| {
+            // SAFETY: made by `peer` above: a sockaddr_in.
+            u16::from_be(unsafe { (*(&p.addr as *const libc::sockaddr_storage).cast::<libc::sockaddr_in>()).sin_port })
+        })
+    }
+
+    /// A read of one register at `addr`, unit 1, transaction id `tid`.
+    fn read(tid: u16, addr: u16) -> Vec<u8> {
+        let [t0, t1] = tid.to_be_bytes();
+        let [a0, a1] = addr.to_be_bytes();
+        vec![t0, t1, 0, 0, 0, 6, 1, 3, a0, a1, 0, 1]
+    }
+
+    #[test]
+    fn each_request_is_answered_to_its_sender() {
+        let mut s = Senders::default();
+        // Two peers, the same transaction id and unit, other addresses.
+        s.record(peer(1), &read(7, 1));
+        s.record(peer(2), &read(7, 2));
+        assert_eq!(port(s.answering(&read(7, 2))), Some(2));
+        assert_eq!(port(s.answering(&read(7, 1))), Some(1));
+        // Answered again: the same sender.
+        assert_eq!(port(s.answering(&read(7, 1))), Some(1));
+        // Never received.
+        assert_eq!(port(s.answering(&read(8, 1))), None);
+        assert_eq!(port(s.answering(&[])), None);
+    }
+
+    #[test]
+    fn requests_alike_get_one_answer_each_in_order() {
+        let mut s = Senders::default();
+        s.record(peer(1), &read(1, 5));
+        s.record(peer(2), &read(1, 5));
+        s.record(peer(3), &read(1, 5));
+        assert_eq!(port(s.answering(&read(1, 5))), Some(1));
+        assert_eq!(port(s.answering(&read(1, 5))), Some(2));
+        assert_eq!(port(s.answering(&read(1, 5))), Some(3));
+        // All answered: the newest again.
+        assert_eq!(port(s.answering(&read(1, 5))), Some(3));
+    }
+
+    #[test]
+    fn a_reply_that_sees_the_header_only_matches_a_prefix() {
+        let mut s = Senders::default();
+        s.record(peer(1), &read(3, 10));
+        s.record(peer(2), &read(4, 10));
+        // modbus_reply_exception: header and function code.
+        assert_eq!(port(s.answering(&read(4, 10)[..8])), Some(2));
+        // A datagram longer than its request (bytes after it) still matches.
+        let mut long = read(5, 1);
+        let req = long.clone();
+        long.extend_from_slice(&[9, 9]);
+        s.record(peer(3), &long);
+        assert_eq!(port(s.answering(&req)), Some(3));
+    }
+
+    #[test]
+    fn the_table_holds_the_last_senders() {
+        let mut s = Senders::default();
+        for i in 0..(SENDERS as u16 + 10) {
+            s.record(peer(i), &read(i, 0));
+        }
+        assert_eq!(s.recent.len(), SENDERS);
+        // The first ten are forgotten, the others known.
+        assert_eq!(port(s.answering(&read(9, 0))), None);
+        assert_eq!(port(s.answering(&read(10, 0))), Some(10));
+        assert_eq!(port(s.answering(&read(SENDERS as u16 + 9, 0))), Some(SENDERS as u16 + 9));
     }
 }

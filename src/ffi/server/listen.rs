@@ -9,7 +9,8 @@ use crate::ffi::{Modbus, with_ctx};
 use crate::transport::listen;
 
 /// Opens an IPv4 listening socket on the context's address and port, for up to
-/// `nb_connection` pending clients. Returns the socket; the caller owns it.
+/// `nb_connection` pending clients (on a Modbus/UDP context: a socket bound there,
+/// as `modbus_udp_bind` makes). Returns the socket; the caller owns it.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
@@ -17,6 +18,29 @@ use crate::transport::listen;
 pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
     unsafe { with_ctx(ctx, |g| g.line.listen(false, nb_connection, g.debug, &mut g.diag())) }
+}
+
+/// rsmodbus extension: binds a Modbus/UDP context (`modbus_new_udp`,
+/// `modbus_new_udp_pi`) to its address and port, and makes the socket the
+/// context's (a socket it had is closed first): `modbus_receive` then reads each
+/// request, and `modbus_reply` answers it to its sender. Returns the socket, which
+/// `modbus_close` closes. EINVAL on a context of another kind.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_udp_bind(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            if !g.line.is_datagram() {
+                return Err(Error::INVALID);
+            }
+            crate::session::close_line(g);
+            let mut diag = g.diag();
+            g.line.bind(&mut diag)
+        })
+    }
 }
 
 /// Accepts one client on `*s` and makes it the context's socket (TCP contexts, and RTU
@@ -69,7 +93,8 @@ pub unsafe extern "C" fn modbus_tcp_accept(ctx: *mut Modbus, s: *mut c_int) -> c
 }
 
 /// Opens a listening socket on the first address getaddrinfo gives for the context's
-/// node and service (IPv4 or IPv6). Returns the socket; the caller owns it.
+/// node and service (IPv4 or IPv6; on a `modbus_new_udp_pi` context, a socket bound
+/// there). Returns the socket; the caller owns it.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
