@@ -262,10 +262,13 @@ fn drain(fd: i32) {
 impl Runner {
     /// A runner for the context `g`, for up to `max_clients` clients: a listening
     /// context's socket when it has one listening (`modbus_set_socket` with what
-    /// `modbus_tcp_listen` returned), else one it opens on the context's address; a
-    /// serial context's line, opened if it is not; a Modbus/UDP context's socket,
-    /// bound to its address if it has none. EMBTLSCONFIG: a Modbus/TCP Security
-    /// context without its certificate, key and CA.
+    /// `modbus_tcp_listen` returned), else the socket `modbus_tcp_listen` made for
+    /// it (the libmodbus habit: listen first, then hand the context over; the
+    /// application keeps it), else one it opens on the context's address; a serial
+    /// context's line, opened if it is not; a Modbus/UDP context's socket, else the
+    /// one `modbus_tcp_listen` bound for it (a duplicate of it becomes the
+    /// context's), else one bound to its address. EMBTLSCONFIG: a Modbus/TCP
+    /// Security context without its certificate, key and CA.
     pub fn new(g: &mut Guard<'_>, max_clients: usize) -> Result<Runner> {
         let wake = eventfd()?;
         let stopper = std::sync::Arc::new(Stopper { stopping: AtomicBool::new(false), wake });
@@ -298,8 +301,15 @@ impl Runner {
             // A serial line, or a UDP socket: the context's own line, served on the
             // context itself.
             if g.fd() < 0 && g.line.is_datagram() {
-                let mut diag = g.diag();
-                g.line.bind(&mut diag)?;
+                match g.line.listener() {
+                    // The application keeps its socket (and closes it): the context
+                    // serves on a descriptor of its own of that socket.
+                    Some(bound) => g.line.adopt(crate::transport::udp::duplicate(bound)?),
+                    None => {
+                        let mut diag = g.diag();
+                        g.line.bind(&mut diag)?;
+                    }
+                }
             } else if g.fd() < 0 {
                 crate::session::connect(g)?;
             }
@@ -314,6 +324,8 @@ impl Runner {
         let fd = g.fd();
         if fd >= 0 && listen::is_listening(fd) {
             r.listen_fd = fd;
+        } else if let Some(listening) = g.line.listener() {
+            r.listen_fd = listening;
         } else {
             let backlog = max_clients.clamp(1, 4096) as i32;
             let mut diag = g.diag();

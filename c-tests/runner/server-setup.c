@@ -2,6 +2,12 @@
  * server-setup.c: the ways a server starts and answers on its own socket, in one
  * process on loopback (c-tests/suites/runner.sh):
  *
+ *   server-setup listen tcp|tcppi|udp|udpbind
+ *       the libmodbus habit: modbus_tcp_listen (tcppi: modbus_tcp_pi_listen; udp:
+ *       modbus_tcp_listen on a Modbus/UDP context; udpbind: modbus_udp_bind) first,
+ *       then the context handed to modbus_server_new, which serves on that socket
+ *       (it does not bind again: EADDRINUSE); a client reads; the application still
+ *       owns the socket it was given and closes it
  *   server-setup udp-loop listen|bind
  *       a hand-written Modbus/UDP server loop (socket from modbus_tcp_listen and
  *       modbus_set_socket, or from modbus_udp_bind): two peers send a request each
@@ -52,6 +58,68 @@ static modbus_mapping_t *new_mapping(void)
         m->tab_registers[i] = (uint16_t) (1000 + i);
     }
     return m;
+}
+
+static void *run(void *arg)
+{
+    modbus_server_run(arg, -1);
+    return NULL;
+}
+
+static void listen_case(const char *how)
+{
+    int udp = strncmp(how, "udp", 3) == 0;
+    int port = free_port(udp ? SOCK_DGRAM : SOCK_STREAM), s;
+    char service[16];
+    modbus_t *ctx, *client;
+    snprintf(service, sizeof service, "%d", port);
+    if (strcmp(how, "tcp") == 0) {
+        ctx = modbus_new_tcp("127.0.0.1", port);
+        s = modbus_tcp_listen(ctx, 5);
+    } else if (strcmp(how, "tcppi") == 0) {
+        ctx = modbus_new_tcp_pi("127.0.0.1", service);
+        s = modbus_tcp_pi_listen(ctx, 5);
+    } else if (strcmp(how, "udp") == 0) {
+        ctx = modbus_new_udp("127.0.0.1", port);
+        s = modbus_tcp_listen(ctx, 5);
+    } else {
+        ctx = modbus_new_udp("127.0.0.1", port);
+        s = modbus_udp_bind(ctx);
+    }
+    if (!EXPECT(s >= 0, "%s: the socket (port %d)%s%s", how, port, s < 0 ? ": " : "", s < 0 ? modbus_strerror(errno) : "")) {
+        return;
+    }
+    modbus_server_t *server = modbus_server_new(ctx, 4);
+    int e = errno;
+    if (!EXPECT(server != NULL, "%s: modbus_server_new after the listen (%s)", how,
+                server == NULL ? modbus_strerror(e) : "served on that socket")) {
+        close(s);
+        modbus_free(ctx);
+        return;
+    }
+    modbus_mapping_t *m = new_mapping();
+    modbus_server_set_mapping(server, m);
+    pthread_t t;
+    pthread_create(&t, NULL, run, server);
+    client = udp ? modbus_new_udp("127.0.0.1", port) : modbus_new_tcp("127.0.0.1", port);
+    uint16_t v[3] = {0, 0, 0};
+    modbus_set_response_timeout(client, 2, 0);
+    int rc = modbus_connect(client) == 0 ? modbus_read_registers(client, 10, 3, v) : -1;
+    EXPECT(rc == 3 && v[0] == 1010 && v[2] == 1012, "%s: a client reads 3 registers (rc %d%s%s: %u %u %u)", how, rc,
+           rc == -1 ? ", " : "", rc == -1 ? modbus_strerror(errno) : "", v[0], v[1], v[2]);
+    modbus_close(client);
+    modbus_free(client);
+    modbus_server_stop(server);
+    pthread_join(t, NULL);
+    modbus_server_free(server);
+    /* The socket made by the listen stays the application's, open, for it to close
+     * (modbus_udp_bind's is the context's, closed by modbus_close). */
+    if (strcmp(how, "udpbind") != 0) {
+        EXPECT(close(s) == 0, "%s: the socket is still open for the application to close", how);
+    }
+    modbus_close(ctx);
+    modbus_free(ctx);
+    modbus_mapping_free(m);
 }
 
 /* A datagram socket connected to the server's port. */
@@ -155,11 +223,13 @@ static void udp_loop(const char *how)
 int main(int argc, char **argv)
 {
     if (argc < 3) {
-        fprintf(stderr, "usage: server-setup udp-loop listen|bind\n");
+        fprintf(stderr, "usage: server-setup listen tcp|tcppi|udp|udpbind | udp-loop listen|bind\n");
         return 2;
     }
     /* The LIBINFO line: printed before main by ../common/libinfo.c. */
-    if (strcmp(argv[1], "udp-loop") == 0) {
+    if (strcmp(argv[1], "listen") == 0) {
+        listen_case(argv[2]);
+    } else if (strcmp(argv[1], "udp-loop") == 0) {
         udp_loop(argv[2]);
     } else {
         fprintf(stderr, "unknown scenario %s\n", argv[1]);

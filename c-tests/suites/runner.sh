@@ -9,7 +9,8 @@
 # that stall, an RTU line on a pty pair with three units, 10,000 clients at once, a
 # stop from a signal handler and from a callback, the server in the application's
 # own poll loop, the runner beside the blocking server (c-tests/runner/runner-diag.c:
-# diagnostics counters, the ASCII input delimiter, a stop during a flush), a
+# diagnostics counters, the ASCII input delimiter, a stop during a flush), servers
+# started the libmodbus way (modbus_tcp_listen, then modbus_server_new) and a
 # hand-written Modbus/UDP loop answering two peers (c-tests/runner/server-setup.c),
 # Modbus/UDP (our client and runner against pymodbus' server and client, and through
 # a proxy that loses and repeats datagrams), and the server under AddressSanitizer.
@@ -98,6 +99,19 @@ halt() {
     fi
 }
 
+# in_process PROGRAM NAME SECS ARGS...: a program of ours that runs its servers and
+# clients itself (on our library), for up to SECS seconds; its log is
+# $WORK/NAME.log, its "#" lines are shown, its checks counted.
+in_process() {
+    local prog=$1 name=$2 secs=$3 log rc=0
+    shift 3
+    log=$WORK/$name.log
+    env LD_LIBRARY_PATH="$LIBDIR" EXPECT_LIB=ours timeout -k 5 "$secs" "$BIN/$prog" "$@" >"$log" 2>&1 || rc=$?
+    libinfo_ours "$name" "$log"
+    grep '^#' "$log"
+    program_checks "$name" "$log" "$rc"
+}
+
 section "TCP, a mapping: Debian's libmodbus clients, then ours"
 serve tcp tcp port --idle 3000
 for lib in debian ours; do
@@ -151,16 +165,20 @@ else
 fi
 halt given "stopped by a signal"
 
-section "Modbus/UDP, a hand-written loop: each answer to its request's sender"
+section "the libmodbus habit: modbus_tcp_listen first, then modbus_server_new (c-tests/runner/server-setup.c)"
 # setup NAME ARGS...: server-setup (a server of ours and its client in one process).
 setup() {
-    local name=$1 log rc=0
+    local name=$1
     shift
-    log=$WORK/setup-$name.log
-    env LD_LIBRARY_PATH="$LIBDIR" EXPECT_LIB=ours timeout -k 5 60 "$BIN/server-setup" "$@" >"$log" 2>&1 || rc=$?
-    libinfo_ours "setup-$name" "$log"
-    program_checks "setup-$name" "$log" "$rc"
+    in_process server-setup "setup-$name" 60 "$@"
 }
+# The server serves on the socket the listen made (it does not bind again:
+# EADDRINUSE), TCP, TCP-PI, Modbus/UDP; and on modbus_udp_bind's.
+for how in tcp tcppi udp udpbind; do
+    setup "listen-$how" listen "$how"
+done
+
+section "Modbus/UDP, a hand-written loop: each answer to its request's sender"
 # Two peers' requests received, then answered (first, second, exception): each
 # peer gets its own answer; the socket from modbus_tcp_listen or modbus_udp_bind.
 for how in listen bind; do
@@ -210,13 +228,9 @@ section "the runner as the blocking server (c-tests/runner/runner-diag.c): count
 # runner-diag runs a blocking server (modbus_receive + modbus_reply) and a runner of
 # ours in its own threads, on pty pairs it opens (openpty) and on loopback.
 diag() {
-    local name=$1 log rc=0
+    local name=$1
     shift
-    log=$WORK/diag-$name.log
-    env LD_LIBRARY_PATH="$LIBDIR" EXPECT_LIB=ours timeout -k 5 120 "$BIN/runner-diag" "$@" >"$log" 2>&1 || rc=$?
-    libinfo_ours "diag-$name" "$log"
-    grep '^#' "$log"
-    program_checks "diag-$name" "$log" "$rc"
+    in_process runner-diag "diag-$name" 120 "$@"
 }
 # The diagnostics bus counters (0x0B, 0x0C, 0x12) of a runner: the blocking server's,
 # for the same requests, bad checksums and an overrun.

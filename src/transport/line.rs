@@ -128,13 +128,16 @@ pub struct Line {
     /// descriptor knows whether it is still the one it registered (a closed number
     /// may come back for another socket).
     generation: u32,
+    /// The socket the application's `modbus_tcp_listen` made for this line, with its
+    /// cookie ([`Line::listened`]).
+    listener: Option<(i32, u64)>,
 }
 
 impl Line {
     /// A line of these settings, not open.
     pub fn new(settings: Link, stop: Arc<Stop>) -> Line {
         let kind = if matches!(settings, Link::Rtu(_)) { Kind::Serial } else { Kind::Socket };
-        Line { settings, security: None, kind, fd: -1, held: Held::default(), stop, generation: 0 }
+        Line { settings, security: None, kind, fd: -1, held: Held::default(), stop, generation: 0, listener: None }
     }
 
     /// Makes the line one of Modbus/TCP Security (a new context's).
@@ -216,6 +219,22 @@ impl Line {
         let fd = udp::open(&self.settings, true, diag)?;
         self.install(fd, Held { datagram: Some(Box::new(Datagram::serving())), ..Held::default() });
         Ok(fd)
+    }
+
+    /// Remembers `fd` as the socket `modbus_tcp_listen` (or `modbus_tcp_pi_listen`)
+    /// made for this line, which the caller owns: a server runner made from the
+    /// context serves on it rather than binding the address again.
+    pub fn listened(&mut self, fd: i32) {
+        self.listener = Some((fd, super::socket_cookie(fd)));
+    }
+
+    /// The socket [`Line::listened`] remembers, while it is still that socket (open,
+    /// its number not reused for another: the socket's cookie tells) and, on a
+    /// stream line, listening.
+    pub fn listener(&self) -> Option<i32> {
+        let (fd, cookie) = self.listener?;
+        let same = cookie != 0 && super::socket_cookie(fd) == cookie;
+        (same && (self.kind == Kind::Datagram || super::listen::is_listening(fd))).then_some(fd)
     }
 
     /// The descriptor, -1 when none.

@@ -1,5 +1,6 @@
 //! TCP servers: `modbus_tcp_listen` / `modbus_tcp_pi_listen` open a listening socket
-//! and hand it to the caller (the context does not keep it); `modbus_tcp_accept` /
+//! and hand it to the caller (the context does not make it its socket; it remembers
+//! it for a server runner, `Line::listener`); `modbus_tcp_accept` /
 //! `modbus_tcp_pi_accept` accept one client and make it the context's socket.
 //!
 //! Unlike libmodbus 3.1.12, descriptors at or above `FD_SETSIZE` are accepted: all

@@ -112,6 +112,14 @@ fn open_pi(link: &TcpPiLink, bind: bool, diag: &mut dyn Diag) -> Result<i32> {
     Err(last)
 }
 
+/// A second descriptor of the socket `fd`, close-on-exec: a server serves on it
+/// while the application keeps (and closes) its own.
+pub fn duplicate(fd: i32) -> Result<i32> {
+    // SAFETY: plain fcntl with integer arguments.
+    let dup = unsafe { libc::fcntl(fd, libc::F_DUPFD_CLOEXEC, 0) };
+    if dup == -1 { Err(last_error()) } else { Ok(dup) }
+}
+
 /// Whether `fd` is connected to a peer (a client's socket handed over with
 /// `modbus_set_socket`), rather than bound and answering each sender.
 pub fn has_peer(fd: i32) -> bool {

@@ -10,14 +10,24 @@ use crate::transport::listen;
 
 /// Opens an IPv4 listening socket on the context's address and port, for up to
 /// `nb_connection` pending clients (on a Modbus/UDP context: a socket bound there,
-/// as `modbus_udp_bind` makes). Returns the socket; the caller owns it.
+/// as `modbus_udp_bind` makes). Returns the socket; the caller owns it. The context
+/// does not make it its socket, but remembers it: `modbus_server_new` serves on it.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| g.line.listen(false, nb_connection, g.debug, &mut g.diag())) }
+    unsafe { with_ctx(ctx, |g| listen(g, false, nb_connection)) }
+}
+
+/// `modbus_tcp_listen` (`pi`: `modbus_tcp_pi_listen`): the socket, remembered by the
+/// context for `modbus_server_new`.
+fn listen(g: &mut Guard<'_>, pi: bool, nb_connection: c_int) -> Result<c_int> {
+    let mut diag = g.diag();
+    let fd = g.line.listen(pi, nb_connection, g.debug, &mut diag)?;
+    g.line.listened(fd);
+    Ok(fd)
 }
 
 /// rsmodbus extension: binds a Modbus/UDP context (`modbus_new_udp`,
@@ -94,14 +104,15 @@ pub unsafe extern "C" fn modbus_tcp_accept(ctx: *mut Modbus, s: *mut c_int) -> c
 
 /// Opens a listening socket on the first address getaddrinfo gives for the context's
 /// node and service (IPv4 or IPv6; on a `modbus_new_udp_pi` context, a socket bound
-/// there). Returns the socket; the caller owns it.
+/// there). Returns the socket; the caller owns it. The context remembers it, as
+/// `modbus_tcp_listen` does.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_tcp_pi_listen(ctx: *mut Modbus, nb_connection: c_int) -> c_int {
     // SAFETY: forwarded caller contract.
-    unsafe { with_ctx(ctx, |g| g.line.listen(true, nb_connection, g.debug, &mut g.diag())) }
+    unsafe { with_ctx(ctx, |g| listen(g, true, nb_connection)) }
 }
 
 /// Accepts one client (IPv4 or IPv6) on the listening socket `*s`; the new socket

@@ -98,9 +98,11 @@ unsafe fn inner<'a>(s: *mut ServerRunner) -> Result<&'a mut Inner> {
 
 /// Makes a server that runs itself over `ctx` for up to `max_clients` clients at
 /// once: a TCP, TCP-PI, RTU-over-TCP or Modbus/TCP Security context (its listening
-/// socket when `modbus_set_socket` gave it one, else one the server opens on the
-/// context's address and closes with it), or a serial context (its line, opened
-/// if it is not; `max_clients` is then not used). Each client is answered as
+/// socket when `modbus_set_socket` gave it one, else the one `modbus_tcp_listen`
+/// made for it, else one the server opens on the context's address and closes
+/// with it), a Modbus/UDP context (its socket, else the one `modbus_tcp_listen`
+/// bound for it, else one bound to its address), or a serial context (its line,
+/// opened if it is not; `max_clients` is then not used for these two). Each client is answered as
 /// `modbus_reply` answers on `ctx`, with `ctx`'s settings (debug, timeouts, TLS
 /// configuration and authorization) as they are when the client connects.
 /// `ctx` must outlive the server. Returns NULL with errno EINVAL (NULL context,
