@@ -377,7 +377,7 @@ typedef struct {
 #define MODBUS_REPLY_LATER (-0x101)
 
 typedef struct {
-    size_t struct_size;      /* sizeof(modbus_server_callbacks_t): the struct may grow */
+    size_t struct_size;      /* sizeof(modbus_server_callbacks_t): the struct may grow (see man) */
     int (*accept_unit)(void *user_data, int unit_id);   /* 1 serve, 0 not */
     int (*read_bits)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
                      uint8_t *dest);
@@ -1013,7 +1013,9 @@ modbus_t *modbus_new_ascii(const char *device,
  * and a call on the same context from a callback fails with EDEADLK.
  *
  * Returns the bytes sent, 0 when nothing was sent, -1 on error (EINVAL: `req`
- * or `cb` NULL, or `cb->struct_size` too small).
+ * or `cb` NULL, or `cb->struct_size` refused: below `sizeof` the struct as first
+ * published, not at the end of a member, or larger than this library knows with a
+ * byte past what it knows not zero).
  *
  * # Safety
  * `ctx` must be NULL or a live context; `req` NULL or holding a request as

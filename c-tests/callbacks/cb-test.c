@@ -242,9 +242,12 @@ static const modbus_server_callbacks_t SPARSE = {
     .read_registers = read_registers,
 };
 
-/* An application built against an older, shorter struct: only accept_unit and
- * read_bits are known; every member past struct_size counts as NULL. */
-static modbus_server_callbacks_t OLDER;
+/* An application built against a newer, longer struct whose members this library
+ * does not know are all NULL (a zero tail): accepted, as the struct it knows. */
+static struct newer {
+    modbus_server_callbacks_t cb;
+    void *future[3];
+} NEWER;
 
 static void *server(void *arg)
 {
@@ -282,7 +285,7 @@ static void *server(void *arg)
         if (req[h - 1] == 9) {
             cb = &SPARSE;
         } else if (req[h - 1] == 8) {
-            cb = &OLDER;
+            cb = &NEWER.cb;
         }
         /* Answering later: the read at 150 waits for the read at 160, answered first. */
         if (req[h] == MODBUS_FC_READ_HOLDING_REGISTERS && req[h + 1] == 0 && req[h + 2] == 150) {
@@ -483,11 +486,10 @@ static void client(modbus_t *ctx, int tcp)
                    S.regs[2][5] == 4242,
                "RTU: the broadcast ran the write callback (every unit has 4242)");
     }
-    /* Unit 8: an older, shorter struct: read_bits known, read_registers past its size. */
+    /* Unit 8: a newer, longer struct with a zero tail, served as the one known. */
     modbus_set_slave(ctx, 8);
-    EXPECT(modbus_read_bits(ctx, 50, 2, bits) == 2, "unit 8 (struct_size up to read_bits): read_bits");
-    EXPECT(modbus_read_registers(ctx, 10, 1, regs) == -1 && errno == EMBXILFUN,
-           "unit 8: read_registers, past struct_size, counts as NULL (exception 01)");
+    EXPECT(modbus_read_bits(ctx, 50, 2, bits) == 2 && modbus_read_registers(ctx, 10, 1, regs) == 1,
+           "unit 8 (struct_size past what the library knows, zero tail): served");
 
     if (tcp) {
         /* Answering later: two requests in flight; the first is answered second. */
@@ -557,16 +559,42 @@ int main(int argc, char **argv)
         modbus_set_debug(srv, TRUE);
         modbus_set_debug(cli, TRUE);
     }
-    /* An application of an older, shorter struct. */
-    OLDER = FULL;
-    OLDER.struct_size = offsetof(modbus_server_callbacks_t, read_registers);
-    OLDER.accept_unit = NULL;
+    /* An application of a newer, longer struct (members unknown here all NULL). */
+    memset(&NEWER, 0, sizeof NEWER);
+    NEWER.cb = FULL;
+    NEWER.cb.struct_size = sizeof NEWER;
 
     EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, NULL, NULL) == -1 && errno == EINVAL,
            "modbus_reply_callbacks: NULL callbacks, EINVAL");
     bad.struct_size = 4;
     EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &bad, NULL) == -1 && errno == EINVAL,
            "modbus_reply_callbacks: a struct_size too small, EINVAL");
+    {
+        /* The struct_size rules (man page): below the first published size, not on a
+         * member's end, or past what the library knows with a member set there: EINVAL. */
+        struct newer big;
+        modbus_server_callbacks_t small = FULL;
+        small.struct_size = offsetof(modbus_server_callbacks_t, read_registers);
+        errno = 0;
+        EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &small, NULL) == -1 && errno == EINVAL,
+               "struct_size below the first published size (%d): EINVAL", (int) small.struct_size);
+        small.struct_size = sizeof(modbus_server_callbacks_t) - sizeof(void *) / 2;
+        errno = 0;
+        EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &small, NULL) == -1 && errno == EINVAL,
+               "struct_size in the middle of a member (%d): EINVAL", (int) small.struct_size);
+        memset(&big, 0, sizeof big);
+        big.cb = FULL;
+        big.cb.struct_size = sizeof big;
+        big.future[1] = (void *) &big;
+        errno = 0;
+        EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &big.cb, NULL) == -1 &&
+                   errno == EINVAL,
+               "struct_size larger than the library knows, a member it does not know set: EINVAL (%s)",
+               modbus_strerror(errno));
+        errno = 0;
+        EXPECT(modbus_server_set_callbacks(NULL, &NEWER.cb, NULL) == -1 && errno == EINVAL,
+               "modbus_server_set_callbacks: NULL server, EINVAL");
+    }
     EXPECT(modbus_receive_callbacks(srv, NULL, &FULL, NULL) == -1 && errno == EINVAL,
            "modbus_receive_callbacks: NULL request buffer, EINVAL");
 

@@ -95,6 +95,43 @@ pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Resul
     status(unsafe { handle::call(ctx, f) })
 }
 
+/// The `struct_size` rules of every versioned struct the application passes in
+/// (`modbus_server_callbacks_t`, and any struct that starts with a `size_t
+/// struct_size`), the rule of Linux's `copy_struct_from_user`: `size` must be at
+/// least `first` (the struct's first published size) and, up to what this library
+/// knows, end where a member ends (`ends`: each member's end offset, in order, the
+/// struct's `size_of` last, so that its trailing padding counts); past what this
+/// library knows (the last of `ends`), every byte must be zero: a member set that
+/// this library does not know is refused rather than ignored. Returns how many
+/// bytes to copy (at most the struct as this library knows it), or EINVAL.
+///
+/// # Safety
+/// `p` must be valid for `size` bytes.
+pub unsafe fn struct_size_ok(p: *const u8, size: usize, first: usize, ends: &[usize]) -> Result<usize> {
+    let known = ends.last().copied().unwrap_or(0);
+    if size < first {
+        return Err(Error::INVALID);
+    }
+    if size <= known {
+        return if ends.contains(&size) { Ok(size) } else { Err(Error::INVALID) };
+    }
+    // SAFETY: the caller's `size` readable bytes, of which `known` come first.
+    let tail = unsafe { std::slice::from_raw_parts(p.add(known), size - known) };
+    if tail.iter().any(|&b| b != 0) { Err(Error::INVALID) } else { Ok(known) }
+}
+
+/// The end offsets of the members of a `#[repr(C)]` struct, in order, then its
+/// size: what [`struct_size_ok`] takes.
+#[macro_export]
+macro_rules! member_ends {
+    ($t:ty: $($field:ident),+ $(,)?) => {{
+        const fn end_of<F>(offset: usize, _: fn(&$t) -> &F) -> usize {
+            offset + ::std::mem::size_of::<F>()
+        }
+        [$(end_of(::std::mem::offset_of!($t, $field), |s: &$t| &s.$field),)+ ::std::mem::size_of::<$t>()]
+    }};
+}
+
 /// A C string argument that may be NULL.
 ///
 /// # Safety
@@ -102,4 +139,44 @@ pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Resul
 pub unsafe fn opt_cstr<'a>(p: *const c_char) -> Option<&'a CStr> {
     // SAFETY: guaranteed by the caller.
     (!p.is_null()).then(|| unsafe { CStr::from_ptr(p) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A struct of 4 (size), 4, 8 (padding before it), 2 bytes: ends 8, 12, 24, 26,
+    /// size 32.
+    #[repr(C)]
+    struct V {
+        size: usize,
+        a: u32,
+        b: u64,
+        c: u16,
+    }
+
+    fn ok(bytes: &[u8], first: usize) -> Result<usize> {
+        let ends = crate::member_ends!(V: size, a, b, c);
+        assert_eq!(ends, [8, 12, 24, 26, 32]);
+        // SAFETY: `bytes` holds its length.
+        unsafe { struct_size_ok(bytes.as_ptr(), bytes.len(), first, &ends) }
+    }
+
+    #[test]
+    fn struct_size_rules() {
+        let buf = [0u8; 64];
+        assert_eq!(ok(&buf[..7], 12), Err(Error::INVALID), "below the first published size");
+        assert_eq!(ok(&buf[..8], 12), Err(Error::INVALID), "below the first published size");
+        assert_eq!(ok(&buf[..12], 12), Ok(12), "the first published size");
+        assert_eq!(ok(&buf[..16], 12), Err(Error::INVALID), "inside member b");
+        assert_eq!(ok(&buf[..24], 12), Ok(24), "up to b");
+        assert_eq!(ok(&buf[..26], 12), Ok(26), "up to c");
+        assert_eq!(ok(&buf[..32], 12), Ok(32), "the whole struct, padding too");
+        assert_eq!(ok(&buf[..40], 12), Ok(32), "larger, zero tail: what is known");
+        assert_eq!(ok(&buf[..33], 12), Ok(32), "larger by a byte, zero");
+        let mut tail = buf;
+        tail[39] = 1;
+        assert_eq!(ok(&tail[..40], 12), Err(Error::INVALID), "larger, a member this library does not know");
+        assert_eq!(ok(&tail[..39], 12), Ok(32), "the set byte is past the size");
+    }
 }

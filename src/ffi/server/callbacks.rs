@@ -8,7 +8,7 @@ use std::ffi::{c_char, c_int, c_void};
 use std::{mem, ptr, slice};
 
 use crate::error::Error;
-use crate::ffi::{Modbus, fail, with_ctx};
+use crate::ffi::{Modbus, fail, struct_size_ok, with_ctx};
 use crate::proto::error::exception;
 use crate::proto::reply::{Data, Refusal, Request, request_extent};
 
@@ -74,7 +74,7 @@ pub type OtherFn = unsafe extern "C" fn(
 ) -> c_int;
 
 /// The application's callbacks (`modbus_server_callbacks_t`). `struct_size` says
-/// how much of it the application knows: members past it count as NULL.
+/// how much of it the application knows, under the rules of `struct_size_ok`.
 #[repr(C)]
 #[derive(Clone, Copy)]
 #[allow(non_camel_case_types)]
@@ -90,6 +90,10 @@ pub struct modbus_server_callbacks_t {
     /// other callbacks and the reply's checks are not used. As `other` returns.
     pub raw: Option<OtherFn>,
 }
+
+/// The first published size of `modbus_server_callbacks_t` (every member up to
+/// `raw`): a smaller `struct_size` is refused.
+const FIRST_SIZE: usize = size_of::<modbus_server_callbacks_t>();
 
 /// `MODBUS_REPLY_NONE`: a callback's "send no answer at all".
 pub const REPLY_NONE: c_int = -0x100;
@@ -112,25 +116,28 @@ pub(crate) struct Callbacks {
 }
 
 impl Callbacks {
-    /// Copies the part of `*cb` the application declared; `None` when `cb` is NULL
-    /// or `struct_size` does not even cover itself.
+    /// Copies `*cb` as the application declared it (see [`struct_size_ok`]): EINVAL
+    /// when `cb` is NULL, its `struct_size` below the first published size or not at
+    /// a member's end, or larger than this library knows with a member set there.
     ///
     /// # Safety
-    /// `cb` must be NULL or valid for `cb->struct_size` bytes (at most the size of
-    /// the struct as this library knows it is read).
-    pub(crate) unsafe fn new(cb: *const modbus_server_callbacks_t, user_data: *mut c_void) -> Option<Callbacks> {
+    /// `cb` must be NULL or valid for `cb->struct_size` bytes.
+    pub(crate) unsafe fn new(
+        cb: *const modbus_server_callbacks_t,
+        user_data: *mut c_void,
+    ) -> crate::error::Result<Callbacks> {
         // SAFETY: the caller's pointer, NULL or valid for its struct_size bytes.
-        let size = unsafe { cb.as_ref() }.map(|c| c.struct_size)?;
-        if size < size_of::<usize>() {
-            return None;
-        }
+        let size = unsafe { cb.as_ref() }.map(|c| c.struct_size).ok_or(Error::INVALID)?;
+        let ends = crate::member_ends!(modbus_server_callbacks_t: struct_size, accept_unit, read_bits,
+            read_registers, write_bits, write_registers, other, raw);
+        // SAFETY: `cb` is valid for `size` bytes (the caller's contract).
+        let n = unsafe { struct_size_ok(cb.cast(), size, FIRST_SIZE, &ends) }?;
         // SAFETY: all-zero is a valid value (a size and NULL function pointers).
         let mut copy: modbus_server_callbacks_t = unsafe { mem::zeroed() };
-        let n = size.min(size_of::<modbus_server_callbacks_t>());
         // SAFETY: `n` bytes are readable at `cb` (its struct_size) and fit in `copy`;
         // every bit pattern read is a valid size or a nullable function pointer.
         unsafe { ptr::copy_nonoverlapping(cb.cast::<u8>(), (&raw mut copy).cast::<u8>(), n) };
-        Some(Callbacks { cb: copy, user_data, socket: -1, role: ptr::null(), request_id: 0, deferred: false })
+        Ok(Callbacks { cb: copy, user_data, socket: -1, role: ptr::null(), request_id: 0, deferred: false })
     }
 
     /// The request comes from the client of `g` (its socket, its TLS role).
@@ -277,7 +284,9 @@ impl Data for Callbacks {
 /// and a call on the same context from a callback fails with EDEADLK.
 ///
 /// Returns the bytes sent, 0 when nothing was sent, -1 on error (EINVAL: `req`
-/// or `cb` NULL, or `cb->struct_size` too small).
+/// or `cb` NULL, or `cb->struct_size` refused: below `sizeof` the struct as first
+/// published, not at the end of a member, or larger than this library knows with a
+/// byte past what it knows not zero).
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context; `req` NULL or holding a request as
@@ -293,7 +302,10 @@ pub unsafe extern "C" fn modbus_reply_callbacks(
     user_data: *mut c_void,
 ) -> c_int {
     // SAFETY: forwarded caller contract.
-    let Some(mut data) = (unsafe { Callbacks::new(cb, user_data) }) else { return fail(Error::INVALID) };
+    let mut data = match unsafe { Callbacks::new(cb, user_data) } {
+        Ok(data) => data,
+        Err(e) => return fail(e),
+    };
     if req.is_null() {
         return fail(Error::INVALID);
     }
@@ -337,7 +349,10 @@ pub unsafe extern "C" fn modbus_receive_callbacks(
     user_data: *mut c_void,
 ) -> c_int {
     // SAFETY: forwarded caller contract.
-    let Some(mut data) = (unsafe { Callbacks::new(cb, user_data) }) else { return fail(Error::INVALID) };
+    let mut data = match unsafe { Callbacks::new(cb, user_data) } {
+        Ok(data) => data,
+        Err(e) => return fail(e),
+    };
     if req.is_null() {
         return fail(Error::INVALID);
     }

@@ -157,7 +157,10 @@ pub unsafe extern "C" fn modbus_server_set_callbacks(
         Err(e) => return fail(e),
     };
     // SAFETY: forwarded caller contract.
-    let Some(callbacks) = (unsafe { Callbacks::new(cb, user_data) }) else { return fail(Error::INVALID) };
+    let callbacks = match unsafe { Callbacks::new(cb, user_data) } {
+        Ok(c) => c,
+        Err(e) => return fail(e),
+    };
     inner.source = Source::Callbacks(callbacks);
     0
 }
