@@ -1,8 +1,8 @@
 /*
- * reply-cost.c: what modbus_reply_callbacks costs against modbus_reply on the same
+ * reply-cost.c: what modbus_reply_dispatch costs against modbus_reply on the same
  * mapping (scripts/bench.sh --callbacks). One server context answers prepared
  * requests onto one end of an AF_UNIX socket pair (drained between slices), in
- * slices of SLICE replies; in every cycle modbus_reply (A) and modbus_reply_callbacks
+ * slices of SLICE replies; in every cycle modbus_reply (A) and modbus_reply_dispatch
  * over a callback set serving the same mapping (B, c-tests/common/mapping-callbacks.h)
  * take one slice each, in a random order. The figure is the thread CPU time per
  * reply; B/A is the median of the per-cycle ratios with its 95% confidence interval
@@ -52,7 +52,7 @@ static double slice(modbus_t *ctx, int sink, const uint8_t *req, int len, modbus
 {
     double t0 = cpu_ns();
     for (int i = 0; i < SLICE; i++) {
-        int rc = callbacks ? modbus_reply_callbacks(ctx, req, len, &MAPPING_CALLBACKS, map)
+        int rc = callbacks ? modbus_reply_dispatch(ctx, req, len, &MAPPING_CALLBACKS, map)
                            : modbus_reply(ctx, req, len, map);
         if (rc <= 0) {
             fprintf(stderr, "reply: %d %s\n", rc, modbus_strerror(errno));
@@ -88,7 +88,7 @@ int main(int argc, char **argv)
     setsockopt(sv[1], SOL_SOCKET, SO_RCVBUF, &size, sizeof size);
     modbus_set_socket(ctx, sv[0]);
     srand(1);
-    printf("| case | modbus_reply (ns CPU/reply) | modbus_reply_callbacks | B/A (95%% CI) |\n|---|---:|---:|---|\n");
+    printf("| case | modbus_reply (ns CPU/reply) | modbus_reply_dispatch | B/A (95%% CI) |\n|---|---:|---:|---|\n");
     for (int c = 0; c < 4; c++) {
         uint8_t req[300] = {0x00, 0x01, 0x00, 0x00, 0x00, 0x00, 0x01};
         int len = 7 + cases[c].n;

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# benches/reply-cost.sh: modbus_reply_callbacks against modbus_reply on the same
+# benches/reply-cost.sh: modbus_reply_dispatch against modbus_reply on the same
 # mapping (benches/reply-cost.c), on the library the packages ship (the
 # profile-guided build, target/pgo/release, when it is there and current (run
 # scripts/build-pgo.sh first); else target/release). scripts/bench.sh --callbacks. About 20 s.
@@ -9,7 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 LIB=target/release
 if [ "${BENCH_PGO:-1}" = 1 ] && [ -e target/pgo/release/libmodbus.so ] &&
-    nm -D target/pgo/release/libmodbus.so | grep -q ' T modbus_reply_callbacks$'; then
+    nm -D target/pgo/release/libmodbus.so | grep -q ' T modbus_reply_dispatch$'; then
     LIB=target/pgo/release
 else
     cargo build --release --quiet

@@ -1,5 +1,5 @@
 /* A Modbus RTU server that answers three unit ids on one serial line, each with its
- * own data, through callbacks (modbus_reply_callbacks): the values are the
+ * own data, through callbacks (modbus_reply_dispatch): the values are the
  * application's own variables, computed when a master asks for them.
  *
  * Usage: server-callbacks DEVICE [BAUD [PARITY [MAX_REQUESTS]]]
@@ -43,8 +43,9 @@ static struct unit *find(struct server *s, int id)
     return NULL;
 }
 
-static int accept_unit(void *user_data, int unit_id)
+static int accept_unit(const modbus_request_info_t *ri, int unit_id, void *user_data)
 {
+    (void) ri;
     return find(user_data, unit_id) != NULL;
 }
 
@@ -58,22 +59,22 @@ static struct unit *target(struct server *s, const modbus_request_info_t *ri, in
     return u != NULL ? u : &s->units[0];
 }
 
-static int read_bits(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest)
+static int read_bits(const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest, void *user_data)
 {
     struct unit *u = target(user_data, ri, addr, nb);
     if (u == NULL)
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     for (int i = 0; i < nb; i++)
         dest[i] = ri->function == MODBUS_FC_READ_DISCRETE_INPUTS ? (uint8_t)((addr + i) % 2) : u->coils[addr + i];
     return 0;
 }
 
-static int read_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest)
+static int read_registers(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest, void *user_data)
 {
     struct server *s = user_data;
     struct unit *u = target(s, ri, addr, nb);
     if (u == NULL)
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     for (int i = 0; i < nb; i++) {
         int a = addr + i;
         if (ri->function != MODBUS_FC_READ_INPUT_REGISTERS)
@@ -88,20 +89,20 @@ static int read_registers(void *user_data, const modbus_request_info_t *ri, int 
     return 0;
 }
 
-static int write_bits(void *user_data, const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src)
+static int write_bits(const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src, void *user_data)
 {
     struct unit *u = target(user_data, ri, addr, nb);
     if (u == NULL)
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     memcpy(u->coils + addr, src, (size_t)nb);
     return 0;
 }
 
-static int write_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src)
+static int write_registers(const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src, void *user_data)
 {
     struct unit *u = target(user_data, ri, addr, nb);
     if (u == NULL)
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     memcpy(u->registers + addr, src, (size_t)nb * sizeof(uint16_t));
     return 0;
 }
@@ -144,10 +145,10 @@ int main(int argc, char *argv[])
 
     while (max_requests == 0 || served < max_requests) {
         /* Takes the requests for every unit accept_unit serves (0 for the others). */
-        int rc = modbus_receive_callbacks(ctx, query, &cb, &s);
+        int rc = modbus_receive_dispatch(ctx, query, &cb, &s);
         if (rc > 0) {
             struct unit *u = find(&s, query[0]);
-            if (modbus_reply_callbacks(ctx, query, rc, &cb, &s) == -1)
+            if (modbus_reply_dispatch(ctx, query, rc, &cb, &s) == -1)
                 fprintf(stderr, "reply failed: %s\n", modbus_strerror(errno));
             if (u != NULL)
                 u->requests++;

@@ -66,22 +66,22 @@ static int in_range(int addr, int nb)
     return addr >= 0 && addr + nb <= NB;
 }
 
-static int read_bits(void *ud, const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest)
+static int read_bits(const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest, void *ud)
 {
     (void)ud;
     (void)ri;
     if (!in_range(addr, nb))
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     memcpy(dest, data.coils + addr, (size_t)nb);
     data.answered++;
     return 0;
 }
 
-static int read_registers(void *ud, const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest)
+static int read_registers(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest, void *ud)
 {
     (void)ud;
     if (!in_range(addr, nb))
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     if (ri->function == MODBUS_FC_READ_INPUT_REGISTERS) {
         uint16_t live[NB] = {0};
         live[0] = (uint16_t)(time(NULL) - data.started);
@@ -94,23 +94,23 @@ static int read_registers(void *ud, const modbus_request_info_t *ri, int addr, i
     return 0;
 }
 
-static int write_bits(void *ud, const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src)
+static int write_bits(const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src, void *ud)
 {
     (void)ud;
     (void)ri;
     if (!in_range(addr, nb))
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     memcpy(data.coils + addr, src, (size_t)nb);
     data.answered++;
     return 0;
 }
 
-static int write_registers(void *ud, const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src)
+static int write_registers(const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src, void *ud)
 {
     (void)ud;
     (void)ri;
     if (!in_range(addr, nb))
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     memcpy(data.registers + addr, src, (size_t)nb * 2);
     data.answered++;
     return 0;

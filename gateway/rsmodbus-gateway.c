@@ -46,17 +46,17 @@
 
 struct request {
     modbus_server_t *server; /* the front it came through */
-    uint32_t id;   /* that server's, for modbus_server_answer */
+    int id;        /* that server's, for modbus_server_answer */
     int len;       /* of raw: unit (as sent on the line) + PDU */
     uint8_t raw[MODBUS_MAX_PDU_LENGTH + 1];
     int tries;     /* sends so far */
 };
 
 struct master {
-    int socket;
+    uint64_t conn; /* its connection (modbus_request_info_t's connection_id) */
     struct request q[QUEUE_MAX];
     int head, n;
-    long requests, busy; /* requests taken, refused as busy (since its socket came) */
+    long requests, busy; /* requests taken, refused as busy (since its connection came) */
 };
 
 /* A line: a serial one, or a device on the network; its own masters' queues. */
@@ -66,8 +66,8 @@ struct line {
     char device[256], mode[16], host[256], port[16];
     int speed;
     modbus_t *ctx;
-    int header;   /* its answers' header: 1 (serial, RTU over TCP) or 7 (TCP) */
-    int checksum; /* and checksum: 2 (RTU), 1 (ASCII), 0 (TCP) */
+    int header;   /* its answers' header (modbus_get_header_length) */
+    int checksum; /* and checksum (modbus_get_checksum_length) */
     int ascii;
     struct master *masters;
     int nmasters, cap;
@@ -475,19 +475,19 @@ static double now_ms(void)
     return (double) ts.tv_sec * 1e3 + (double) ts.tv_nsec / 1e6;
 }
 
-static struct master *master_of(struct line *L, int socket)
+static struct master *master_of(struct line *L, uint64_t conn)
 {
     int i;
     for (i = 0; i < L->nmasters; i++) {
-        if (L->masters[i].socket == socket) {
+        if (L->masters[i].conn == conn) {
             return &L->masters[i];
         }
     }
-    /* A slot of a master with nothing queued is reused (its socket may be closed),
+    /* A slot of a master with nothing queued is reused (its connection may be gone),
      * but not that of the request on the line (a retry goes back there). */
     for (i = 0; i < L->nmasters; i++) {
         if (L->masters[i].n == 0 && !(L->busy && i == L->turn)) {
-            L->masters[i].socket = socket;
+            L->masters[i].conn = conn;
             L->masters[i].head = 0;
             L->masters[i].requests = L->masters[i].busy = 0;
             return &L->masters[i];
@@ -503,7 +503,7 @@ static struct master *master_of(struct line *L, int socket)
         L->cap = cap;
     }
     memset(&L->masters[L->nmasters], 0, sizeof L->masters[0]);
-    L->masters[L->nmasters].socket = socket;
+    L->masters[L->nmasters].conn = conn;
     return &L->masters[L->nmasters++];
 }
 
@@ -525,8 +525,7 @@ static struct line *route(int unit, int *there)
 }
 
 /* The server's raw callback: every request of every master, queued for its line. */
-static int on_request(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length,
-                      uint8_t *rsp_pdu, int rsp_max)
+static int on_request(const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length, uint8_t *rsp_pdu, int rsp_max, void *user_data)
 {
     int there;
     struct line *L = route(ri->unit_id, &there);
@@ -536,17 +535,19 @@ static int on_request(void *user_data, const modbus_request_info_t *ri, const ui
     (void) rsp_max;
     if (L == NULL) {
         logw(3, "unit %d: no route (exception 0x0A)", ri->unit_id);
-        return -MODBUS_EXCEPTION_GATEWAY_PATH;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_GATEWAY_PATH);
     }
-    /* (A socket number names one master across the fronts: one process.) */
-    m = master_of(L, ri->socket);
+    /* A connection id names one master across the fronts (unique in the process;
+     * each UDP master has its own). */
+    m = master_of(L, ri->connection_id);
     if (m == NULL || m->n == QUEUE_MAX) {
-        logw(1, "master on socket %d: queue full, request 0x%02X refused (busy)", ri->socket, ri->function);
+        logw(1, "master %llu: queue full, request 0x%02X refused (busy)", (unsigned long long) ri->connection_id,
+             ri->function);
         if (m != NULL) {
             m->busy++;
         }
         L->exceptions++;
-        return -MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY);
     }
     m->requests++;
     L->requests++;
@@ -558,15 +559,16 @@ static int on_request(void *user_data, const modbus_request_info_t *ri, const ui
     r->len = pdu_length + 1;
     r->tries = 0;
     m->n++;
-    logw(5, "master on socket %d: request 0x%02X for unit %d queued on line %s (%d waiting)", ri->socket,
-         ri->function, ri->unit_id, L->name, m->n);
+    logw(5, "master %llu: request 0x%02X for unit %d queued on line %s (%d waiting)",
+         (unsigned long long) ri->connection_id, ri->function, ri->unit_id, L->name, m->n);
     return MODBUS_REPLY_LATER;
 }
 
 static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data);
 
-static int every_unit(void *user_data, int unit)
+static int every_unit(const modbus_request_info_t *ri, int unit, void *user_data)
 {
+    (void) ri;
     (void) user_data;
     (void) unit;
     return 1;
@@ -598,7 +600,7 @@ static void dispatch(struct line *L)
     if (modbus_send_raw_request_async(L->ctx, L->current.raw, L->current.len, L->rsp, on_answer, L) < 0) {
         logw(0, "line %s: cannot send (%s)", L->name, modbus_strerror(errno));
         L->busy = 0;
-        modbus_server_answer(L->current.server, L->current.id, NULL, -MODBUS_EXCEPTION_GATEWAY_TARGET);
+        modbus_server_answer_exception(L->current.server, L->current.id, MODBUS_EXCEPTION_GATEWAY_TARGET);
     }
 }
 
@@ -646,9 +648,9 @@ static void on_answer(modbus_t *ctx, int id, int rc, int error, void *user_data)
     logw(1, "line %s: unit %d, request 0x%02X: %s after %d tries", L->name, r->raw[0], r->raw[1],
          modbus_strerror(error), r->tries);
     L->exceptions++;
-    modbus_server_answer(r->server, r->id, NULL,
-                         error == EMBBADCRC || error == EMBBADDATA ? -MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
-                                                                   : -MODBUS_EXCEPTION_GATEWAY_TARGET);
+    modbus_server_answer_exception(r->server, r->id,
+                                   error == EMBBADCRC || error == EMBBADDATA ? MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
+                                                                             : MODBUS_EXCEPTION_GATEWAY_TARGET);
 }
 
 /* "8N1", "7E1a": data bits, parity, stop bits, ASCII. */
@@ -675,20 +677,15 @@ static int open_line(struct line *L)
 {
     int data, stop;
     char parity;
-    L->header = 1;
     if (strcmp(L->kind, "tcp") == 0) {
         L->ctx = modbus_new_tcp_pi(L->host, L->port);
-        L->header = 7;
-        L->checksum = 0;
     } else if (strcmp(L->kind, "rtutcp") == 0) {
         L->ctx = modbus_new_rtu_tcp_pi(L->host, L->port);
-        L->checksum = 2;
     } else {
         if (parse_mode(L->mode, &data, &parity, &stop, &L->ascii) != 0) {
             logw(0, "line %s: serial mode '%s' is not like 8N1 (or 7E1a for ASCII)", L->name, L->mode);
             return -1;
         }
-        L->checksum = L->ascii ? 1 : 2;
         /* A character: a start bit, the data bits, the parity bit, the stop bits. */
         L->gap_ms = 3.5 * (1 + data + (parity != 'N') + stop) * 1000.0 / L->speed;
         L->ctx = L->ascii ? modbus_new_ascii(L->device, L->speed, parity, data, stop)
@@ -698,6 +695,9 @@ static int open_line(struct line *L)
         logw(0, "line %s: %s", L->name, modbus_strerror(errno));
         return -1;
     }
+    /* What frames an answer's PDU: the header before it, the checksum after it. */
+    L->header = modbus_get_header_length(L->ctx);
+    L->checksum = modbus_get_checksum_length(L->ctx);
     modbus_set_response_timeout(L->ctx, (uint32_t) cfg.wait / 1000, (uint32_t) (cfg.wait % 1000) * 1000);
     /* Levels 8 and 9 trace the line's frames (libmodbus' debug output). */
     modbus_set_debug(L->ctx, cfg.loglevel >= 8);
@@ -769,12 +769,12 @@ static void write_status(void)
         for (i = 0; i < L->nmasters; i++) {
             struct master *m = &L->masters[i];
             if (m->requests > 0 || m->n > 0) {
-                fprintf(f, "rsmodbus_gateway_master_requests_total{line=\"%s\",socket=\"%d\"} %ld\n", L->name,
-                        m->socket, m->requests);
-                fprintf(f, "rsmodbus_gateway_master_busy_total{line=\"%s\",socket=\"%d\"} %ld\n", L->name,
-                        m->socket, m->busy);
-                fprintf(f, "rsmodbus_gateway_master_queue_depth{line=\"%s\",socket=\"%d\"} %d\n", L->name,
-                        m->socket, m->n);
+                fprintf(f, "rsmodbus_gateway_master_requests_total{line=\"%s\",master=\"%llu\"} %ld\n", L->name,
+                        (unsigned long long) m->conn, m->requests);
+                fprintf(f, "rsmodbus_gateway_master_busy_total{line=\"%s\",master=\"%llu\"} %ld\n", L->name,
+                        (unsigned long long) m->conn, m->busy);
+                fprintf(f, "rsmodbus_gateway_master_queue_depth{line=\"%s\",master=\"%llu\"} %d\n", L->name,
+                        (unsigned long long) m->conn, m->n);
             }
         }
     }

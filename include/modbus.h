@@ -359,40 +359,54 @@ typedef void (*modbus_callback_t)(modbus_t *ctx, int request_id, int rc, int err
 /* Many contexts behind one descriptor (modbus_multi_new(3)). */
 typedef struct _modbus_multi modbus_multi_t;
 
-/* A server whose data is the application's code (modbus_reply_callbacks(3)). */
-typedef struct {
+/* A server whose data is the application's code (modbus_reply_dispatch(3)).
+ * What a callback learns of the request it serves: filled by the library and valid
+ * only during the callback's call (copy what you need: tls_role, peer and pdu point
+ * into the library). struct_size is the size the library filled: check
+ * `ri->struct_size > offsetof(modbus_request_info_t, member)` before reading a member
+ * newer than the library may be. */
+struct sockaddr;
+typedef struct _modbus_request_info {
+    size_t struct_size;      /* the size of what the library filled */
     int unit_id;
     int function;
     int transaction_id;      /* of the request; 0 on a serial line */
     int socket;              /* the context's descriptor (the client's socket on TCP) */
     const char *tls_role;    /* the client's role; NULL on plain TCP and serial lines */
-    uint32_t request_id;     /* modbus_server_new(3)'s id, for modbus_server_answer(); else 0 */
+    int request_id;          /* modbus_server_new(3)'s id, for modbus_server_answer(); else 0 */
+    uint64_t connection_id;  /* the client's connection, never reused; 0 on a serial line */
+    const struct sockaddr *peer; /* the TCP client's / UDP sender's address; NULL on serial */
+    uint32_t peer_length;
+    const uint8_t *pdu;      /* the request's PDU, function code first */
+    int pdu_length;
 } modbus_request_info_t;
 
-/* Each data callback returns 0, a MODBUS_EXCEPTION_* code (sent as the exception
- * answer) or MODBUS_REPLY_NONE (no answer at all). */
+/* Each data callback returns 0 (done), MODBUS_REPLY_EXCEPTION(code) (sent as the
+ * exception answer), MODBUS_REPLY_NONE (no answer at all) or, in a server that runs
+ * itself, MODBUS_REPLY_LATER (the answer comes with modbus_server_answer() and its
+ * typed siblings). A positive value is answered with exception 4 (a programming
+ * error). `other` and `raw` return the answer's PDU length or the same codes. */
+#define MODBUS_REPLY_EXCEPTION(code) (-(code))
 #define MODBUS_REPLY_NONE (-0x100)
-/* ... or, in a server that runs itself, MODBUS_REPLY_LATER: the answer comes with
- * modbus_server_answer(). */
 #define MODBUS_REPLY_LATER (-0x101)
 
-typedef struct {
+typedef struct _modbus_server_callbacks {
     size_t struct_size;      /* sizeof(modbus_server_callbacks_t): the struct may grow (see man) */
-    int (*accept_unit)(void *user_data, int unit_id);   /* 1 serve, 0 not */
-    int (*read_bits)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
-                     uint8_t *dest);
-    int (*read_registers)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
-                          uint16_t *dest);
-    int (*write_bits)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
-                      const uint8_t *src);
-    int (*write_registers)(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
-                           const uint16_t *src);
-    /* any other function code: the answer's PDU length, -exception or MODBUS_REPLY_NONE */
-    int (*other)(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu,
-                 int pdu_length, uint8_t *rsp_pdu, int rsp_max);
+    int (*accept_unit)(const modbus_request_info_t *ri, int unit_id, void *user_data); /* 1 serve, 0 not */
+    int (*read_bits)(const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest, void *user_data);
+    int (*read_registers)(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest,
+                          void *user_data);
+    int (*write_bits)(const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src,
+                      void *user_data);
+    int (*write_registers)(const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src,
+                           void *user_data);
+    /* any other function code: the answer's PDU length, MODBUS_REPLY_EXCEPTION(code),
+     * MODBUS_REPLY_NONE or MODBUS_REPLY_LATER */
+    int (*other)(const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length,
+                 uint8_t *rsp_pdu, int rsp_max, void *user_data);
     /* every request as it came, in place of all of the above (a gateway's); as other */
-    int (*raw)(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu,
-               int pdu_length, uint8_t *rsp_pdu, int rsp_max);
+    int (*raw)(const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length,
+               uint8_t *rsp_pdu, int rsp_max, void *user_data);
 } modbus_server_callbacks_t;
 
 /* A server that runs itself: every client from one thread (modbus_server_new(3)). */
@@ -408,6 +422,19 @@ typedef struct _modbus_server modbus_server_t;
  * `ctx` must be NULL or a live context.
  */
 MODBUS_API int modbus_get_error_recovery(modbus_t *ctx);
+
+/**
+ * rsmodbus extension: the length of the checksum that ends the messages this
+ * library hands over and takes (`modbus_receive`, `modbus_receive_confirmation`,
+ * the raw calls): 2 for RTU (and RTU over TCP), 1 for ASCII (its LRC, the frame
+ * decoded), 0 for TCP, UDP and Modbus/TCP Security. With
+ * `modbus_get_header_length`, what to cut off a message to get its PDU. -1 with
+ * EINVAL when `ctx` is NULL.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_get_checksum_length(modbus_t *ctx);
 
 /**
  * Reads `nb` coils (FC 01) into `dest` (one byte per coil), without waiting: returns
@@ -994,22 +1021,25 @@ modbus_t *modbus_new_ascii(const char *device,
  * 0 or 1). FC 16 (mask write) reads then writes one register; FC 17 writes then
  * reads. A broadcast on a serial line runs the write callbacks and sends nothing.
  *
- * Each data callback returns 0, a `MODBUS_EXCEPTION_*` code (sent as the
- * exception answer), or `MODBUS_REPLY_NONE` (no answer at all); any other value is
- * answered with exception 04. A NULL data callback answers its function codes with
- * exception 01. `other` gets every function code the reply does not serve from
- * data (report slave id, read exception status, unknown codes; the codes a
- * context is configured to serve with `modbus_enable_diagnostics` and its
- * siblings keep their own handlers): it writes the response PDU, function code
+ * Each data callback returns 0 (done), `MODBUS_REPLY_EXCEPTION(code)` (the
+ * exception answer), `MODBUS_REPLY_NONE` (no answer at all) or, in a server that
+ * runs itself, `MODBUS_REPLY_LATER`; any other value (a positive one: an exception
+ * code without `MODBUS_REPLY_EXCEPTION`) is a programming error, answered with
+ * exception 04 and a debug line naming the callback. A NULL data callback answers
+ * its function codes with exception 01. `other` gets every function code the reply
+ * does not serve from data (report slave id, read exception status, unknown codes;
+ * the codes a context is configured to serve with `modbus_enable_diagnostics` and
+ * its siblings keep their own handlers): it writes the response PDU, function code
  * first, to `rsp_pdu` (at most `rsp_max` bytes) and returns its length, or returns
- * -code for an exception, or `MODBUS_REPLY_NONE`; when NULL, those codes get
- * `modbus_reply`'s answers. `accept_unit` (NULL: every unit) says whether a unit
- * is served: one that is not gets no answer on a serial line and exception 0B
- * (gateway target device failed to respond) on TCP.
+ * `MODBUS_REPLY_EXCEPTION(code)`, `MODBUS_REPLY_NONE` or `MODBUS_REPLY_LATER`;
+ * when NULL, those codes get `modbus_reply`'s answers. `accept_unit` (NULL: every
+ * unit) says whether a unit is served: one that is not gets no answer on a serial
+ * line and exception 0B (gateway target device failed to respond) on TCP. Every
+ * callback gets the request's `modbus_request_info_t`, valid during its call only.
  *
  * The callbacks run on the calling thread, with the context locked: they must
  * not block (an answer that needs time is sent later, with `modbus_reply`,
- * `modbus_reply_callbacks` or `modbus_reply_exception` on the stored request),
+ * `modbus_reply_dispatch` or `modbus_reply_exception` on the stored request),
  * and a call on the same context from a callback fails with EDEADLK.
  *
  * Returns the bytes sent, 0 when nothing was sent, -1 on error (EINVAL: `req`
@@ -1024,11 +1054,11 @@ modbus_t *modbus_new_ascii(const char *device,
  * declared.
  */
 MODBUS_API
-int modbus_reply_callbacks(modbus_t *ctx,
-                           const uint8_t *req,
-                           int req_length,
-                           const modbus_server_callbacks_t *cb,
-                           void *user_data);
+int modbus_reply_dispatch(modbus_t *ctx,
+                          const uint8_t *req,
+                          int req_length,
+                          const modbus_server_callbacks_t *cb,
+                          void *user_data);
 
 /**
  * `modbus_receive` for a server that answers through callbacks. Requests are framed
@@ -1046,10 +1076,10 @@ int modbus_reply_callbacks(modbus_t *ctx,
  * As `modbus_receive`; `cb` NULL or valid for `cb->struct_size` bytes.
  */
 MODBUS_API
-int modbus_receive_callbacks(modbus_t *ctx,
-                             uint8_t *req,
-                             const modbus_server_callbacks_t *cb,
-                             void *user_data);
+int modbus_receive_dispatch(modbus_t *ctx,
+                            uint8_t *req,
+                            const modbus_server_callbacks_t *cb,
+                            void *user_data);
 
 /**
  * rsmodbus extension (server): turns the serial-line diagnostics of this server
@@ -1240,7 +1270,7 @@ MODBUS_API modbus_server_t *modbus_server_new(modbus_t *ctx, int max_clients);
 
 /**
  * Answers the requests through the callbacks `cb` (copied; see
- * `modbus_reply_callbacks`), with `user_data`, in place of a mapping. With
+ * `modbus_reply_dispatch`), with `user_data`, in place of a mapping. With
  * `accept_unit` set, a serial server answers the units it accepts (broadcasts
  * too), whatever the context's slave.
  *
@@ -1319,12 +1349,15 @@ MODBUS_API int modbus_server_stop(modbus_server_t *s);
 /**
  * Answers request `request_id` (`ri->request_id` of a callback that returned
  * `MODBUS_REPLY_LATER`) as that callback would have: `rc` > 0, the answer's PDU in
- * `rsp_pdu` (function code first, `rc` bytes); -code, an exception answer;
- * `MODBUS_REPLY_NONE`, no answer. May be called from any thread and from a
- * callback; the answer goes out in the run under way (woken) or the next. An answer
- * for a client that has left, or for an unknown id, is dropped. EINVAL: `s` NULL,
- * `rc` none of those (a PDU longer than 253 bytes, an exception code out of range),
- * `rsp_pdu` NULL with `rc` > 0.
+ * `rsp_pdu` (function code first, `rc` bytes); `MODBUS_REPLY_EXCEPTION(code)`, an
+ * exception answer; 0, a write (05, 06, 0F, 10, 16) is done: the usual answer;
+ * `MODBUS_REPLY_NONE`, no answer. A read is answered with
+ * `modbus_server_answer_registers` or `modbus_server_answer_bits`. May be called
+ * from any thread and from a callback; the answer goes out in the run under way
+ * (woken) or the next. An answer for a client that has left is dropped. EINVAL:
+ * `s` NULL, `request_id` not waiting for an answer (never deferred, or answered
+ * already), `rc` none of those (a PDU longer than 253 bytes, an exception code out
+ * of range, 0 for a request that is no write), `rsp_pdu` NULL with `rc` > 0.
  *
  * Linux only (epoll).
  *
@@ -1333,9 +1366,52 @@ MODBUS_API int modbus_server_stop(modbus_server_t *s);
  */
 MODBUS_API
 int modbus_server_answer(modbus_server_t *s,
-                         uint32_t request_id,
+                         int request_id,
                          const uint8_t *rsp_pdu,
                          int rc);
+
+/**
+ * Answers request `request_id`, a register read (03, 04, or 17, whose read part
+ * `ri->pdu` tells), with the `nb` values at `values` (host order; `nb` must be the
+ * quantity the request reads). As `modbus_server_answer` otherwise; EINVAL also
+ * when the request is no register read, or `nb` is not its quantity.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner; `values` NULL or valid for `nb` values.
+ */
+MODBUS_API
+int modbus_server_answer_registers(modbus_server_t *s,
+                                   int request_id,
+                                   const uint16_t *values,
+                                   int nb);
+
+/**
+ * Answers request `request_id`, a bit read (01 or 02), with the `nb` bits at
+ * `bits` (one per byte, 0 or not; `nb` must be the quantity the request reads).
+ * As `modbus_server_answer` otherwise; EINVAL also when the request is no bit
+ * read, or `nb` is not its quantity.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner; `bits` NULL or valid for `nb` bytes.
+ */
+MODBUS_API
+int modbus_server_answer_bits(modbus_server_t *s,
+                              int request_id,
+                              const uint8_t *bits,
+                              int nb);
+
+/**
+ * Answers request `request_id` with exception `exception_code` (a positive
+ * `MODBUS_EXCEPTION_*` code, 1 to 11). As `modbus_server_answer` otherwise;
+ * EINVAL also for a code out of range.
+ *
+ * # Safety
+ * `s` must be NULL or a live runner.
+ */
+MODBUS_API
+int modbus_server_answer_exception(modbus_server_t *s,
+                                   int request_id,
+                                   int exception_code);
 
 /**
  * Closes every client (and the listening socket the server opened) and frees the

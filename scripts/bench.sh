@@ -23,7 +23,7 @@
 #                                    one master, 100 masters (spread), 1,000 held (RSS,
 #                                    p99), the TLS front (benches/gateway.sh, about 4
 #                                    minutes)
-#   scripts/bench.sh --callbacks     modbus_reply_callbacks against modbus_reply on one
+#   scripts/bench.sh --callbacks     modbus_reply_dispatch against modbus_reply on one
 #                                    mapping: CPU per reply (benches/reply-cost.sh,
 #                                    about 20 s)
 #   scripts/bench.sh --repeat N [CASE ...]

@@ -70,6 +70,49 @@ pub struct Context {
     /// A server runner drives this context (`crate::runner`): nothing may wait in
     /// it (no sleep before a flush; writes are queued on the line).
     pub runner: bool,
+    /// A server's connection: its id and peer (`crate::server::connection`).
+    pub connection: Connection,
+}
+
+/// The connection ids of a server (`modbus_request_info_t::connection_id`): one
+/// counter for the process, so that an id is never given twice, whichever server
+/// gives it.
+static CONNECTIONS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// A new connection id (never 0).
+pub fn new_connection_id() -> u64 {
+    CONNECTIONS.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1
+}
+
+/// Who a server context's request comes from: its connection's id and its peer's
+/// address. A client of a runner has them from its accept ([`Connection::accepted`]);
+/// a context that serves whatever socket it holds (`modbus_tcp_accept`,
+/// `modbus_set_socket`) tells its connections apart by their socket's cookie, so a
+/// descriptor number used again is a new connection; a UDP socket gives each
+/// sender an id of its own.
+#[derive(Default)]
+pub struct Connection {
+    /// The connection is the context's for its life (a runner's client).
+    pub(crate) fixed: bool,
+    /// The socket cookie `id` is for.
+    pub(crate) cookie: u64,
+    pub(crate) id: u64,
+    pub(crate) peer: Option<crate::transport::udp::Peer>,
+    /// UDP: each sender's id and when it was last seen (a count of datagrams).
+    pub(crate) senders: std::collections::HashMap<Vec<u8>, (u64, u64)>,
+    pub(crate) seen: u64,
+}
+
+impl Connection {
+    /// A runner's client, accepted on `fd`.
+    pub fn accepted(fd: i32) -> Connection {
+        Connection {
+            fixed: true,
+            id: new_connection_id(),
+            peer: crate::transport::udp::Peer::of_socket(fd),
+            ..Connection::default()
+        }
+    }
 }
 
 /// Where a context's event-driven state is (see [`Context::lend_async`]).
@@ -143,6 +186,7 @@ impl Context {
             stop,
             asynchronous: Async::None,
             runner: false,
+            connection: Default::default(),
         }
     }
 

@@ -46,42 +46,99 @@ pub trait Answer {
     /// Serial lines: the units are the answerer's to choose ([`Answer::accept_unit`]),
     /// not the context's slave alone.
     fn any_unit(&self) -> bool;
-    /// Whether a serial request for `unit` is served.
-    fn accept_unit(&mut self, unit: u8) -> bool;
+    /// The serial request `req` is about to be asked about ([`Answer::accept_unit`])
+    /// on the context `g`.
+    fn arrived(&mut self, g: &mut Guard<'_>);
+    /// Whether a serial request `req` for `unit` is served.
+    fn accept_unit(&mut self, unit: u8, req: &[u8]) -> bool;
     /// Answers `req`, the runner's request `id`, on the client's context `g`; the
     /// answer is queued on its line (a socket's) or sent (a serial line's). `None`:
     /// the answer comes later ([`Answers::give`] with `id`).
-    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8], id: u32) -> Result<Option<usize>>;
+    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8], id: i32) -> Result<Option<usize>>;
 }
 
-/// An answer given later (`modbus_server_answer`): as a callback's `other` returns.
+/// An answer given later (`modbus_server_answer` and its typed siblings).
 pub enum Later {
     /// The answer's PDU, function code first.
     Pdu(Vec<u8>),
+    /// The values of a register read (03, 04, 17).
+    Registers(Vec<u16>),
+    /// The bits of a bit read (01, 02), one per byte.
+    Bits(Vec<u8>),
+    /// A write is done: its usual answer.
+    Done,
     /// An exception answer with this code.
     Exception(u8),
     /// No answer: the request is forgotten.
     Nothing,
 }
 
-/// The answers given later, from any thread, for the run to send.
-#[derive(Default)]
-pub struct Answers {
-    queue: std::sync::Mutex<Vec<(u32, Later)>>,
-    any: AtomicBool,
+/// What an answer given later must fit: the request's function code and the items
+/// a read asks for.
+#[derive(Clone, Copy)]
+struct Expect {
+    function: u8,
+    nb: u16,
 }
 
-/// A request whose answer comes later: whose it is, and what its answer's header
-/// needs.
+impl Expect {
+    fn of(pdu: &[u8]) -> Expect {
+        Expect { function: pdu.first().copied().unwrap_or(0), nb: crate::proto::reply::read_quantity(pdu) }
+    }
+
+    /// The request being answered, in one word (0: none).
+    fn pack(self, id: i32) -> u64 {
+        ((id as u64) << 32) | ((self.function as u64) << 16) | self.nb as u64
+    }
+
+    fn unpack(word: u64, id: i32) -> Option<Expect> {
+        (word != 0 && (word >> 32) as i32 == id).then_some(Expect { function: (word >> 16) as u8, nb: word as u16 })
+    }
+
+    /// Whether `later` answers such a request.
+    fn fits(self, later: &Later) -> bool {
+        use crate::proto::reply::{Given, given_fits};
+        match later {
+            Later::Registers(v) => given_fits(self.function, self.nb, Given::Registers(v)),
+            Later::Bits(v) => given_fits(self.function, self.nb, Given::Bits(v)),
+            Later::Done => given_fits(self.function, self.nb, Given::Done),
+            Later::Pdu(_) | Later::Exception(_) | Later::Nothing => true,
+        }
+    }
+}
+
+/// The answers given later, from any thread, for the run to send; and the requests
+/// that wait for one, so that an answer that does not fit its request is refused
+/// when it is given.
+#[derive(Default)]
+pub struct Answers {
+    state: std::sync::Mutex<Given>,
+    any: AtomicBool,
+    /// The request being answered now ([`Expect::pack`]): a callback may hand its id
+    /// to another thread, which may answer before the callback has returned.
+    current: std::sync::atomic::AtomicU64,
+}
+
+#[derive(Default)]
+struct Given {
+    queue: Vec<(i32, Later)>,
+    waiting: std::collections::HashMap<i32, Expect>,
+}
+
+/// A request whose answer comes later: whose it is, and what its answer needs
+/// (its header and the start of its PDU).
 struct Pending {
     slot: u32,
     generation: u32,
-    /// The request's header and function code.
-    head: [u8; 8],
+    /// The request's header and up to 7 bytes of its PDU.
+    head: [u8; 16],
     head_len: u8,
     /// A UDP request's sender.
     peer: Option<crate::transport::udp::Peer>,
 }
+
+/// A pending request's (id, head, head length, UDP sender), as a drive reports it.
+type Deferred = (i32, [u8; 16], u8, Option<crate::transport::udp::Peer>);
 
 /// What a drive of one client needs besides the client, and what it reports.
 struct Serving<'s, 'a> {
@@ -90,10 +147,25 @@ struct Serving<'s, 'a> {
     answer: &'a mut dyn Answer,
     /// Requests answered.
     answered: usize,
-    /// The last request id given.
-    next_id: &'a mut u32,
-    /// Requests whose answer comes later: (id, head, head length, UDP sender).
-    later: Vec<(u32, [u8; 8], u8, Option<crate::transport::udp::Peer>)>,
+    /// The request ids, and the requests waiting for their answer.
+    requests: &'a mut Requests,
+    /// Requests whose answer comes later.
+    later: Vec<Deferred>,
+}
+
+impl<'s, 'a> Serving<'s, 'a> {
+    fn new(server: Option<OnServer<'s>>, answer: &'a mut dyn Answer, requests: &'a mut Requests) -> Self {
+        Serving { server, answer, answered: 0, requests, later: Vec::new() }
+    }
+}
+
+/// The runner's requests: the last id given, the requests whose answer comes later
+/// (by id: an id is not given again while its request waits), the answers given.
+#[derive(Default)]
+struct Requests {
+    next_id: i32,
+    pending: std::collections::HashMap<i32, Pending>,
+    answers: std::sync::Arc<Answers>,
 }
 
 /// Runs a function on the server's own context, locked (the C layer's handle).
@@ -122,19 +194,57 @@ impl Stopper {
 }
 
 impl Answers {
-    /// `modbus_server_answer`: the answer to request `id`, sent by the run under way
-    /// (woken by `stopper`) or the next.
-    pub fn give(&self, stopper: &Stopper, id: u32, answer: Later) {
-        self.queue.lock().unwrap_or_else(|e| e.into_inner()).push((id, answer));
-        self.any.store(true, Ordering::SeqCst);
-        stopper.wake();
+    fn lock(&self) -> std::sync::MutexGuard<'_, Given> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn take(&self) -> Vec<(u32, Later)> {
+    /// `modbus_server_answer` and its typed siblings: the answer to request `id`,
+    /// sent by the run under way (woken by `stopper`) or the next. EINVAL: no
+    /// request `id` waits for an answer (never deferred, or answered already), or
+    /// the answer does not fit it (registers for a bit read, a count that is not
+    /// the request's, a write done for a read); the request still waits then.
+    pub fn give(&self, stopper: &Stopper, id: i32, answer: Later) -> Result<()> {
+        let mut state = self.lock();
+        let expect = match state.waiting.get(&id) {
+            Some(e) => *e,
+            None => {
+                let current = Expect::unpack(self.current.load(Ordering::SeqCst), id);
+                match current {
+                    Some(e) if !state.queue.iter().any(|(q, _)| *q == id) => e,
+                    _ => return Err(Error::INVALID),
+                }
+            }
+        };
+        if !expect.fits(&answer) {
+            return Err(Error::INVALID);
+        }
+        state.waiting.remove(&id);
+        state.queue.push((id, answer));
+        drop(state);
+        self.any.store(true, Ordering::SeqCst);
+        stopper.wake();
+        Ok(())
+    }
+
+    /// Request `id` (`pdu`) is being answered now.
+    fn answering(&self, id: i32, pdu: &[u8]) {
+        self.current.store(Expect::of(pdu).pack(id), Ordering::SeqCst);
+    }
+
+    /// Request `id` (`pdu`) waits for an answer given later (unless one was given
+    /// already, from the callback or another thread).
+    fn wait_for(&self, id: i32, pdu: &[u8]) {
+        let mut state = self.lock();
+        if !state.queue.iter().any(|(q, _)| *q == id) {
+            state.waiting.insert(id, Expect::of(pdu));
+        }
+    }
+
+    fn take(&self) -> Vec<(i32, Later)> {
         if !self.any.swap(false, Ordering::SeqCst) {
             return Vec::new();
         }
-        std::mem::take(&mut *self.queue.lock().unwrap_or_else(|e| e.into_inner()))
+        std::mem::take(&mut self.lock().queue)
     }
 }
 
@@ -225,9 +335,7 @@ pub struct Runner {
     spare: Option<Box<Receiving>>,
     stopper: std::sync::Arc<Stopper>,
     /// Requests whose answer comes later, by id, and the answers given.
-    pending: std::collections::HashMap<u32, Pending>,
-    next_id: u32,
-    answers: std::sync::Arc<Answers>,
+    requests: Requests,
 }
 
 fn eventfd() -> Result<i32> {
@@ -290,9 +398,7 @@ impl Runner {
             idle: Some(Duration::from_secs(60)),
             spare: None,
             stopper,
-            pending: std::collections::HashMap::new(),
-            next_id: 0,
-            answers: std::sync::Arc::default(),
+            requests: Requests::default(),
         };
         r.timerfd = timerfd()?;
         epoll::control(epfd, libc::EPOLL_CTL_ADD, wake, libc::POLLIN, KEY_WAKE)?;
@@ -350,7 +456,7 @@ impl Runner {
 
     /// Where answers given later go (`modbus_server_answer`).
     pub fn answers(&self) -> std::sync::Arc<Answers> {
-        std::sync::Arc::clone(&self.answers)
+        std::sync::Arc::clone(&self.requests.answers)
     }
 
     /// The epoll descriptor: readable when [`Runner::run`] has work.
@@ -449,6 +555,7 @@ impl Runner {
             if ctx.line.accept_started(fd).is_err() {
                 continue;
             }
+            ctx.connection = crate::context::Connection::accepted(fd);
             // (A server's handshake starts with the client's hello: POLLIN too.)
             let events = libc::POLLIN;
             let slot = match self.free.pop() {
@@ -514,15 +621,14 @@ impl Runner {
         if c.generation != generation {
             return 0;
         }
-        let mut sv =
-            Serving { server: Some(server), answer, answered: 0, next_id: &mut self.next_id, later: Vec::new() };
+        let mut sv = Serving::new(Some(server), answer, &mut self.requests);
         let result = {
             let mut g = c.ctx.lock();
             drive(&mut g, &mut c.conn, readable, &mut self.spare, &mut sv)
         };
         let answered = sv.answered;
         for (id, head, head_len, peer) in sv.later {
-            self.pending.insert(id, Pending { slot, generation, head, head_len, peer });
+            self.requests.pending.insert(id, Pending { slot, generation, head, head_len, peer });
         }
         match result {
             Ok((events, until)) => {
@@ -552,7 +658,7 @@ impl Runner {
         let Some((_, conn)) = self.own_line.as_mut() else { return 0 };
         let spare = &mut self.spare;
         // (The context is the server's: nothing to lend.)
-        let mut sv = Serving { server: None, answer, answered: 0, next_id: &mut self.next_id, later: Vec::new() };
+        let mut sv = Serving::new(None, answer, &mut self.requests);
         let mut until = None;
         let _ = server(&mut |g| {
             // A runner drives the context: nothing may wait in it (no sleep before
@@ -565,7 +671,7 @@ impl Runner {
         });
         let answered = sv.answered;
         for (id, head, head_len, peer) in sv.later {
-            self.pending.insert(id, Pending { slot: OWN_SLOT, generation: 0, head, head_len, peer });
+            self.requests.pending.insert(id, Pending { slot: OWN_SLOT, generation: 0, head, head_len, peer });
         }
         if let Some(t) = until {
             if conn.timer != Some(t) {
@@ -582,9 +688,9 @@ impl Runner {
     /// sent.
     fn send_later(&mut self, server: OnServer<'_>) -> usize {
         let mut sent_count = 0;
-        for (id, later) in self.answers.take() {
+        for (id, later) in self.requests.answers.take() {
             let counts = !matches!(later, Later::Nothing);
-            let Some(p) = self.pending.remove(&id) else { continue };
+            let Some(p) = self.requests.pending.remove(&id) else { continue };
             if p.slot == OWN_SLOT {
                 // The context's own line (serial, UDP): answered on the context.
                 let mut later = Some(later);
@@ -833,22 +939,38 @@ fn finish(g: &mut Guard<'_>, c: &mut Conn, f: Finished, msg: &[u8], sv: &mut Ser
     lent(g);
     // (Asked of serial framings only.)
     let answer = &mut *sv.answer;
-    let taken = session::taken(g, msg, &r, |unit| !answer.any_unit() || answer.accept_unit(unit));
+    let any_unit = answer.any_unit();
+    if any_unit {
+        answer.arrived(g);
+    }
+    let frame = match r {
+        Ok(crate::session::Received::Frame(len)) => len,
+        _ => 0,
+    };
+    let taken = session::taken(g, msg, &r, |unit| !any_unit || answer.accept_unit(unit, &msg[..frame]));
     let result = match taken {
         Taken::Request(len) => {
             c.last = transport::now();
-            *sv.next_id = sv.next_id.wrapping_add(1).max(1);
-            let id = *sv.next_id;
-            match sv.answer.answer(g, &msg[..len], id) {
+            let id = next_id(&mut sv.requests.next_id, &sv.requests.pending);
+            let pdu = crate::proto::reply::pdu(g.framing(), &msg[..len]);
+            let answers = &*sv.requests.answers;
+            answers.answering(id, pdu);
+            let answered = sv.answer.answer(g, &msg[..len], id);
+            if let Ok(None) = answered {
+                answers.wait_for(id, pdu);
+            }
+            answers.current.store(0, Ordering::SeqCst);
+            match answered {
                 Ok(Some(_)) => {
                     sv.answered += 1;
                     Ok(())
                 }
                 Ok(None) => {
-                    let h = g.framing().header_length() + 1;
-                    let mut head = [0u8; 8];
-                    head[..h].copy_from_slice(&msg[..h]);
-                    sv.later.push((id, head, h as u8, g.line.peer()));
+                    let h = g.framing().header_length();
+                    let n = (h + 7).min(len - g.framing().checksum_length().min(len));
+                    let mut head = [0u8; 16];
+                    head[..n].copy_from_slice(&msg[..n]);
+                    sv.later.push((id, head, n as u8, g.line.peer()));
                     Ok(())
                 }
                 Err(e) if !own && e.line_lost() => Err(e),
@@ -872,24 +994,50 @@ fn finish(g: &mut Guard<'_>, c: &mut Conn, f: Finished, msg: &[u8], sv: &mut Ser
     result
 }
 
+/// The next request id: 1 to `i32::MAX`, wrapping, never one still waiting for
+/// its answer.
+fn next_id(last: &mut i32, pending: &std::collections::HashMap<i32, Pending>) -> i32 {
+    loop {
+        *last = if *last == i32::MAX { 1 } else { (*last).max(0) + 1 };
+        if !pending.contains_key(last) {
+            return *last;
+        }
+    }
+}
+
 /// Sends the answer given later to the request `p` on `g`'s line: true when it is
 /// out, false when part waits for the socket to be writable.
 fn send_answer(g: &mut Guard<'_>, p: &Pending, later: Later) -> Result<bool> {
     use crate::proto::frame::MAX_ADU_LENGTH as MAX;
+    use crate::proto::reply::{Given, given_pdu};
     let framing = g.framing();
     let head = &p.head[..p.head_len as usize];
     let h = framing.header_length();
     let mut out = [0u8; MAX];
-    let len = match later {
+    let tid = framing.response_tid(head);
+    let pdu_room = h..h + crate::proto::limits::MAX_PDU_LENGTH;
+    let given = match &later {
         Later::Nothing => return Ok(true),
-        Later::Exception(code) => crate::proto::reply::exception_response(framing, head, code, &mut out),
-        Later::Pdu(pdu) => {
-            let tid = framing.response_tid(head);
-            framing.write_header(&mut out, head[h - 1], tid);
-            out[h..h + pdu.len()].copy_from_slice(&pdu);
-            h + pdu.len()
-        }
+        Later::Exception(_) | Later::Pdu(_) => None,
+        Later::Registers(v) => Some(Given::Registers(v)),
+        Later::Bits(v) => Some(Given::Bits(v)),
+        Later::Done => Some(Given::Done),
     };
+    let len = match (&later, given) {
+        (Later::Exception(code), _) => Some(crate::proto::reply::exception_response(framing, head, *code, &mut out)),
+        (Later::Pdu(pdu), _) => {
+            framing.write_header(&mut out, head[h - 1], tid);
+            out[h..h + pdu.len()].copy_from_slice(pdu);
+            Some(h + pdu.len())
+        }
+        (_, Some(given)) => {
+            framing.write_header(&mut out, head[h - 1], tid);
+            given_pdu(&head[h..], given, &mut out[pdu_room]).map(|n| h + n)
+        }
+        _ => None,
+    };
+    // (Checked when given: an answer that does not fit its request never comes here.)
+    let Some(len) = len else { return Ok(true) };
     if let Some(peer) = p.peer {
         g.line.set_peer(peer);
     }

@@ -9,6 +9,7 @@
 //! responses sent or not from the replies (see [`crate::proto::diagnostics`]). A
 //! context without the extension pays one pointer test per call.
 
+use crate::context::{Context, new_connection_id};
 use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result, exception};
 use crate::proto::Diag;
@@ -19,12 +20,54 @@ use crate::proto::security;
 use crate::proto::session::Recovery;
 use crate::proto::session::server::Taken;
 use crate::session::{self, Driver, Received, Recovered};
+use crate::transport::udp::Peer;
+
+/// A UDP server remembers this many senders; the least recent goes first (and gets
+/// a new id if it comes back).
+const UDP_PEERS_MAX: usize = 4096;
+
+/// The connection of the request `ctx` is serving: its id (0 on a serial line) and
+/// its peer (a stream socket's, a datagram's sender; `None` on a serial line).
+pub fn connection(ctx: &mut Context) -> (u64, Option<Peer>) {
+    if ctx.line.is_datagram() {
+        let Some(peer) = ctx.line.peer() else { return (0, None) };
+        let c = &mut ctx.connection;
+        c.seen += 1;
+        let seen = c.seen;
+        if let Some(entry) = c.senders.get_mut(peer.bytes()) {
+            entry.1 = seen;
+            return (entry.0, Some(peer));
+        }
+        if c.senders.len() >= UDP_PEERS_MAX {
+            if let Some(oldest) = c.senders.iter().min_by_key(|(_, v)| v.1).map(|(k, _)| k.clone()) {
+                c.senders.remove(&oldest);
+            }
+        }
+        let id = new_connection_id();
+        c.senders.insert(peer.bytes().to_vec(), (id, seen));
+        return (id, Some(peer));
+    }
+    if !ctx.line.is_stream() || ctx.fd() < 0 {
+        return (0, None);
+    }
+    let fd = ctx.fd();
+    let c = &mut ctx.connection;
+    if !c.fixed {
+        let cookie = crate::transport::socket_cookie(fd);
+        if c.id == 0 || cookie != c.cookie {
+            c.cookie = cookie;
+            c.id = new_connection_id();
+            c.peer = Peer::of_socket(fd);
+        }
+    }
+    (c.id, c.peer)
+}
 
 /// `modbus_receive`: waits for one request and returns its length, or 0 for a frame
 /// libmodbus filters out (RTU: addressed to another slave, or the answer of that
 /// slave which follows it on a shared bus). With `units`, a serial request is kept
 /// when `units` accepts its unit (or it is a broadcast), whatever the context's
-/// slave (`modbus_receive_callbacks`). The server session (`session::taken`) reads
+/// slave (`modbus_receive_dispatch`). The server session (`session::taken`) reads
 /// what came, as the runner's does.
 #[inline(always)]
 pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) -> Result<usize> {
@@ -49,7 +92,11 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) 
             _ => {}
         }
     }
-    let taken = session::taken(g, buf, &r, |unit| units.is_none_or(|u| u.accept_unit(unit)));
+    let frame = match r {
+        Ok(Received::Frame(len)) => len,
+        _ => 0,
+    };
+    let taken = session::taken(g, buf, &r, |unit| units.is_none_or(|u| u.accept_unit(unit, &buf[..frame])));
     match taken {
         Taken::Request(len) => Ok(len),
         Taken::Skipped | Taken::NotServed(_) | Taken::OtherSlave => Ok(0),
@@ -83,7 +130,7 @@ fn perform(g: &mut Guard<'_>, outcome: Outcome, out: &mut AduBuf) -> (Result<usi
     }
 }
 
-/// `modbus_reply` and `modbus_reply_callbacks`: answers `req` (at most the bytes the
+/// `modbus_reply` and `modbus_reply_dispatch`: answers `req` (at most the bytes the
 /// request describes; see [`crate::proto::reply::request_extent`]) from `data`.
 /// Returns the bytes sent, 0 for a suppressed RTU broadcast, a unit `data` does not
 /// serve on a serial line, an answer `data` withholds (and, with diagnostics, in
@@ -96,7 +143,7 @@ pub fn reply<D: Data>(g: &mut Guard<'_>, req: &[u8], req_length: i32, data: &mut
     let framing = g.framing();
     let unit = req.get(framing.header_length() - 1).copied().unwrap_or(0);
     let broadcast = framing.is_serial() && unit == 0;
-    if !broadcast && !data.accept_unit(unit) {
+    if !broadcast && !data.accept_unit(unit, req) {
         if framing.is_serial() {
             g.diag().out(format_args!("Request for slave {unit} not served\n"));
             return Ok(0);

@@ -1,6 +1,6 @@
 /*
- * cb-test.c: a server answering through modbus_reply_callbacks (and receiving
- * through modbus_receive_callbacks), checked by a client of the same library in the
+ * cb-test.c: a server answering through modbus_reply_dispatch (and receiving
+ * through modbus_receive_dispatch), checked by a client of the same library in the
  * same process, over TCP or RTU (c-tests/suites/callbacks.sh).
  *
  *   cb-test tcp <port>
@@ -27,6 +27,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include <sys/socket.h>
 
 #include <modbus.h>
 
@@ -78,12 +79,15 @@ static void note(const modbus_request_info_t *ri, char access)
     }
 }
 
-/* The answer for an address of the test ranges: 9000 + code (an exception code),
- * 9100 (no answer), 9200 (a value that is no exception code); -1 for the others. */
+#define NOT_SPECIAL 0x7FFF
+
+/* The answer for an address of the test ranges: 9000 + code (an exception,
+ * MODBUS_REPLY_EXCEPTION(code)), 9100 (no answer), 9200 (a value that is no answer),
+ * 9300 (a positive exception code: a programming error); NOT_SPECIAL for the others. */
 static int special(int addr)
 {
     if (addr > 9000 && addr < 9000 + MODBUS_EXCEPTION_MAX) {
-        return addr - 9000;
+        return MODBUS_REPLY_EXCEPTION(addr - 9000);
     }
     if (addr == 9100) {
         return MODBUS_REPLY_NONE;
@@ -91,12 +95,32 @@ static int special(int addr)
     if (addr == 9200) {
         return 77;
     }
-    return -1;
+    if (addr == 9300) {
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+    }
+    return NOT_SPECIAL;
 }
 
-static int accept_unit(void *user_data, int unit_id)
+/* What accept_unit saw of the last request it was asked about. */
+static struct {
+    int calls, function, socket, pdu_length, struct_size_ok;
+    uint64_t connection_id;
+    int has_peer, peer_family;
+    uint8_t pdu0;
+} A;
+
+static int accept_unit(const modbus_request_info_t *ri, int unit_id, void *user_data)
 {
     (void) user_data;
+    A.calls++;
+    A.struct_size_ok = ri->struct_size >= offsetof(modbus_request_info_t, pdu_length) + sizeof(int);
+    A.function = ri->function;
+    A.socket = ri->socket;
+    A.connection_id = ri->connection_id;
+    A.has_peer = ri->peer != NULL && ri->peer_length > 0;
+    A.peer_family = ri->peer != NULL ? ri->peer->sa_family : -1;
+    A.pdu_length = ri->pdu_length;
+    A.pdu0 = ri->pdu_length > 0 ? ri->pdu[0] : 0;
     return unit_index(unit_id) >= 0 || unit_id == 8 || unit_id == 9;
 }
 
@@ -104,7 +128,7 @@ static int accept_unit(void *user_data, int unit_id)
 static int range(int addr, int nb, int *u, const modbus_request_info_t *ri)
 {
     int sp = special(addr);
-    if (sp != -1) {
+    if (sp != NOT_SPECIAL) {
         return sp;
     }
     *u = unit_index(ri->unit_id);
@@ -112,12 +136,12 @@ static int range(int addr, int nb, int *u, const modbus_request_info_t *ri)
         *u = 0; /* units 8 and 9 (and the broadcast) see unit 1's data */
     }
     if (addr < 0 || addr + nb > NREG) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     return 0;
 }
 
-static int read_bits(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest)
+static int read_bits(const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest, void *user_data)
 {
     int u = 0, rc = range(addr, nb, &u, ri), i;
     (void) user_data;
@@ -133,7 +157,7 @@ static int read_bits(void *user_data, const modbus_request_info_t *ri, int addr,
     return 0;
 }
 
-static int read_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest)
+static int read_registers(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest, void *user_data)
 {
     int u = 0, rc = range(addr, nb, &u, ri), i;
     (void) user_data;
@@ -148,7 +172,7 @@ static int read_registers(void *user_data, const modbus_request_info_t *ri, int 
     return 0;
 }
 
-static int write_bits(void *user_data, const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src)
+static int write_bits(const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src, void *user_data)
 {
     int u = 0, rc = range(addr, nb, &u, ri), i, k;
     (void) user_data;
@@ -166,7 +190,7 @@ static int write_bits(void *user_data, const modbus_request_info_t *ri, int addr
     return 0;
 }
 
-static int write_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src)
+static int write_registers(const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src, void *user_data)
 {
     int u = 0, rc = range(addr, nb, &u, ri), i, k;
     (void) user_data;
@@ -184,8 +208,7 @@ static int write_registers(void *user_data, const modbus_request_info_t *ri, int
     return 0;
 }
 
-static int other(void *user_data, const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length,
-                 uint8_t *rsp, int rsp_max)
+static int other(const modbus_request_info_t *ri, const uint8_t *pdu, int pdu_length, uint8_t *rsp, int rsp_max, void *user_data)
 {
     (void) user_data;
     S.last = *ri;
@@ -220,6 +243,8 @@ static int other(void *user_data, const modbus_request_info_t *ri, const uint8_t
     case 0x45:
         S.quit = 1;
         return MODBUS_REPLY_NONE;
+    case 0x46:
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     default:
         return -MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }
@@ -253,15 +278,14 @@ static void *server(void *arg)
 {
     modbus_t *ctx = arg;
     uint8_t req[MODBUS_MAX_ADU_LENGTH], held[MODBUS_MAX_ADU_LENGTH];
-    int held_len = 0, h = modbus_get_header_length(ctx);
+    int held_len = 0, h = modbus_get_header_length(ctx), s = -1, round;
 
     if (S.tcp) {
-        int s = modbus_tcp_listen(ctx, 1);
+        s = modbus_tcp_listen(ctx, 1);
         if (s < 0 || modbus_tcp_accept(ctx, &s) < 0) {
             fprintf(stderr, "server: listen/accept: %s\n", modbus_strerror(errno));
             return NULL;
         }
-        close(s);
     } else if (modbus_connect(ctx) < 0) {
         fprintf(stderr, "server: connect: %s\n", modbus_strerror(errno));
         return NULL;
@@ -270,9 +294,22 @@ static void *server(void *arg)
     /* (An unknown code is answered after the response timeout, as modbus_reply does:
      * below the client's.) */
     modbus_set_response_timeout(ctx, 0, 100000);
+    for (round = 0; round < 2; round++) {
+    if (round == 1) {
+        /* TCP: a second client, accepted once the first has left: its socket
+         * most likely gets the same descriptor number. */
+        if (!S.tcp) {
+            break;
+        }
+        modbus_close(ctx);
+        S.quit = 0;
+        if (modbus_tcp_accept(ctx, &s) < 0) {
+            break;
+        }
+    }
     while (!S.quit) {
         const modbus_server_callbacks_t *cb = &FULL;
-        int rc = modbus_receive_callbacks(ctx, req, &FULL, NULL);
+        int rc = modbus_receive_dispatch(ctx, req, &FULL, NULL);
         if (rc == -1 && (errno == ETIMEDOUT || errno == EMBBADCRC)) {
             continue;
         }
@@ -293,11 +330,15 @@ static void *server(void *arg)
             held_len = rc;
             continue;
         }
-        modbus_reply_callbacks(ctx, req, rc, cb, NULL);
+        modbus_reply_dispatch(ctx, req, rc, cb, NULL);
         if (held_len > 0) {
-            modbus_reply_callbacks(ctx, held, held_len, cb, NULL);
+            modbus_reply_dispatch(ctx, held, held_len, cb, NULL);
             held_len = 0;
         }
+    }
+    }
+    if (s >= 0) {
+        close(s);
     }
     modbus_close(ctx);
     return NULL;
@@ -377,6 +418,21 @@ static void client(modbus_t *ctx, int tcp)
         EXPECT(rc == 9 && rsp[0] == unit % 2 && rsp[1] == (1 + unit) % 2 && rsp[8] == (8 + unit) % 2,
                "unit %d: FC 02 from the input callback", unit);
     }
+    /* accept_unit gets the request info: the request, and who sent it. */
+    modbus_set_slave(ctx, 7);
+    A.calls = 0;
+    rc = modbus_read_registers(ctx, 10, 2, regs);
+    EXPECT(rc == 2 && A.calls >= 1 && A.function == 3 && A.pdu_length == 5 &&
+               A.pdu0 == 3 && A.struct_size_ok,
+           "accept_unit sees the request info (function %d, a PDU of %d bytes)", A.function, A.pdu_length);
+    if (tcp) {
+        EXPECT(A.connection_id != 0 && A.has_peer && A.peer_family == AF_INET && A.socket == S.socket,
+               "TCP: accept_unit sees the connection (id %llu), its peer and socket",
+               (unsigned long long) A.connection_id);
+    } else {
+        EXPECT(A.connection_id == 0 && !A.has_peer, "RTU: no connection id, no peer");
+    }
+
     /* The units' data stayed apart. */
     modbus_set_slave(ctx, 1);
     EXPECT(modbus_read_registers(ctx, 10, 1, regs) == 1 && regs[0] == 100, "unit 1 kept its own data");
@@ -405,6 +461,10 @@ static void client(modbus_t *ctx, int tcp)
     EXPECT(modbus_write_bit(ctx, 9100, 1) == -1 && errno == ETIMEDOUT, "MODBUS_REPLY_NONE from write_bits");
     EXPECT(modbus_read_registers(ctx, 9200, 1, regs) == -1 && errno == EMBXSFAIL,
            "a value that is no exception code: exception 04 (%s)", modbus_strerror(errno));
+    errno = 0;
+    EXPECT(modbus_read_registers(ctx, 9300, 1, regs) == -1 && errno == EMBXSFAIL,
+           "a positive exception code from a data callback (no MODBUS_REPLY_EXCEPTION): exception 04, not 02 (%s)",
+           modbus_strerror(errno));
     EXPECT(modbus_read_registers(ctx, 195, 10, regs) == -1 && errno == EMBXILADD,
            "the callback's own range check: exception 02");
     want[0] = 0x5151;
@@ -459,6 +519,12 @@ static void client(modbus_t *ctx, int tcp)
         EXPECT(raw(ctx, 1, p43, 1, rsp) == -1 && errno == ETIMEDOUT, "other: MODBUS_REPLY_NONE, no answer");
         rc = raw(ctx, 1, p44, 1, rsp);
         EXPECT(rc > h + 1 && rsp[h] == 0xC4 && rsp[h + 1] == 4, "other: an impossible length is exception 04");
+        {
+            const uint8_t p46[] = {0x46};
+            rc = raw(ctx, 1, p46, 1, rsp);
+            EXPECT(rc > h + 1 && rsp[h] == 0xC6 && rsp[h + 1] == 2,
+                   "other: MODBUS_REPLY_EXCEPTION(2) is exception 02 (rc %d, 0x%02X %d)", rc, rsp[h], rsp[h + 1]);
+        }
     }
 
     /* A unit not served. */
@@ -564,11 +630,11 @@ int main(int argc, char **argv)
     NEWER.cb = FULL;
     NEWER.cb.struct_size = sizeof NEWER;
 
-    EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, NULL, NULL) == -1 && errno == EINVAL,
-           "modbus_reply_callbacks: NULL callbacks, EINVAL");
+    EXPECT(modbus_reply_dispatch(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, NULL, NULL) == -1 && errno == EINVAL,
+           "modbus_reply_dispatch: NULL callbacks, EINVAL");
     bad.struct_size = 4;
-    EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &bad, NULL) == -1 && errno == EINVAL,
-           "modbus_reply_callbacks: a struct_size too small, EINVAL");
+    EXPECT(modbus_reply_dispatch(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &bad, NULL) == -1 && errno == EINVAL,
+           "modbus_reply_dispatch: a struct_size too small, EINVAL");
     {
         /* The struct_size rules (man page): below the first published size, not on a
          * member's end, or past what the library knows with a member set there: EINVAL. */
@@ -576,18 +642,18 @@ int main(int argc, char **argv)
         modbus_server_callbacks_t small = FULL;
         small.struct_size = offsetof(modbus_server_callbacks_t, read_registers);
         errno = 0;
-        EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &small, NULL) == -1 && errno == EINVAL,
+        EXPECT(modbus_reply_dispatch(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &small, NULL) == -1 && errno == EINVAL,
                "struct_size below the first published size (%d): EINVAL", (int) small.struct_size);
         small.struct_size = sizeof(modbus_server_callbacks_t) - sizeof(void *) / 2;
         errno = 0;
-        EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &small, NULL) == -1 && errno == EINVAL,
+        EXPECT(modbus_reply_dispatch(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &small, NULL) == -1 && errno == EINVAL,
                "struct_size in the middle of a member (%d): EINVAL", (int) small.struct_size);
         memset(&big, 0, sizeof big);
         big.cb = FULL;
         big.cb.struct_size = sizeof big;
         big.future[1] = (void *) &big;
         errno = 0;
-        EXPECT(modbus_reply_callbacks(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &big.cb, NULL) == -1 &&
+        EXPECT(modbus_reply_dispatch(srv, (uint8_t[]){1, 3, 0, 0, 0, 1}, 6, &big.cb, NULL) == -1 &&
                    errno == EINVAL,
                "struct_size larger than the library knows, a member it does not know set: EINVAL (%s)",
                modbus_strerror(errno));
@@ -595,8 +661,8 @@ int main(int argc, char **argv)
         EXPECT(modbus_server_set_callbacks(NULL, &NEWER.cb, NULL) == -1 && errno == EINVAL,
                "modbus_server_set_callbacks: NULL server, EINVAL");
     }
-    EXPECT(modbus_receive_callbacks(srv, NULL, &FULL, NULL) == -1 && errno == EINVAL,
-           "modbus_receive_callbacks: NULL request buffer, EINVAL");
+    EXPECT(modbus_receive_dispatch(srv, NULL, &FULL, NULL) == -1 && errno == EINVAL,
+           "modbus_receive_dispatch: NULL request buffer, EINVAL");
 
     pthread_create(&t, NULL, server, srv);
     if (S.tcp) {
@@ -612,6 +678,31 @@ int main(int argc, char **argv)
     }
     client(cli, S.tcp);
     modbus_close(cli);
+    if (S.tcp) {
+        /* A second client after the first has left: a new connection id, though its
+         * socket on the server likely has the same number. */
+        uint64_t first = A.connection_id;
+        int first_socket = A.socket;
+        uint16_t regs[2];
+        modbus_t *cli2 = modbus_new_tcp("127.0.0.1", atoi(argv[2]));
+        usleep(100000);
+        for (rc = -1; rc < 0;) {
+            rc = modbus_connect(cli2);
+            if (rc < 0) {
+                usleep(20000);
+            }
+        }
+        modbus_set_slave(cli2, 1);
+        modbus_set_response_timeout(cli2, 0, 500000);
+        rc = modbus_read_registers(cli2, 10, 2, regs);
+        EXPECT(rc == 2 && A.connection_id != 0 && A.connection_id != first,
+               "a second client gets another connection id (%llu after %llu; socket %d after %d)",
+               (unsigned long long) A.connection_id, (unsigned long long) first, A.socket, first_socket);
+        EXPECT(A.socket == first_socket, "(the second client's socket has the first one's number, %d)", A.socket);
+        raw(cli2, 1, (const uint8_t[]){0x45}, 1, (uint8_t[MODBUS_MAX_ADU_LENGTH]){0});
+        modbus_close(cli2);
+        modbus_free(cli2);
+    }
     pthread_join(t, NULL);
     modbus_free(cli);
     modbus_free(srv);

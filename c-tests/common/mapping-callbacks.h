@@ -2,7 +2,7 @@
  * mapping-callbacks.h: a modbus_server_callbacks_t that serves a modbus_mapping_t
  * (user_data), as an application's callbacks would: the range checked against the
  * table (exception 02 outside it), the values copied; nothing printed. Used where
- * modbus_reply_callbacks is measured or compared against modbus_reply on the same
+ * modbus_reply_dispatch is measured or compared against modbus_reply on the same
  * mapping (c-tests/server/reply-callbacks.c, benches/reply-cost.c).
  *
  * SPDX-License-Identifier: MIT OR Apache-2.0
@@ -44,45 +44,45 @@ static int index_of(modbus_mapping_t *m, int function, int bits, int addr, int n
     return addr - start;
 }
 
-static int read_bits(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest)
+static int read_bits(const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest, void *user_data)
 {
     void *tab;
     int i = index_of(user_data, ri->function, 1, addr, nb, &tab);
     if (i < 0) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     memcpy(dest, (uint8_t *) tab + i, (size_t) nb);
     return 0;
 }
 
-static int read_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest)
+static int read_registers(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest, void *user_data)
 {
     void *tab;
     int i = index_of(user_data, ri->function, 0, addr, nb, &tab);
     if (i < 0) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     memcpy(dest, (uint16_t *) tab + i, (size_t) nb * 2);
     return 0;
 }
 
-static int write_bits(void *user_data, const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src)
+static int write_bits(const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src, void *user_data)
 {
     void *tab;
     int i = index_of(user_data, ri->function, 1, addr, nb, &tab);
     if (i < 0) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     memcpy((uint8_t *) tab + i, src, (size_t) nb);
     return 0;
 }
 
-static int write_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src)
+static int write_registers(const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src, void *user_data)
 {
     void *tab;
     int i = index_of(user_data, ri->function, 0, addr, nb, &tab);
     if (i < 0) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     memcpy((uint16_t *) tab + i, src, (size_t) nb * 2);
     return 0;

@@ -89,42 +89,43 @@ static modbus_mapping_t *map_of(const modbus_request_info_t *ri)
     return i < 0 ? NULL : maps[i + 1];
 }
 
-static int cb_accept(void *user_data, int unit)
+static int cb_accept(const modbus_request_info_t *ri, int unit, void *user_data)
 {
+    (void) ri;
     (void) user_data;
     return unit_index(unit) >= 0;
 }
 
-static int cb_read_bits(void *ud, const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest)
+static int cb_read_bits(const modbus_request_info_t *ri, int addr, int nb, uint8_t *dest, void *ud)
 {
     modbus_mapping_t *m = map_of(ri);
     uint8_t *t = ri->function == MODBUS_FC_READ_DISCRETE_INPUTS ? m->tab_input_bits : m->tab_bits;
     (void) ud;
     if (addr + nb > NB) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     memcpy(dest, t + addr, (size_t) nb);
     return 0;
 }
 
-static int cb_read_registers(void *ud, const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest)
+static int cb_read_registers(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest, void *ud)
 {
     modbus_mapping_t *m = map_of(ri);
     uint16_t *t = ri->function == MODBUS_FC_READ_INPUT_REGISTERS ? m->tab_input_registers : m->tab_registers;
     (void) ud;
     if (addr + nb > NB) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     memcpy(dest, t + addr, (size_t) nb * 2);
     return 0;
 }
 
-static int cb_write_bits(void *ud, const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src)
+static int cb_write_bits(const modbus_request_info_t *ri, int addr, int nb, const uint8_t *src, void *ud)
 {
     int i;
     (void) ud;
     if (addr + nb > NB) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     /* A broadcast (unit 0) writes every unit's table. */
     for (i = 0; i < UNITS; i++) {
@@ -135,12 +136,12 @@ static int cb_write_bits(void *ud, const modbus_request_info_t *ri, int addr, in
     return 0;
 }
 
-static int cb_write_registers(void *ud, const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src)
+static int cb_write_registers(const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src, void *ud)
 {
     int i;
     (void) ud;
     if (addr + nb > NB) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     if (addr <= 999 && addr + nb > 999 && src[999 - addr] == 0xDEAD) {
         printf("stop asked by a client\n");
@@ -159,13 +160,13 @@ static int cb_write_registers(void *ud, const modbus_request_info_t *ri, int add
 static struct {
     pthread_mutex_t lock;
     pthread_cond_t cond;
-    unsigned id[LATER_MAX];
+    int id[LATER_MAX];
     uint8_t pdu[LATER_MAX][8];
     int n;
     int quit;
 } later = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER, {0}, {{0}}, 0, 0};
 
-static int cb_raw(void *ud, const modbus_request_info_t *ri, const uint8_t *pdu, int len, uint8_t *rsp, int max)
+static int cb_raw(const modbus_request_info_t *ri, const uint8_t *pdu, int len, uint8_t *rsp, int max, void *ud)
 {
     (void) ud;
     (void) rsp;
@@ -173,7 +174,7 @@ static int cb_raw(void *ud, const modbus_request_info_t *ri, const uint8_t *pdu,
     pthread_mutex_lock(&later.lock);
     if (later.n == LATER_MAX) {
         pthread_mutex_unlock(&later.lock);
-        return -MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY);
     }
     later.id[later.n] = ri->request_id;
     memcpy(later.pdu[later.n], pdu, (size_t) (len < 8 ? len : 8));
@@ -183,28 +184,27 @@ static int cb_raw(void *ud, const modbus_request_info_t *ri, const uint8_t *pdu,
     return MODBUS_REPLY_LATER;
 }
 
-static void answer_one(unsigned id, const uint8_t *q)
+/* The typed answers: a read's values, a write done (rc 0: the library builds the
+ * echo), an exception by its code; raw PDUs for the rest. */
+static void answer_one(int id, const uint8_t *q)
 {
-    uint8_t rsp[MODBUS_MAX_PDU_LENGTH];
-    int addr = (q[1] << 8) | q[2], nb = (q[3] << 8) | q[4], i;
+    int addr = (q[1] << 8) | q[2], nb = (q[3] << 8) | q[4];
     if (q[0] == MODBUS_FC_READ_HOLDING_REGISTERS && addr == 999) {
         modbus_server_answer(server, id, NULL, MODBUS_REPLY_NONE);
     } else if ((q[0] == MODBUS_FC_READ_HOLDING_REGISTERS || q[0] == MODBUS_FC_READ_INPUT_REGISTERS) && nb >= 1 &&
                nb <= 125 && addr + nb <= NB) {
         const uint16_t *t =
             q[0] == MODBUS_FC_READ_INPUT_REGISTERS ? maps[0]->tab_input_registers : maps[0]->tab_registers;
-        rsp[0] = q[0];
-        rsp[1] = (uint8_t) (2 * nb);
-        for (i = 0; i < nb; i++) {
-            rsp[2 + 2 * i] = (uint8_t) (t[addr + i] >> 8);
-            rsp[3 + 2 * i] = (uint8_t) t[addr + i];
+        if (modbus_server_answer_registers(server, id, t + addr, nb) != 0) {
+            fprintf(stderr, "modbus_server_answer_registers: %s\n", modbus_strerror(errno));
         }
-        modbus_server_answer(server, id, rsp, 2 + 2 * nb);
     } else if (q[0] == MODBUS_FC_WRITE_SINGLE_REGISTER && addr < NB) {
         maps[0]->tab_registers[addr] = (uint16_t) nb;
-        modbus_server_answer(server, id, q, 5);
+        if (modbus_server_answer(server, id, NULL, 0) != 0) {
+            fprintf(stderr, "modbus_server_answer (write done): %s\n", modbus_strerror(errno));
+        }
     } else {
-        modbus_server_answer(server, id, NULL, -MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+        modbus_server_answer_exception(server, id, MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
     }
 }
 

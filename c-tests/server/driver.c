@@ -19,7 +19,7 @@
  *       exactly the response its version gives (computed here). --same-lib compares two
  *       runs of the same library (e.g. under valgrind): no allowed difference, no
  *       timing classes. --responses compares two runs of the same library that print
- *       different debug text (modbus_reply and modbus_reply_callbacks): responses and
+ *       different debug text (modbus_reply and modbus_reply_dispatch): responses and
  *       timing classes only. Prints one PASS/FAIL line per case.
  *   driver freeport
  *       prints a TCP port free on 127.0.0.1 and on [::].
@@ -302,7 +302,7 @@ static void build_cases(void)
     add_case("wrr-write-122-too-long", T_ALL, NULL), f = wrr(R, 1, R, 122, 244, 244), memset(f->pdu + 10, 0, 244);
     add_case("wrr-bc-mismatch", T_ALL, NULL), wrr(R, 1, R, 2, 2, 2);
     add_case("wrr-cve-2022-0367", T_ALL, NULL), wrr(R, 1, R - 0x80, 2, 4, 4), rd(3, R, 2);
-    /* (A write range no other case reads: through modbus_reply_callbacks the write
+    /* (A write range no other case reads: through modbus_reply_dispatch the write
      * callback runs before the read callback refuses, see server/allowed-differences.txt,
      * callbacks-fc17-write-first.) */
     add_case("wrr-read-below-start", T_ALL, NULL), wrr(R - 1, 1, R + 0x90, 1, 2, 2);

@@ -1,6 +1,6 @@
 /*
  * reply-callbacks.c: LD_PRELOADed into a server program run on rsmodbus, replaces
- * modbus_reply() with modbus_reply_callbacks() over a callback set that serves the
+ * modbus_reply() with modbus_reply_dispatch() over a callback set that serves the
  * same modbus_mapping_t: the server tests (c-tests/suites/server.sh) run the same
  * frames and Debian's unit tests through the callbacks and compare the answers with
  * modbus_reply's.
@@ -21,7 +21,7 @@ int modbus_reply(modbus_t *ctx, const uint8_t *req, int req_length, modbus_mappi
     static int told;
     if (!told) {
         told = 1;
-        fprintf(stderr, "reply-callbacks: modbus_reply answers through modbus_reply_callbacks\n");
+        fprintf(stderr, "reply-callbacks: modbus_reply answers through modbus_reply_dispatch\n");
     }
-    return modbus_reply_callbacks(ctx, req, req_length, &MAPPING_CALLBACKS, mb_mapping);
+    return modbus_reply_dispatch(ctx, req, req_length, &MAPPING_CALLBACKS, mb_mapping);
 }

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# callbacks.sh: a server answering through modbus_reply_callbacks and receiving
-# through modbus_receive_callbacks (c-tests/callbacks/cb-test.c), checked by a client
+# callbacks.sh: a server answering through modbus_reply_dispatch and receiving
+# through modbus_receive_dispatch (c-tests/callbacks/cb-test.c), checked by a client
 # of the same library, over TCP and over RTU on a pty pair (socat): every function
 # code's values both ways, the request info, exceptions and no answer from every
 # callback, NULL callbacks and a shorter struct, `other`, several units (silence for

@@ -12,8 +12,10 @@
 # diagnostics counters, the ASCII input delimiter, a stop during a flush), servers
 # started the libmodbus way (modbus_tcp_listen, then modbus_server_new) and a
 # hand-written Modbus/UDP loop answering two peers (c-tests/runner/server-setup.c),
-# Modbus/UDP (our client and runner against pymodbus' server and client, and through
-# a proxy that loses and repeats datagrams), and the server under AddressSanitizer.
+# callbacks with their request info and answers given later
+# (c-tests/runner/runner-later.c), Modbus/UDP (our client and runner against
+# pymodbus' server and client, and through a proxy that loses and repeats
+# datagrams), and the server under AddressSanitizer.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
@@ -223,6 +225,17 @@ if socat_pair "$WORK/socat.log" "$WORK/socat.log" "$WORK/ttyA" "$WORK/ttyB"; the
 else
     bad "RTU: a pty pair" "socat"
 fi
+
+section "callbacks in a runner (c-tests/runner/runner-later.c): the request info, answers given later"
+# The client's connection id and address (two TCP clients one after the other; two
+# UDP senders on one socket), accept_unit's request info, and the typed answers.
+for mode in tcp udp; do
+    rc=0
+    log=$WORK/later-$mode.log
+    env LD_LIBRARY_PATH="$LIBDIR" timeout -k 5 120 "$BIN/runner-later" "$mode" >"$log" 2>&1 || rc=$?
+    libinfo_ours "runner-later $mode" "$log"
+    program_checks "runner-later $mode" "$log" "$rc"
+done
 
 section "the runner as the blocking server (c-tests/runner/runner-diag.c): counters, ASCII delimiter, stop"
 # runner-diag runs a blocking server (modbus_receive + modbus_reply) and a runner of

@@ -10,7 +10,7 @@
 #  1. raw-frame differential (c-tests/server/driver.c + srv.c) over TCP, TCP-PI and RTU
 #     on a pty: response bytes, timing class (immediate / after the flush delay / none)
 #     and the server's debug log, per case;
-# 1b. the same frames, our server answering through modbus_reply_callbacks over a
+# 1b. the same frames, our server answering through modbus_reply_dispatch over a
 #     callback set that serves the same mapping: the same responses and timing;
 #  2. the same frames against our server under valgrind memcheck: same responses and
 #     logs, no memory error, no leak, clean exit;
@@ -58,7 +58,7 @@ lib_env() { # lib_env debian|ours|callbacks: the env(1) arguments that select th
 }
 
 # check_loaded FILE debian|ours|callbacks: every process that wrote FILE mapped that
-# library (callbacks: ours, with modbus_reply through modbus_reply_callbacks).
+# library (callbacks: ours, with modbus_reply through modbus_reply_dispatch).
 check_loaded() {
     local want=$DEB_LIB line n=0 bad=0
     [ "$2" != debian ] && want=$OURS_LIB
@@ -182,7 +182,7 @@ for t in tcp tcppi rtu; do
 done
 
 # ------------------------------------------------------------ 1b. through the callbacks
-# The same frames, our server answering through modbus_reply_callbacks over a callback
+# The same frames, our server answering through modbus_reply_dispatch over a callback
 # set that serves the same mapping (server/reply-callbacks.c, LD_PRELOADed into the
 # server only): every response and its timing as modbus_reply's.
 callbacks_run() { # callbacks_run TRANSPORT
@@ -195,7 +195,7 @@ callbacks_run() { # callbacks_run TRANSPORT
     PIDS+=("$pid")
     wait_pid "$pid" || { ok=0; why="driver exit $?;"; }
     check_loaded "$d/loaded" ours >"$d/loaded.check" || { ok=0; why="$why server did not load ours;"; }
-    grep -q '^reply-callbacks: modbus_reply answers through modbus_reply_callbacks' "$d/server.log" ||
+    grep -q '^reply-callbacks: modbus_reply answers through modbus_reply_dispatch' "$d/server.log" ||
         { ok=0; why="$why the server did not answer through the callbacks;"; }
     if [ $ok = 1 ]; then
         "$BIN/driver" compare "$LOGS/diff-$t/record-ours.txt" "$d/record.txt" --responses >"$d/compare.txt"
@@ -206,14 +206,14 @@ callbacks_run() { # callbacks_run TRANSPORT
         fi
     fi
     if [ $ok = 1 ]; then
-        result "callbacks $t: every frame through modbus_reply_callbacks, same responses and timing as modbus_reply ($(grep -c '^PASS' "$d/compare.txt") cases)" PASS
+        result "callbacks $t: every frame through modbus_reply_dispatch, same responses and timing as modbus_reply ($(grep -c '^PASS' "$d/compare.txt") cases)" PASS
     else
         result "callbacks $t" FAIL "$why"
     fi
     MATRIX+=("callbacks|$t|$([ $ok = 1 ] && echo same || echo FAIL)")
 }
 
-section "1b. the same frames through modbus_reply_callbacks (a callback set over the same mapping)"
+section "1b. the same frames through modbus_reply_dispatch (a callback set over the same mapping)"
 for t in tcp tcppi rtu; do
     selected "callbacks $t" || continue
     if [ -z "${DIFF_DONE[$t]:-}" ]; then
@@ -356,7 +356,7 @@ unit_finish() {
 declare -A UT_CELL=()
 if [ "$ut_built" = 1 ]; then
     section "3. Debian's unit-test-client x unit-test-server, every library combination"
-    # "callbacks": our library, the server's modbus_reply through modbus_reply_callbacks
+    # "callbacks": our library, the server's modbus_reply through modbus_reply_dispatch
     # (server/reply-callbacks.c).
     ut_combos=("debian debian" "debian ours" "ours debian" "ours ours" "debian callbacks" "ours callbacks")
     for t in tcp tcppi rtu; do

@@ -46,7 +46,7 @@
  *              never meets the old session (role ENOENT, receive -1 EMBTLS); the
  *              session of a client that went is dropped once its socket stops being
  *              current (role ENOENT; receive -1 ECONNRESET, as on a TCP socket)
- *   later      (in this process) a server answering through modbus_reply_callbacks:
+ *   later      (in this process) a server answering through modbus_reply_dispatch:
  *              the request info names the client's role (Operator); of two requests
  *              in flight from the event-driven client, the first is answered after
  *              the second, and each gets its own values
@@ -551,7 +551,7 @@ static void sessions_scenario(void)
 
 static char later_role[64];
 
-static int later_read(void *user_data, const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest)
+static int later_read(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest, void *user_data)
 {
     (void) user_data;
     snprintf(later_role, sizeof later_role, "%s", ri->tls_role != NULL ? ri->tls_role : "(null)");
@@ -579,7 +579,7 @@ static void *later_serve(void *arg)
     if (modbus_tcp_accept(ls->ctx, &ls->listener) < 0)
         return NULL;
     for (;;) {
-        int rc = modbus_receive_callbacks(ls->ctx, req, &LATER_CB, NULL);
+        int rc = modbus_receive_dispatch(ls->ctx, req, &LATER_CB, NULL);
         if (rc < 0)
             break;
         if (req[7] == MODBUS_FC_READ_HOLDING_REGISTERS && req[8] == 0 && req[9] == 150 && held_len == 0) {
@@ -587,9 +587,9 @@ static void *later_serve(void *arg)
             held_len = rc;
             continue;
         }
-        modbus_reply_callbacks(ls->ctx, req, rc, &LATER_CB, NULL);
+        modbus_reply_dispatch(ls->ctx, req, rc, &LATER_CB, NULL);
         if (held_len > 0) {
-            modbus_reply_callbacks(ls->ctx, held, held_len, &LATER_CB, NULL);
+            modbus_reply_dispatch(ls->ctx, held, held_len, &LATER_CB, NULL);
             held_len = 0;
         }
     }

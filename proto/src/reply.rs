@@ -268,15 +268,15 @@ pub struct Range {
 }
 
 /// What a server serves, as the accesses a request makes: `modbus_reply`'s mapping
-/// ([`MappingData`]) and `modbus_reply_callbacks`' callbacks are the two kinds, on
+/// ([`MappingData`]) and `modbus_reply_dispatch`' callbacks are the two kinds, on
 /// the one path of [`Server::answer`]. Values are in host order: registers as
 /// `u16`, bits one per byte (0 or 1). Which table an access reaches is the
 /// request's function code: reads of bits are coils (01) or discrete inputs (02);
 /// reads of registers are input registers (04) or holding registers (03, 16, 17).
 pub trait Data {
     /// Whether the server answers requests for `unit` (a serial broadcast is never
-    /// asked about).
-    fn accept_unit(&mut self, _unit: u8) -> bool {
+    /// asked about); `req` is the request's ADU.
+    fn accept_unit(&mut self, _unit: u8, _req: &[u8]) -> bool {
         true
     }
     /// Where libmodbus checks a request's ranges against its tables, before any
@@ -831,6 +831,81 @@ impl Server {
     }
 }
 
+/// An answer given later for a request (`modbus_server_answer_registers`,
+/// `_bits`, or `modbus_server_answer` with rc 0 for a write).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Given<'a> {
+    /// The values a register read (03, 04, 17) answers, host order.
+    Registers(&'a [u16]),
+    /// The bits a bit read (01, 02) answers, one per byte.
+    Bits(&'a [u8]),
+    /// The write is done (05, 06, 0F, 10, 16): the usual answer.
+    Done,
+}
+
+/// How many items a read request answers (`head`: its PDU, at least 5 bytes): 01
+/// to 04 and 17 (its read quantity); 0 for any other request.
+pub fn read_quantity(head: &[u8]) -> u16 {
+    match head.first() {
+        Some(&(fc::READ_COILS | fc::READ_DISCRETE_INPUTS | fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS))
+        | Some(&fc::WRITE_AND_READ_REGISTERS)
+            if head.len() >= 5 =>
+        {
+            u16::from_be_bytes([head[3], head[4]])
+        }
+        _ => 0,
+    }
+}
+
+/// Whether `given` answers a request whose PDU begins with function code
+/// `function` and reads `nb` items ([`read_quantity`]).
+pub fn given_fits(function: u8, nb: u16, given: Given<'_>) -> bool {
+    match given {
+        Given::Registers(v) => {
+            matches!(function, fc::READ_HOLDING_REGISTERS | fc::READ_INPUT_REGISTERS | fc::WRITE_AND_READ_REGISTERS)
+                && v.len() == nb as usize
+        }
+        Given::Bits(v) => matches!(function, fc::READ_COILS | fc::READ_DISCRETE_INPUTS) && v.len() == nb as usize,
+        Given::Done => matches!(
+            function,
+            fc::WRITE_SINGLE_COIL
+                | fc::WRITE_SINGLE_REGISTER
+                | fc::WRITE_MULTIPLE_COILS
+                | fc::WRITE_MULTIPLE_REGISTERS
+                | fc::MASK_WRITE_REGISTER
+        ),
+    }
+}
+
+/// The answer's PDU for `given`, to the request whose PDU begins with `head` (up to
+/// 7 bytes are read), written to `out`: its length, or `None` when `given` does not
+/// answer that request.
+pub fn given_pdu(head: &[u8], given: Given<'_>, out: &mut [u8]) -> Option<usize> {
+    let function = *head.first()?;
+    if !given_fits(function, read_quantity(head), given) {
+        return None;
+    }
+    out[0] = function;
+    match given {
+        Given::Registers(v) => {
+            out[1] = (2 * v.len()) as u8;
+            crate::data::registers_to_be(v, &mut out[2..2 + 2 * v.len()]);
+            Some(2 + 2 * v.len())
+        }
+        Given::Bits(v) => {
+            let n = pack_bits(v, &mut out[2..]);
+            out[1] = n as u8;
+            Some(2 + n)
+        }
+        Given::Done => {
+            // The echo: address and value or quantity (and the masks of 16).
+            let n = if function == fc::MASK_WRITE_REGISTER { 7 } else { 5 };
+            out[..n].copy_from_slice(head.get(..n)?);
+            Some(n)
+        }
+    }
+}
+
 /// The PDU of a request (without its header and checksum).
 pub fn pdu(framing: Framing, req: &[u8]) -> &[u8] {
     let h = framing.header_length();
@@ -970,6 +1045,30 @@ mod tests {
     }
 
     // ---------------------------------------------------------------- FC 01 / 02
+
+    #[test]
+    fn answers_given_later() {
+        let mut out = [0u8; 260];
+        let read = [0x03, 0, 10, 0, 2];
+        assert_eq!(given_pdu(&read, Given::Registers(&[0x1234, 0xABCD]), &mut out), Some(6));
+        assert_eq!(&out[..6], &[0x03, 4, 0x12, 0x34, 0xAB, 0xCD]);
+        assert_eq!(given_pdu(&read, Given::Registers(&[1]), &mut out), None, "one value for two");
+        assert_eq!(given_pdu(&read, Given::Done, &mut out), None, "a read is not done");
+        assert_eq!(given_pdu(&read, Given::Bits(&[1, 0]), &mut out), None, "bits for registers");
+        let wr = [0x17, 0, 1, 0, 1, 0, 5, 0, 1, 2, 0, 7];
+        assert_eq!(given_pdu(&wr, Given::Registers(&[9]), &mut out), Some(4));
+        assert_eq!(&out[..4], &[0x17, 2, 0, 9]);
+        let bits = [0x01, 0, 0, 0, 10];
+        assert_eq!(given_pdu(&bits, Given::Bits(&[1, 0, 0, 0, 0, 0, 0, 0, 1, 1]), &mut out), Some(4));
+        assert_eq!(&out[..4], &[0x01, 2, 0x01, 0x03]);
+        let write = [0x06, 0, 3, 0xBE, 0xEF];
+        assert_eq!(given_pdu(&write, Given::Done, &mut out), Some(5));
+        assert_eq!(&out[..5], &write);
+        let mask = [0x16, 0, 3, 0, 0xFF, 0x12, 0];
+        assert_eq!(given_pdu(&mask, Given::Done, &mut out), Some(7));
+        assert_eq!(&out[..7], &mask);
+        assert_eq!(given_pdu(&[0x41], Given::Done, &mut out), None, "an unknown code");
+    }
 
     #[test]
     fn pack_bits_matches_the_bit_by_bit_rule() {
@@ -1763,7 +1862,7 @@ mod tests {
     fn every_function_through_other_when_asked() {
         struct All(Vec<u8>);
         impl Data for All {
-            fn accept_unit(&mut self, _unit: u8) -> bool {
+            fn accept_unit(&mut self, _unit: u8, _req: &[u8]) -> bool {
                 true
             }
             fn check(

@@ -250,6 +250,21 @@ pub unsafe extern "C" fn modbus_get_header_length(ctx: *mut Modbus) -> c_int {
     unsafe { with_ctx(ctx, |g| Ok(g.framing().header_length() as c_int)) }
 }
 
+/// rsmodbus extension: the length of the checksum that ends the messages this
+/// library hands over and takes (`modbus_receive`, `modbus_receive_confirmation`,
+/// the raw calls): 2 for RTU (and RTU over TCP), 1 for ASCII (its LRC, the frame
+/// decoded), 0 for TCP, UDP and Modbus/TCP Security. With
+/// `modbus_get_header_length`, what to cut off a message to get its PDU. -1 with
+/// EINVAL when `ctx` is NULL.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_checksum_length(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| Ok(g.framing().checksum_length() as c_int)) }
+}
+
 /// Any non-zero flag turns the debug trace on (stdout and stderr).
 ///
 /// # Safety

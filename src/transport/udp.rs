@@ -194,6 +194,30 @@ impl Senders {
     }
 }
 
+impl Peer {
+    /// The peer of a connected socket (`getpeername`), `None` when it has none.
+    pub fn of_socket(fd: i32) -> Option<Peer> {
+        // SAFETY: all-zero is a valid sockaddr_storage; the kernel writes at most `len`.
+        let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
+        let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+        // SAFETY: `addr`/`len` describe a live buffer.
+        let rc = unsafe { libc::getpeername(fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len) };
+        (rc == 0 && len > 0).then_some(Peer { addr, len })
+    }
+
+    /// The address as C sees it: a `struct sockaddr` of `len` bytes.
+    pub fn raw(&self) -> (*const libc::sockaddr, u32) {
+        ((&self.addr as *const libc::sockaddr_storage).cast(), self.len)
+    }
+
+    /// The address's bytes (a key: the same sender gives the same bytes).
+    pub fn bytes(&self) -> &[u8] {
+        let len = (self.len as usize).min(size_of::<libc::sockaddr_storage>());
+        // SAFETY: `addr` is a live sockaddr_storage of at least `len` bytes.
+        unsafe { std::slice::from_raw_parts((&self.addr as *const libc::sockaddr_storage).cast::<u8>(), len) }
+    }
+}
+
 /// The datagram being read, and where the answer goes.
 pub struct Datagram {
     buf: Box<[u8; MAX_ADU_LENGTH]>,

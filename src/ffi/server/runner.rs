@@ -2,7 +2,7 @@
 //! one epoll descriptor, every client of a listening context, or a serial line
 //! (`crate::runner`). Its requests are answered on the one reply path, from a
 //! mapping or the application's callbacks, as `modbus_reply` and
-//! `modbus_reply_callbacks` answer them.
+//! `modbus_reply_dispatch` answer them.
 
 use std::cell::UnsafeCell;
 use std::ffi::{c_int, c_void};
@@ -25,7 +25,7 @@ use crate::runner::{Answer, Answers, Later, Runner, Stopper};
 enum Source {
     Nothing,
     Mapping(*mut modbus_mapping_t),
-    Callbacks(Callbacks),
+    Callbacks(Box<Callbacks>),
 }
 
 impl Answer for Source {
@@ -33,22 +33,28 @@ impl Answer for Source {
         matches!(self, Source::Callbacks(cb) if cb.chooses_units())
     }
 
-    fn accept_unit(&mut self, unit: u8) -> bool {
+    fn arrived(&mut self, g: &mut Guard<'_>) {
+        if let Source::Callbacks(cb) = self {
+            cb.from(g, &[]);
+        }
+    }
+
+    fn accept_unit(&mut self, unit: u8, req: &[u8]) -> bool {
         use crate::proto::reply::Data;
         match self {
-            Source::Callbacks(cb) => cb.accept_unit(unit),
+            Source::Callbacks(cb) => cb.accept_unit(unit, req),
             _ => true,
         }
     }
 
-    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8], id: u32) -> Result<Option<usize>> {
+    fn answer(&mut self, g: &mut Guard<'_>, req: &[u8], id: i32) -> Result<Option<usize>> {
         let len = req.len() as i32;
         match self {
             Source::Callbacks(cb) => {
-                cb.from(g);
+                cb.from(g, req);
                 cb.request_id = id;
                 cb.deferred = false;
-                let sent = crate::server::reply(g, req, len, cb)?;
+                let sent = crate::server::reply(g, req, len, &mut **cb)?;
                 Ok((!cb.deferred).then_some(sent))
             }
             Source::Mapping(m) => {
@@ -137,7 +143,7 @@ pub unsafe extern "C" fn modbus_server_new(ctx: *mut Modbus, max_clients: c_int)
 }
 
 /// Answers the requests through the callbacks `cb` (copied; see
-/// `modbus_reply_callbacks`), with `user_data`, in place of a mapping. With
+/// `modbus_reply_dispatch`), with `user_data`, in place of a mapping. With
 /// `accept_unit` set, a serial server answers the units it accepts (broadcasts
 /// too), whatever the context's slave.
 ///
@@ -161,7 +167,7 @@ pub unsafe extern "C" fn modbus_server_set_callbacks(
         Ok(c) => c,
         Err(e) => return fail(e),
     };
-    inner.source = Source::Callbacks(callbacks);
+    inner.source = Source::Callbacks(Box::new(callbacks));
     0
 }
 
@@ -299,12 +305,15 @@ pub unsafe extern "C" fn modbus_server_stop(s: *mut ServerRunner) -> c_int {
 
 /// Answers request `request_id` (`ri->request_id` of a callback that returned
 /// `MODBUS_REPLY_LATER`) as that callback would have: `rc` > 0, the answer's PDU in
-/// `rsp_pdu` (function code first, `rc` bytes); -code, an exception answer;
-/// `MODBUS_REPLY_NONE`, no answer. May be called from any thread and from a
-/// callback; the answer goes out in the run under way (woken) or the next. An answer
-/// for a client that has left, or for an unknown id, is dropped. EINVAL: `s` NULL,
-/// `rc` none of those (a PDU longer than 253 bytes, an exception code out of range),
-/// `rsp_pdu` NULL with `rc` > 0.
+/// `rsp_pdu` (function code first, `rc` bytes); `MODBUS_REPLY_EXCEPTION(code)`, an
+/// exception answer; 0, a write (05, 06, 0F, 10, 16) is done: the usual answer;
+/// `MODBUS_REPLY_NONE`, no answer. A read is answered with
+/// `modbus_server_answer_registers` or `modbus_server_answer_bits`. May be called
+/// from any thread and from a callback; the answer goes out in the run under way
+/// (woken) or the next. An answer for a client that has left is dropped. EINVAL:
+/// `s` NULL, `request_id` not waiting for an answer (never deferred, or answered
+/// already), `rc` none of those (a PDU longer than 253 bytes, an exception code out
+/// of range, 0 for a request that is no write), `rsp_pdu` NULL with `rc` > 0.
 ///
 /// Linux only (epoll).
 ///
@@ -313,25 +322,103 @@ pub unsafe extern "C" fn modbus_server_stop(s: *mut ServerRunner) -> c_int {
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_server_answer(
     s: *mut ServerRunner,
-    request_id: u32,
+    request_id: c_int,
     rsp_pdu: *const u8,
     rc: c_int,
 ) -> c_int {
     use super::callbacks::REPLY_NONE;
     use crate::proto::error::exception;
-    // SAFETY: forwarded caller contract; only the shared parts are read.
-    let Some(server) = (unsafe { s.as_ref() }) else { return fail(Error::INVALID) };
     let later = match rc {
+        0 => Later::Done,
         REPLY_NONE => Later::Nothing,
         n if n > 0 && n as usize <= crate::proto::limits::MAX_PDU_LENGTH && !rsp_pdu.is_null() => {
             // SAFETY: the caller's buffer of `rc` bytes.
             Later::Pdu(unsafe { std::slice::from_raw_parts(rsp_pdu, n as usize) }.to_vec())
         }
-        n if n < 0 && -n < exception::MAX as c_int && -n > 0 => Later::Exception((-n) as u8),
+        n if n < 0 && -n < exception::MAX as c_int => Later::Exception((-n) as u8),
         _ => return fail(Error::INVALID),
     };
-    server.answers.give(&server.stopper, request_id, later);
-    0
+    // SAFETY: forwarded caller contract.
+    unsafe { give(s, request_id, later) }
+}
+
+/// Answers request `request_id`, a register read (03, 04, or 17, whose read part
+/// `ri->pdu` tells), with the `nb` values at `values` (host order; `nb` must be the
+/// quantity the request reads). As `modbus_server_answer` otherwise; EINVAL also
+/// when the request is no register read, or `nb` is not its quantity.
+///
+/// # Safety
+/// `s` must be NULL or a live runner; `values` NULL or valid for `nb` values.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_answer_registers(
+    s: *mut ServerRunner,
+    request_id: c_int,
+    values: *const u16,
+    nb: c_int,
+) -> c_int {
+    if values.is_null() || !(1..=crate::proto::limits::MAX_READ_REGISTERS as c_int).contains(&nb) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: the caller's `nb` values.
+    let v = unsafe { std::slice::from_raw_parts(values, nb as usize) }.to_vec();
+    // SAFETY: forwarded caller contract.
+    unsafe { give(s, request_id, Later::Registers(v)) }
+}
+
+/// Answers request `request_id`, a bit read (01 or 02), with the `nb` bits at
+/// `bits` (one per byte, 0 or not; `nb` must be the quantity the request reads).
+/// As `modbus_server_answer` otherwise; EINVAL also when the request is no bit
+/// read, or `nb` is not its quantity.
+///
+/// # Safety
+/// `s` must be NULL or a live runner; `bits` NULL or valid for `nb` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_answer_bits(
+    s: *mut ServerRunner,
+    request_id: c_int,
+    bits: *const u8,
+    nb: c_int,
+) -> c_int {
+    if bits.is_null() || !(1..=crate::proto::limits::MAX_READ_BITS as c_int).contains(&nb) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: the caller's `nb` bytes.
+    let v = unsafe { std::slice::from_raw_parts(bits, nb as usize) }.iter().map(|&b| (b != 0) as u8).collect();
+    // SAFETY: forwarded caller contract.
+    unsafe { give(s, request_id, Later::Bits(v)) }
+}
+
+/// Answers request `request_id` with exception `exception_code` (a positive
+/// `MODBUS_EXCEPTION_*` code, 1 to 11). As `modbus_server_answer` otherwise;
+/// EINVAL also for a code out of range.
+///
+/// # Safety
+/// `s` must be NULL or a live runner.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_server_answer_exception(
+    s: *mut ServerRunner,
+    request_id: c_int,
+    exception_code: c_int,
+) -> c_int {
+    use crate::proto::error::exception;
+    if !(1..exception::MAX as c_int).contains(&exception_code) {
+        return fail(Error::INVALID);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe { give(s, request_id, Later::Exception(exception_code as u8)) }
+}
+
+/// Gives `later` for request `id` of `s`.
+///
+/// # Safety
+/// `s` must be NULL or a live runner.
+unsafe fn give(s: *mut ServerRunner, id: c_int, later: Later) -> c_int {
+    // SAFETY: forwarded caller contract; only the shared parts are read.
+    let Some(server) = (unsafe { s.as_ref() }) else { return fail(Error::INVALID) };
+    match server.answers.give(&server.stopper, id, later) {
+        Ok(()) => 0,
+        Err(e) => fail(e),
+    }
 }
 
 /// Closes every client (and the listening socket the server opened) and frees the
