@@ -1272,7 +1272,8 @@ MODBUS_API modbus_server_t *modbus_server_new(modbus_t *ctx, int max_clients);
  * Answers the requests through the callbacks `cb` (copied; see
  * `modbus_reply_dispatch`), with `user_data`, in place of a mapping. With
  * `accept_unit` set, a serial server answers the units it accepts (broadcasts
- * too), whatever the context's slave.
+ * too), whatever the context's slave. EINVAL: `s` or `cb` NULL, `cb->struct_size`
+ * refused (as `modbus_reply_dispatch` refuses it); EBUSY during a run.
  *
  * Linux only (epoll).
  *

@@ -275,6 +275,33 @@ int main(int argc, char **argv)
         modbus_set_debug(ctx, TRUE);
     }
     server = modbus_server_new(ctx, 8);
+    if (server != NULL) {
+        /* struct_size: too small, in the middle of a member, larger with a member
+         * this library does not know set: EINVAL; larger with a zero tail: taken. */
+        struct {
+            modbus_server_callbacks_t cb;
+            void *future[2];
+        } big;
+        modbus_server_callbacks_t small = CB;
+        small.struct_size = offsetof(modbus_server_callbacks_t, other);
+        errno = 0;
+        EXPECT(modbus_server_set_callbacks(server, &small, NULL) == -1 && errno == EINVAL,
+               "modbus_server_set_callbacks: struct_size below the first published size, EINVAL");
+        small.struct_size = sizeof small - 2;
+        errno = 0;
+        EXPECT(modbus_server_set_callbacks(server, &small, NULL) == -1 && errno == EINVAL,
+               "modbus_server_set_callbacks: struct_size in the middle of a member, EINVAL");
+        memset(&big, 0, sizeof big);
+        big.cb = CB;
+        big.cb.struct_size = sizeof big;
+        big.future[0] = &big;
+        errno = 0;
+        EXPECT(modbus_server_set_callbacks(server, &big.cb, NULL) == -1 && errno == EINVAL,
+               "modbus_server_set_callbacks: a member this library does not know set, EINVAL");
+        big.future[0] = NULL;
+        EXPECT(modbus_server_set_callbacks(server, &big.cb, NULL) == 0,
+               "modbus_server_set_callbacks: a larger struct with a zero tail is taken");
+    }
     if (server == NULL || modbus_server_set_callbacks(server, &CB, NULL) != 0) {
         fprintf(stderr, "server: %s\n", modbus_strerror(errno));
         return 2;
