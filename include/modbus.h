@@ -1377,6 +1377,8 @@ int modbus_server_answer(modbus_server_t *s,
  * quantity the request reads). As `modbus_server_answer` otherwise; EINVAL also
  * when the request is no register read, or `nb` is not its quantity.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `s` must be NULL or a live runner; `values` NULL or valid for `nb` values.
  */
@@ -1392,6 +1394,8 @@ int modbus_server_answer_registers(modbus_server_t *s,
  * As `modbus_server_answer` otherwise; EINVAL also when the request is no bit
  * read, or `nb` is not its quantity.
  *
+ * Linux only (epoll).
+ *
  * # Safety
  * `s` must be NULL or a live runner; `bits` NULL or valid for `nb` bytes.
  */
@@ -1405,6 +1409,8 @@ int modbus_server_answer_bits(modbus_server_t *s,
  * Answers request `request_id` with exception `exception_code` (a positive
  * `MODBUS_EXCEPTION_*` code, 1 to 11). As `modbus_server_answer` otherwise;
  * EINVAL also for a code out of range.
+ *
+ * Linux only (epoll).
  *
  * # Safety
  * `s` must be NULL or a live runner.

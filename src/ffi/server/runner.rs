@@ -348,6 +348,8 @@ pub unsafe extern "C" fn modbus_server_answer(
 /// quantity the request reads). As `modbus_server_answer` otherwise; EINVAL also
 /// when the request is no register read, or `nb` is not its quantity.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `s` must be NULL or a live runner; `values` NULL or valid for `nb` values.
 #[unsafe(no_mangle)]
@@ -371,6 +373,8 @@ pub unsafe extern "C" fn modbus_server_answer_registers(
 /// As `modbus_server_answer` otherwise; EINVAL also when the request is no bit
 /// read, or `nb` is not its quantity.
 ///
+/// Linux only (epoll).
+///
 /// # Safety
 /// `s` must be NULL or a live runner; `bits` NULL or valid for `nb` bytes.
 #[unsafe(no_mangle)]
@@ -392,6 +396,8 @@ pub unsafe extern "C" fn modbus_server_answer_bits(
 /// Answers request `request_id` with exception `exception_code` (a positive
 /// `MODBUS_EXCEPTION_*` code, 1 to 11). As `modbus_server_answer` otherwise;
 /// EINVAL also for a code out of range.
+///
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `s` must be NULL or a live runner.
