@@ -96,6 +96,8 @@ pub struct Connection {
     pub(crate) fixed: bool,
     /// The socket cookie `id` is for.
     pub(crate) cookie: u64,
+    /// The line's generation (`Line::generation`) when the cookie was read.
+    pub(crate) generation: u32,
     pub(crate) id: u64,
     pub(crate) peer: Option<crate::transport::udp::Peer>,
     /// UDP: each sender's id and when it was last seen (a count of datagrams).

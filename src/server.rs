@@ -51,14 +51,18 @@ pub fn connection(ctx: &mut Context) -> (u64, Option<Peer>) {
         return (0, None);
     }
     let fd = ctx.fd();
+    let generation = ctx.line.generation();
     let c = &mut ctx.connection;
-    if !c.fixed {
+    // The socket is asked only when the line's descriptor changed (modbus_set_socket
+    // again with the same socket keeps its id).
+    if !c.fixed && (c.id == 0 || c.generation != generation) {
         let cookie = crate::transport::socket_cookie(fd);
         if c.id == 0 || cookie != c.cookie {
             c.cookie = cookie;
             c.id = new_connection_id();
             c.peer = Peer::of_socket(fd);
         }
+        c.generation = generation;
     }
     (c.id, c.peer)
 }
