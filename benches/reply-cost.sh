@@ -9,7 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 LIB=target/release
 if [ "${BENCH_PGO:-1}" = 1 ] && [ -e target/pgo/release/libmodbus.so ] &&
-    nm -D target/pgo/release/libmodbus.so | grep -q ' T modbus_reply_dispatch$'; then
+    grep -q ' T modbus_reply_dispatch$' <<<"$(nm -D target/pgo/release/libmodbus.so)"; then
     LIB=target/pgo/release
 else
     cargo build --release --quiet
