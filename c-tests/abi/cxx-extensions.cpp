@@ -79,12 +79,12 @@ double seconds_since(std::chrono::steady_clock::time_point t0)
 // The library calls these through C function pointers: they have C linkage.
 extern "C" {
 
-static int read_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
-                          uint16_t *dest)
+static int read_registers(const modbus_request_info_t *ri, int addr, int nb, uint16_t *dest,
+                          void *user_data)
 {
     Device *d = static_cast<Device *>(user_data);
     if (addr < 0 || nb < 1 || addr + nb > NB) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     for (int i = 0; i < nb; i++) {
         // Input registers are the holding registers plus 1000.
@@ -95,12 +95,12 @@ static int read_registers(void *user_data, const modbus_request_info_t *ri, int 
     return 0;
 }
 
-static int write_registers(void *user_data, const modbus_request_info_t *ri, int addr, int nb,
-                           const uint16_t *src)
+static int write_registers(const modbus_request_info_t *ri, int addr, int nb, const uint16_t *src,
+                           void *user_data)
 {
     Device *d = static_cast<Device *>(user_data);
     if (addr < 0 || nb < 1 || addr + nb > NB || ri->unit_id < 0) {
-        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        return MODBUS_REPLY_EXCEPTION(MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
     }
     std::memcpy(d->registers + addr, src, sizeof(uint16_t) * static_cast<size_t>(nb));
     d->writes++;
