@@ -67,6 +67,9 @@ pub struct Context {
     /// private to the context: made on the first asynchronous call, lent to
     /// `modbus_process` while it runs ([`Context::lend_async`]).
     asynchronous: Async,
+    /// A close left requests of the event-driven client to complete, or a free is
+    /// completing them (see [`Shut`]): new ones are refused meanwhile.
+    shut: Shut,
     /// A server runner drives this context (`crate::runner`): nothing may wait in
     /// it (no sleep before a flush; writes are queued on the line).
     pub runner: bool,
@@ -129,6 +132,21 @@ enum Async {
     },
 }
 
+/// Whether the event-driven client takes requests (`modbus_close` and `modbus_free`
+/// with requests pending; see `crate::event::close`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shut {
+    /// It does.
+    Open,
+    /// A close left requests pending: they complete with ESHUTDOWN on the loop's
+    /// thread (the next `modbus_process`, or `modbus_free`); until their callbacks
+    /// have run, a submission fails with ESHUTDOWN.
+    Closing,
+    /// `modbus_free` completes what is pending (EIDRM): a submission from those
+    /// callbacks fails with EIDRM.
+    Freed,
+}
+
 /// Frame buffers a context lends to each transaction and takes back: a transaction
 /// then neither allocates nor zeroes 260 bytes per frame (it only ever reads what it
 /// wrote). Allocated on first use, freed with the context.
@@ -187,6 +205,7 @@ impl Context {
             spare: SpareFrames::default(),
             stop,
             asynchronous: Async::None,
+            shut: Shut::Open,
             runner: false,
             connection: Default::default(),
         }
@@ -436,6 +455,15 @@ impl Context {
     /// The state [`Context::lend_async`] lent comes back.
     pub fn give_back_async(&mut self, o: Box<Outstanding>) {
         self.asynchronous = Async::Here(o);
+    }
+
+    /// Whether the event-driven client takes requests (see [`Shut`]).
+    pub fn shut(&self) -> Shut {
+        self.shut
+    }
+
+    pub fn set_shut(&mut self, shut: Shut) {
+        self.shut = shut;
     }
 
     /// A blocking call may run: nothing of the event-driven client is pending

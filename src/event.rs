@@ -15,7 +15,7 @@
 
 use std::time::Duration;
 
-use crate::context::Context;
+use crate::context::{Context, Shut};
 use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result};
 use crate::outstanding::{Completion, Deliver, Done, Outstanding, Receiving};
@@ -87,6 +87,13 @@ fn queue(
     answered: bool,
     continuing: Option<i32>,
 ) -> Result<i32> {
+    match ctx.shut() {
+        Shut::Open => {}
+        // A close left requests to complete (their callbacks not run yet).
+        Shut::Closing => return Err(Error(libc::ESHUTDOWN)),
+        // A callback run by `modbus_free`.
+        Shut::Freed => return Err(Error(libc::EIDRM)),
+    }
     if ctx.session.slave < 0 && req.own_unit().is_none() {
         ctx.diag().err(format_args!("ERROR The slave is not set (call modbus_set_slave)\n"));
         return Err(Error::INVALID);
@@ -137,18 +144,54 @@ pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
     Ok(())
 }
 
-/// `modbus_close`: everything pending completes with ECANCELED (their callbacks
-/// run when the C layer next fires the completed ones), then the line closes.
+/// `modbus_close`: the line closes; what is pending stays, to complete with
+/// ESHUTDOWN on the loop's thread ([`complete_close`]). A signal handler may be
+/// running this (with the lock free, or through `finish_handler_close`): nothing
+/// here calls back, allocates or takes a lock but the context's.
 pub fn close(ctx: &mut Context) {
-    cancel_all(ctx);
+    shut_pending(ctx);
     session::close_line(ctx);
 }
 
-/// A close: everything pending completes with ECANCELED.
-pub fn cancel_all(ctx: &mut Context) {
+/// A close with requests pending: they are to complete with ESHUTDOWN, and
+/// submissions wait for that (see [`Shut::Closing`]). A multi handle learns it
+/// without a lock (`Members::closed`).
+pub fn shut_pending(ctx: &mut Context) {
+    if ctx.pending() == 0 || ctx.shut() != Shut::Open {
+        return;
+    }
+    ctx.set_shut(Shut::Closing);
+    if let Some((members, _)) = ctx.async_view().and_then(|o| o.multi.as_ref()) {
+        members.closed();
+    }
+}
+
+/// What a close left pending completes now with ESHUTDOWN (their callbacks run when
+/// the C layer next fires the completed ones): on the loop's thread, from
+/// `modbus_process` and `modbus_free`.
+pub fn complete_close(ctx: &mut Context) {
+    if ctx.shut() != Shut::Closing {
+        return;
+    }
     if let Ok(Some(o)) = ctx.async_state() {
-        o.fail_all(libc::ECANCELED);
-        mark(o);
+        o.fail_all(libc::ESHUTDOWN);
+    }
+}
+
+/// The callbacks of a close's requests have run: submissions are taken again.
+pub fn closed(ctx: &mut Context) {
+    if ctx.shut() == Shut::Closing && ctx.pending() == 0 {
+        ctx.set_shut(Shut::Open);
+    }
+}
+
+/// `modbus_free`: what a close left completes with ESHUTDOWN, everything else with
+/// EIDRM; from now on a submission (from those callbacks) fails with EIDRM.
+pub fn free(ctx: &mut Context) {
+    complete_close(ctx);
+    ctx.set_shut(Shut::Freed);
+    if let Ok(Some(o)) = ctx.async_state() {
+        o.fail_all(libc::EIDRM);
     }
 }
 
@@ -161,6 +204,10 @@ pub fn take_done(ctx: &mut Context) -> Option<Done> {
 pub fn interest(ctx: &Context) -> Interest {
     let fd = ctx.fd();
     let Some(o) = ctx.async_view() else { return Interest { fd, events: 0, until: None } };
+    if ctx.shut() == Shut::Closing {
+        // A close left requests to complete: at once.
+        return Interest { fd, events: 0, until: Some(transport::now()) };
+    }
     if o.pending() == 0 {
         return Interest { fd, events: 0, until: None };
     }
@@ -208,6 +255,7 @@ pub fn interest(ctx: &Context) -> Interest {
 pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
     // (From the RTS hook of a modbus_process: EBUSY.)
     g.async_state()?;
+    complete_close(g);
     let Some(mut o) = g.lend_async() else { return Ok(0) };
     let before = o.done.len();
     let mut readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
@@ -216,11 +264,18 @@ pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
     let completed = o.done.len() - before;
     mark(&o);
     g.give_back_async(o);
+    // A close from the RTS hook it ran (or a signal handler meanwhile).
+    complete_close(g);
     Ok(completed)
 }
 
 fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bool) {
     for _ in 0..4 * MAX_PENDING {
+        if g.shut() == Shut::Closing {
+            // Closed from the RTS hook (or a signal handler) meanwhile: nothing more
+            // goes out; what is pending completes with ESHUTDOWN when this ends.
+            return;
+        }
         let now = transport::now();
         let mut progress = false;
         for (e, end) in o.pipeline.due(now, g.client.late()) {

@@ -8,6 +8,7 @@
 use std::collections::{HashMap, VecDeque};
 use std::ffi::{c_int, c_void};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
 
 use crate::handle::lock::OwnerMutex;
 
@@ -130,6 +131,9 @@ pub struct Members {
     /// The contexts whose interest may have changed since the handle last asked
     /// (a request given, processed, cancelled, a close): only these are asked again.
     pub dirty: OwnerMutex<Vec<usize>>,
+    /// A context was closed (from a signal handler, maybe: no lock) with requests
+    /// left to complete: every member is asked again.
+    pub closed: AtomicBool,
 }
 
 /// What a multi handle registered for one context.
@@ -151,6 +155,11 @@ pub struct Member {
 }
 
 impl Members {
+    /// A context closed with requests pending (see [`Members::closed`]).
+    pub fn closed(&self) {
+        self.closed.store(true, SeqCst);
+    }
+
     /// The context `key` is to be asked again before the next wait.
     pub fn mark(&self, key: usize) {
         self.dirty.lock().push(key);

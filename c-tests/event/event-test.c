@@ -38,6 +38,7 @@
 #include <netinet/in.h>
 #include <poll.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -366,7 +367,8 @@ static void compare_calls(modbus_t *ctx, int serial)
     drive(ctx, 10);
     EXPECT(chain_left == 0 && modbus_pending(ctx) == 0, "five requests, each submitted by the last one's callback");
 
-    /* Close with requests pending: each completes with ECANCELED before the close returns. */
+    /* Close with requests pending: no callback runs inside modbus_close; the next
+     * modbus_process completes each with ESHUTDOWN. */
     reset();
     int ids[3];
     for (int i = 0; i < 3; i++) {
@@ -374,12 +376,15 @@ static void compare_calls(modbus_t *ctx, int serial)
     }
     modbus_process(ctx, 0); /* the first goes out */
     modbus_close(ctx);
-    int cancelled = 0;
+    int inside = completed;
+    rc = modbus_process(ctx, 0);
+    int shut = 0;
     for (int i = 0; i < 3; i++) {
-        cancelled += results[ids[i]].done == 1 && results[ids[i]].error == ECANCELED;
+        shut += results[ids[i]].done == 1 && results[ids[i]].error == ESHUTDOWN;
     }
-    EXPECT(cancelled == 3 && modbus_pending(ctx) == 0, "modbus_close: 3 pending requests completed with ECANCELED (%d)",
-           cancelled);
+    EXPECT(inside == 0 && rc == 3 && shut == 3 && modbus_pending(ctx) == 0,
+           "modbus_close: no callback inside it (%d), the next modbus_process completed %d, %d with ESHUTDOWN", inside,
+           rc, shut);
 }
 
 static uint16_t chain_regs[1];
@@ -733,7 +738,7 @@ static void multi_case(void)
             if (i == 7) {
                 refused += r.done == 1 && r.rc == -1 && r.error == ECONNREFUSED;
             } else if (i == 9) {
-                freed_ok += r.done == 1 && (k == 0 ? r.rc == 4 : r.error == ECANCELED);
+                freed_ok += r.done == 1 && (k == 0 ? r.rc == 4 : r.error == EIDRM);
             } else {
                 /* Each context numbers its own transactions 1, 2, 3. */
                 right += r.done == 1 && r.rc == 4 && vals[i][k][0] == k + 1 && vals[i][k][3] == k + 1;
@@ -743,7 +748,7 @@ static void multi_case(void)
     EXPECT(right == 3 * (MULTI_N - 2), "multi: %d contexts x 3 requests, each its own answer: %d of %d (%.3f s, %d rounds)",
            MULTI_N - 2, right, 3 * (MULTI_N - 2), took, rounds);
     EXPECT(refused == 3, "multi: the device with nothing listening: its 3 requests fail with ECONNREFUSED (%d)", refused);
-    EXPECT(freed_ok == 3, "multi: a callback freed its context: its others completed with ECANCELED, none after (%d)",
+    EXPECT(freed_ok == 3, "multi: a callback freed its context: its others completed with EIDRM, none after (%d)",
            freed_ok);
     EXPECT(multi_left == 0 && completed == 3 * MULTI_N - 2,
            "multi: every callback ran once (left %d; perform counted %d: the 2 cancelled by the free run inside it)",
@@ -811,7 +816,7 @@ static void own_servers(void)
     }
 
     /* 2. A callback that frees its context: the request behind it completes inside
-     *    modbus_free (ECANCELED), and no callback runs after. */
+     *    modbus_free (EIDRM), and no callback runs after. */
     reset();
     freed_flag = 0;
     modbus_read_registers_async(ctx, 0, 1, v, free_cb, NULL);
@@ -823,8 +828,8 @@ static void own_servers(void)
         poll(&pfd, pfd.fd >= 0 ? 1 : 0, timeout < 0 ? 100 : timeout);
         modbus_process(ctx, pfd.revents);
     }
-    EXPECT(freed_flag && results[behind].done == 1 && results[behind].error == ECANCELED && completed == 1,
-           "a callback freed its context: the request behind it completed inside modbus_free (ECANCELED), once");
+    EXPECT(freed_flag && results[behind].done == 1 && results[behind].error == EIDRM && completed == 1,
+           "a callback freed its context: the request behind it completed inside modbus_free (EIDRM), once");
     close(lf);
 
     /* 3. Late answers: request 1 times out, its answer comes while request 2 waits;
@@ -1194,6 +1199,239 @@ static void two_threads(int port, int n)
     }
 }
 
+/* ---------------------------------------------------------------- close and free with requests pending
+ * (issue 39, item 2) A close, from a signal handler too, runs no callback: the
+ * requests it leaves complete with ESHUTDOWN on the loop's thread (the next
+ * modbus_process or modbus_multi_perform, or modbus_free); a submission while that
+ * close is being completed fails with ESHUTDOWN, one from a callback run by
+ * modbus_free with EIDRM. Cancel, close and free are told apart by the error:
+ * ECANCELED, ESHUTDOWN, EIDRM. Each callback records whether a handler was active
+ * (a flag the handler sets on entry and clears on exit); every id completes once. */
+#define SIG_N 100
+static modbus_t *volatile sig_ctx;
+static volatile sig_atomic_t in_handler, handler_ran;
+static int sig_in_handler, sig_calls, sig_resubmit, sig_resubmits, sig_resubmit_ok, sig_resubmit_errno;
+static uint16_t sig_vals[SIG_N];
+
+static void on_term(int sig)
+{
+    int saved = errno;
+    (void) sig;
+    in_handler = 1;
+    modbus_close(sig_ctx);
+    handler_ran = 1;
+    in_handler = 0;
+    errno = saved;
+}
+
+static void sig_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    struct result *r = user;
+    (void) id;
+    sig_calls++;
+    if (in_handler) {
+        sig_in_handler++;
+    }
+    r->done++;
+    r->rc = rc;
+    r->error = error;
+    if (sig_resubmit) {
+        static uint16_t v;
+        int k = modbus_read_registers_async(ctx, 0, 1, &v, on_done, NULL);
+        sig_resubmits++;
+        if (k >= 0) {
+            sig_resubmit_ok++;
+        } else {
+            sig_resubmit_errno = errno;
+        }
+    }
+}
+
+/* A context to a peer that accepts (the kernel's backlog) and never answers, with n
+ * requests of sig_cb pending, some of them on the wire. */
+static modbus_t *sig_setup(int port, struct result *res, int n)
+{
+    modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_response_timeout(ctx, 10, 0);
+    modbus_set_max_in_flight(ctx, 16);
+    memset(res, 0, sizeof(*res) * (size_t) n);
+    sig_in_handler = sig_calls = sig_resubmit = sig_resubmits = sig_resubmit_ok = sig_resubmit_errno = 0;
+    int queued = 0;
+    for (int i = 0; i < n; i++) {
+        queued += modbus_read_registers_async(ctx, 0, 1, &sig_vals[i], sig_cb, &res[i]) >= 0;
+    }
+    if (queued != n) {
+        EXPECT(0, "%d requests queued (%d)", n, queued);
+    }
+    /* Connect, and the first 16 go out. */
+    for (int i = 0; i < 20; i++) {
+        struct pollfd pfd;
+        int timeout;
+        modbus_get_pollfd(ctx, &pfd, &timeout);
+        poll(&pfd, pfd.fd >= 0 && pfd.events ? 1 : 0, timeout < 0 || timeout > 20 ? 20 : timeout);
+        modbus_process(ctx, pfd.revents);
+    }
+    return ctx;
+}
+
+/* Each of res[0..n) completed once with `error`: how many did. */
+static int sig_count(const struct result *res, int n, int error)
+{
+    int k = 0;
+    for (int i = 0; i < n; i++) {
+        k += res[i].done == 1 && res[i].rc == -1 && res[i].error == error;
+    }
+    return k;
+}
+
+static pthread_t sig_main;
+static volatile int sig_delay_us;
+static void *sig_killer(void *arg)
+{
+    (void) arg;
+    usleep((unsigned) sig_delay_us);
+    pthread_kill(sig_main, SIGTERM);
+    return NULL;
+}
+
+static void close_and_free(void)
+{
+    static struct result res[SIG_N];
+    int port, lf = listen_any(&port);
+    struct sigaction sa, old;
+    memset(&sa, 0, sizeof(sa));
+    sa.sa_handler = on_term;
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGTERM, &sa, &old);
+
+    /* 1. SIGTERM in the loop's thread, between two library calls (where a loop
+     *    spends its time: in poll). */
+    modbus_t *ctx = sig_setup(port, res, SIG_N);
+    sig_ctx = ctx;
+    handler_ran = 0;
+    raise(SIGTERM);
+    EXPECT(handler_ran && sig_in_handler == 0 && sig_calls == 0,
+           "SIGTERM handler calling modbus_close with %d requests pending: no callback ran inside the handler "
+           "(%d did, %d callbacks in all)",
+           SIG_N, sig_in_handler, sig_calls);
+    uint16_t v;
+    errno = 0;
+    int k = modbus_read_registers_async(ctx, 0, 1, &v, on_done, NULL);
+    EXPECT(k == -1 && errno == ESHUTDOWN, "a submission before the close is completed: -1 ESHUTDOWN (%d, %s)", k,
+           modbus_strerror(errno));
+    struct pollfd pfd;
+    int timeout = -2;
+    int pending = modbus_get_pollfd(ctx, &pfd, &timeout);
+    EXPECT(pending == SIG_N && timeout == 0, "modbus_get_pollfd after the close: %d pending, process at once (%d ms)",
+           pending, timeout);
+    sig_resubmit = 1;
+    int c = modbus_process(ctx, 0);
+    sig_resubmit = 0;
+    EXPECT(c == SIG_N && sig_count(res, SIG_N, ESHUTDOWN) == SIG_N && sig_calls == SIG_N,
+           "the next modbus_process completes them: returns %d, %d of %d completed once with ESHUTDOWN (%d callbacks)",
+           c, sig_count(res, SIG_N, ESHUTDOWN), SIG_N, sig_calls);
+    EXPECT(sig_resubmits == SIG_N && sig_resubmit_ok == 0 && sig_resubmit_errno == ESHUTDOWN,
+           "a submission from those callbacks: -1 ESHUTDOWN (%d of %d accepted; %s)", sig_resubmit_ok, sig_resubmits,
+           modbus_strerror(sig_resubmit_errno));
+    EXPECT(modbus_pending(ctx) == 0, "nothing pending after the close completed (%d)", modbus_pending(ctx));
+    reset();
+    k = modbus_read_registers_async(ctx, 0, 1, &v, on_done, NULL);
+    EXPECT(k >= 0, "after it, a submission is accepted again (id %d)", k);
+    EXPECT(k >= 0 && modbus_cancel(ctx, k) == 0 && results[k].done == 1 && results[k].error == ECANCELED,
+           "and a cancel completes it with ECANCELED");
+
+    /* 2. modbus_free with requests pending: each completes with EIDRM, its callback
+     *    run by modbus_free; a submission from it: -1 EIDRM. */
+    sig_resubmit = 1;
+    int n = 10;
+    for (int i = 0; i < n; i++) {
+        memset(&res[i], 0, sizeof(res[i]));
+        modbus_read_registers_async(ctx, 0, 1, &sig_vals[i], sig_cb, &res[i]);
+    }
+    sig_calls = sig_resubmits = sig_resubmit_ok = sig_resubmit_errno = 0;
+    reset();
+    modbus_free(ctx);
+    sig_resubmit = 0;
+    EXPECT(sig_count(res, n, EIDRM) == n && sig_calls == n,
+           "modbus_free: %d of %d pending requests completed once with EIDRM (%d callbacks)", sig_count(res, n, EIDRM),
+           n, sig_calls);
+    EXPECT(sig_resubmits == n && sig_resubmit_ok == 0 && sig_resubmit_errno == EIDRM && completed == 0,
+           "a submission from a callback run by modbus_free: -1 EIDRM (%d of %d accepted, %s; %d other callbacks)",
+           sig_resubmit_ok, sig_resubmits, modbus_strerror(sig_resubmit_errno), completed);
+
+    /* 3. A close, then modbus_free before any modbus_process: the close's ESHUTDOWN. */
+    ctx = sig_setup(port, res, 10);
+    modbus_close(ctx);
+    EXPECT(sig_calls == 0, "modbus_close runs no callback (%d ran)", sig_calls);
+    modbus_free(ctx);
+    EXPECT(sig_count(res, 10, ESHUTDOWN) == 10 && sig_calls == 10,
+           "a close then modbus_free: 10 completed once with ESHUTDOWN (%d, %d callbacks)", sig_count(res, 10, ESHUTDOWN),
+           sig_calls);
+
+    /* 4. SIGTERM from another thread at any time while the loop's thread spins on
+     *    modbus_process and modbus_get_pollfd: the handler interrupts a call on the
+     *    context or lands between two. */
+    sig_main = pthread_self();
+    int rounds = 20, good = 0, none_inside = 1, late = 0, interrupted = 0;
+    for (int r = 0; r < rounds; r++) {
+        ctx = sig_setup(port, res, SIG_N);
+        sig_ctx = ctx;
+        handler_ran = 0;
+        sig_delay_us = 200 + r * 150;
+        pthread_t th;
+        pthread_create(&th, NULL, sig_killer, NULL);
+        double t0 = now_s();
+        int ebadf = 0;
+        while (!handler_ran && now_s() - t0 < 2) {
+            /* -1 EBADF: the handler closed the context under this call. */
+            ebadf |= modbus_process(ctx, 0) == -1 && errno == EBADF;
+            ebadf |= modbus_get_pollfd(ctx, &pfd, &timeout) == -1 && errno == EBADF;
+        }
+        interrupted += ebadf;
+        pthread_join(th, NULL);
+        t0 = now_s();
+        while (modbus_pending(ctx) > 0 && now_s() - t0 < 2) {
+            modbus_get_pollfd(ctx, &pfd, &timeout);
+            if (timeout != 0) {
+                late++;
+            }
+            poll(&pfd, pfd.fd >= 0 && pfd.events ? 1 : 0, timeout < 0 || timeout > 20 ? 20 : timeout);
+            modbus_process(ctx, pfd.revents);
+        }
+        none_inside = none_inside && sig_in_handler == 0;
+        good += sig_in_handler == 0 && sig_count(res, SIG_N, ESHUTDOWN) == SIG_N && sig_calls == SIG_N;
+        modbus_free(ctx);
+    }
+    EXPECT(none_inside && good == rounds && late == 0,
+           "SIGTERM from another thread at any time, %d rounds: no callback inside the handler, all %d requests "
+           "completed once with ESHUTDOWN by the next modbus_process: %d rounds right (%d waits not at once; "
+           "the handler interrupted a call in %d rounds)",
+           rounds, SIG_N, good, late, interrupted);
+
+    /* 5. In a multi handle: modbus_multi_perform completes them. */
+    modbus_multi_t *m = modbus_multi_new();
+    ctx = sig_setup(port, res, SIG_N);
+    modbus_multi_add(m, ctx);
+    modbus_multi_perform(m, 0);
+    sig_ctx = ctx;
+    raise(SIGTERM);
+    double t0 = now_s();
+    int c5 = 0;
+    while (sig_calls < SIG_N && now_s() - t0 < 2) {
+        c5 += modbus_multi_perform(m, 1000);
+    }
+    EXPECT(sig_in_handler == 0 && sig_count(res, SIG_N, ESHUTDOWN) == SIG_N && c5 == SIG_N && now_s() - t0 < 0.5,
+           "in a multi handle: none inside the handler (%d), modbus_multi_perform completed %d (%d with ESHUTDOWN) "
+           "in %.3f s",
+           sig_in_handler, c5, sig_count(res, SIG_N, ESHUTDOWN), now_s() - t0);
+    modbus_free(ctx);
+    modbus_multi_free(m);
+
+    sigaction(SIGTERM, &old, NULL);
+    sig_ctx = NULL;
+    close(lf);
+}
+
 /* ---------------------------------------------------------------- a user-defined function code */
 /* fc41 MODE ADDR: c-tests/event/fc41_device.py (MODE rtu|ascii on the pty end ADDR,
  * tcp|rtutcp on 127.0.0.1 port ADDR; or a gateway in front of it, MODE tcp) answers
@@ -1411,6 +1649,8 @@ int main(int argc, char **argv)
         own_servers();
         pipeline_faults();
         multi_case();
+        chk_set_prefix("close and free: ");
+        close_and_free();
         chk_set_prefix("");
     }
     modbus_close(ctx);

@@ -832,6 +832,8 @@ pub fn ffi_async(data: &[u8]) {
             assert!(
                 client_errno_ok(s.error)
                     || s.error == libc::ECANCELED
+                    || s.error == libc::ESHUTDOWN
+                    || s.error == libc::EIDRM
                     || s.error == libc::EPIPE
                     || s.error == libc::EBADF,
                 "request {i} failed with errno {}",

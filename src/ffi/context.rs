@@ -18,7 +18,7 @@ use crate::handle;
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_free(ctx: *mut Modbus) {
     // SAFETY: the caller hands back ownership of a context made by `into_handle`;
-    // what the event-driven client has pending completes (ECANCELED) first.
+    // what the event-driven client has pending completes (EIDRM) first.
     unsafe {
         crate::ffi::event::cancel_pending(ctx);
         handle::free(ctx)
@@ -38,18 +38,16 @@ pub unsafe extern "C" fn modbus_connect(ctx: *mut Modbus) -> c_int {
 /// Closes the connection. NULL is a no-op. Never waits for a call that waits on the
 /// line: from a signal handler that interrupted a call on this context, or from
 /// another thread while a call waits, the line is closed at once and that call fails
-/// with EBADF.
+/// with EBADF. Never runs a callback: the event-driven client's pending requests
+/// complete with ESHUTDOWN on the loop's thread (`modbus_process`, `modbus_free`).
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_close(ctx: *mut Modbus) {
-    // SAFETY: forwarded caller contract. The close completes what the event-driven
-    // client had pending (ECANCELED); the callbacks run after it.
-    unsafe {
-        handle::close(ctx);
-        crate::ffi::event::fire_cancelled(ctx);
-    }
+    // SAFETY: forwarded caller contract. What the event-driven client has pending
+    // completes later, on the loop's thread (ESHUTDOWN): no callback runs here.
+    unsafe { handle::close(ctx) }
 }
 
 /// Discards pending input. Returns the bytes discarded (TCP) or 0 (RTU).

@@ -20,9 +20,10 @@ use crate::proto::fc;
 use crate::proto::request::Request;
 
 /// `modbus_callback_t`: called once per request, from `modbus_process` (or
-/// `modbus_cancel`, `modbus_close`, `modbus_free`) on the calling thread. `rc` is
-/// what the blocking call returns, or -1 with `error` the errno it would set
-/// (ECANCELED for a cancelled request).
+/// `modbus_cancel`, `modbus_free`) on the calling thread, never from `modbus_close`
+/// (which a signal handler may call). `rc` is what the blocking call returns, or -1
+/// with `error` the errno it would set: ECANCELED for a cancelled request, ESHUTDOWN
+/// for one a close left, EIDRM for one `modbus_free` ended.
 pub type Callback = Option<CallbackFn>;
 
 /// The function behind a non-NULL [`Callback`].
@@ -39,7 +40,8 @@ fn completion(cb: Callback, user_data: *mut c_void, deliver: Deliver) -> Complet
 
 /// Writes a completed request's values where its call said, then calls its callback
 /// with the context unlocked; one at a time, until none is left (a callback may
-/// close or free the context: what is left is then completed by that close).
+/// close the context: what is left is then completed with ESHUTDOWN, by the next
+/// `modbus_process`; or free it: by that free, with EIDRM).
 ///
 /// # Safety
 /// `ctx` is the live handle `g` locks; the pointers of each request are the
@@ -497,7 +499,9 @@ pub unsafe extern "C" fn modbus_process(ctx: *mut Modbus, revents: c_short) -> c
     unsafe {
         with_ctx(ctx, |g| {
             event::process(g, revents)?;
-            Ok(fire(ctx, g))
+            let fired = fire(ctx, g);
+            event::closed(g);
+            Ok(fired)
         })
     }
 }
@@ -525,6 +529,7 @@ pub unsafe extern "C" fn modbus_cancel(ctx: *mut Modbus, request_id: c_int) -> c
         with_ctx(ctx, |g| {
             event::cancel(g, request_id)?;
             fire(ctx, g);
+            event::closed(g);
             Ok(0)
         })
     }
@@ -541,44 +546,24 @@ pub unsafe extern "C" fn modbus_set_max_in_flight(ctx: *mut Modbus, n: c_int) ->
     unsafe { with_ctx(ctx, |g| event::set_max_in_flight(g, n).map(|()| 0)) }
 }
 
-/// What a close or free leaves of the event-driven client's requests: each completes
-/// (ECANCELED), its callback run before the close or free returns; a free also takes
-/// the context out of its multi handle and cancels first. Nothing waits: when a call
-/// holds the context (another thread's blocking call, which cannot run with requests
-/// pending; a call a signal handler interrupted), there is nothing to do here.
-///
-/// # Safety
-/// `ctx` must be NULL or a live context.
-unsafe fn complete_on_close(ctx: *mut Modbus, freeing: bool) {
-    // SAFETY: forwarded caller contract (`try_call` takes NULL).
-    unsafe {
-        crate::handle::try_call(ctx, |g| {
-            let Ok(Some(o)) = g.async_state() else { return };
-            if freeing {
-                if let Some((members, key)) = o.multi.take() {
-                    members.remove(key);
-                }
-                event::cancel_all(g);
-            }
-            fire(ctx, g);
-        });
-    }
-}
-
-/// `modbus_free`: see [`complete_on_close`].
+/// `modbus_free`: what is pending completes (`event::free`: EIDRM, or ESHUTDOWN for
+/// what a close left), each callback run before the free returns, a submission from
+/// them refused (EIDRM); the context leaves its multi handle first. Nothing waits:
+/// when a call holds the context (another thread's, or one a signal handler
+/// interrupted), there is nothing to do here.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 pub unsafe fn cancel_pending(ctx: *mut Modbus) {
-    // SAFETY: forwarded caller contract.
-    unsafe { complete_on_close(ctx, true) }
-}
-
-/// After `modbus_close` (whose close completed what was pending): the callbacks.
-///
-/// # Safety
-/// `ctx` must be NULL or a live context.
-pub unsafe fn fire_cancelled(ctx: *mut Modbus) {
-    // SAFETY: forwarded caller contract.
-    unsafe { complete_on_close(ctx, false) }
+    // SAFETY: forwarded caller contract (`try_call` takes NULL).
+    unsafe {
+        crate::handle::try_call(ctx, |g| {
+            let Ok(Some(o)) = g.async_state() else { return };
+            if let Some((members, key)) = o.multi.take() {
+                members.remove(key);
+            }
+            event::free(g);
+            fire(ctx, g);
+        });
+    }
 }

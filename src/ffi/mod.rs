@@ -49,6 +49,7 @@ impl Closable for Context {
         if self.fd() >= 0 && self.fd() == handled {
             let fd = self.release_descriptor();
             crate::transport::close(fd);
+            crate::event::shut_pending(self);
         } else {
             crate::event::close(self);
         }

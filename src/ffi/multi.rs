@@ -86,8 +86,12 @@ fn holds(list: &HashMap<usize, Member>, key: usize, t: Duration) -> bool {
 pub extern "C" fn modbus_multi_new() -> *mut Multi {
     match epoll::create() {
         Ok(epfd) => {
-            let members =
-                Members { epfd, list: OwnerMutex::new(Default::default()), dirty: OwnerMutex::new(Default::default()) };
+            let members = Members {
+                epfd,
+                list: OwnerMutex::new(Default::default()),
+                dirty: OwnerMutex::new(Default::default()),
+                closed: Default::default(),
+            };
             Box::into_raw(Box::new(Multi { members: Arc::new(members), timers: OwnerMutex::new(Timers::default()) }))
         }
         Err(e) => {
@@ -330,6 +334,10 @@ fn ms_until(t: Option<Duration>) -> c_int {
 /// The members of `m` are live contexts.
 unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
     let mut dirty = std::mem::take(&mut *m.members.dirty.lock());
+    if m.members.closed.swap(false, std::sync::atomic::Ordering::SeqCst) {
+        // A member was closed, maybe by a signal handler: which one is not known.
+        dirty.extend(m.members.list.lock().keys());
+    }
     dirty.sort_unstable();
     dirty.dedup();
     for key in dirty {
