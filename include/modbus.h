@@ -670,6 +670,21 @@ MODBUS_API int modbus_pending(modbus_t *ctx);
 MODBUS_API int modbus_cancel(modbus_t *ctx, int request_id);
 
 /**
+ * Request `request_id`'s response timeout becomes `to_sec` s + `to_usec` µs, counted
+ * from its send (a request takes the context's response timeout when it is queued).
+ * Returns 0, or -1 with errno (EINVAL: no such request pending, `to_usec` of a
+ * second or more, or both 0).
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API
+int modbus_set_request_timeout(modbus_t *ctx,
+                               int request_id,
+                               uint32_t to_sec,
+                               uint32_t to_usec);
+
+/**
  * How many requests may be on the wire at once on a TCP context (pipelining):
  * 1..=256, default 1; a serial line always has one. Returns 0, or -1 with errno.
  *

@@ -75,9 +75,15 @@ pub fn submit_expecting(ctx: &mut Context, req: &Request<'_>, completion: Comple
 
 /// The next request of a call that takes several (device identification objects
 /// that "more follow"), under the id of the request `id` that just completed, ahead
-/// of the queue.
-pub fn resubmit(ctx: &mut Context, id: i32, req: &Request<'_>, completion: Completion) -> Result<i32> {
-    queue(ctx, req, completion, true, Some(id))
+/// of the queue, with that request's response timeout.
+pub fn resubmit(
+    ctx: &mut Context,
+    id: i32,
+    req: &Request<'_>,
+    completion: Completion,
+    timeout: Duration,
+) -> Result<i32> {
+    queue(ctx, req, completion, true, Some((id, timeout)))
 }
 
 fn queue(
@@ -85,7 +91,7 @@ fn queue(
     req: &Request<'_>,
     completion: Completion,
     answered: bool,
-    continuing: Option<i32>,
+    continuing: Option<(i32, Duration)>,
 ) -> Result<i32> {
     match ctx.shut() {
         Shut::Open => {}
@@ -115,10 +121,14 @@ fn queue(
     let unit = req.own_unit().map_or(ctx.session.slave, i32::from);
     let broadcast = (framing != Framing::Tcp && unit == 0) || !answered;
     let tid = ctx.client.tid();
+    // The slave is in the ADU already; the response timeout too is the context's
+    // now, whatever it is when the request goes out (`modbus_set_request_timeout`
+    // changes it).
+    let timeout = ctx.session.timeouts.response.duration();
     let o = state(ctx)?;
     let id = match continuing {
-        Some(id) => o.pipeline.resubmit(id, &buf[..len], wire, tid, completion),
-        None => o.pipeline.submit(&buf[..len], wire, tid, broadcast, completion),
+        Some((id, timeout)) => o.pipeline.resubmit(id, &buf[..len], wire, tid, timeout, completion),
+        None => o.pipeline.submit(&buf[..len], wire, tid, broadcast, timeout, completion),
     };
     mark(o);
     id.ok_or(Error(libc::EAGAIN))
@@ -131,6 +141,22 @@ fn mark(o: &Outstanding) {
     }
 }
 
+/// `modbus_set_request_timeout`: request `id`'s response timeout, counted from its
+/// send. EINVAL for a request not pending, or a timeout libmodbus's
+/// `modbus_set_response_timeout` refuses (usec of a second or more, or zero).
+pub fn set_request_timeout(ctx: &mut Context, id: i32, sec: u32, usec: u32) -> Result<()> {
+    if usec >= 1_000_000 || (sec == 0 && usec == 0) {
+        return Err(Error::INVALID);
+    }
+    let o = ctx.async_state()?.ok_or(Error::INVALID)?;
+    let timeout = Duration::from_secs(u64::from(sec)) + Duration::from_micros(u64::from(usec));
+    if !o.pipeline.set_timeout(id, timeout) {
+        return Err(Error::INVALID);
+    }
+    mark(o);
+    Ok(())
+}
+
 /// `modbus_cancel`: completes request `id` with ECANCELED.
 pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
     let (o, client) = ctx.async_with_client()?.ok_or(Error::INVALID)?;
@@ -140,7 +166,13 @@ pub fn cancel(ctx: &mut Context, id: i32) -> Result<()> {
         // Nothing to receive for any more (a late answer is dropped by its id).
         o.receiving = None;
     }
-    o.complete(Done { id: e.id, completion: e.payload, result: Err(libc::ECANCELED), data: Vec::new() });
+    o.complete(Done {
+        id: e.id,
+        timeout: e.timeout,
+        completion: e.payload,
+        result: Err(libc::ECANCELED),
+        data: Vec::new(),
+    });
     Ok(())
 }
 
@@ -289,15 +321,16 @@ fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bo
                 complete_broadcast(o, e);
             } else {
                 session::error_print(g, Error::TIMED_OUT, Some("select"));
+                let timeout = e.timeout;
                 push(o, e, result, Vec::new());
                 // A serial line has no transaction id: the recovery after a wait
                 // that timed out (LINK: sleep and flush) keeps the line quiet for a
-                // response timeout, then flushes it.
+                // response timeout (the request's), then flushes it.
                 let serial = g.framing() != Framing::Tcp;
                 if serial
                     && crate::proto::session::after_wait(g.session.recovery, Error::TIMED_OUT) == Recovery::SleepFlush
                 {
-                    o.quiet_until = Some(now + g.session.timeouts.response.duration());
+                    o.quiet_until = Some(now + timeout);
                 }
             }
         }
@@ -385,8 +418,7 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
         g.rx.clear();
         g.line.purge();
     }
-    let response = g.session.timeouts.response.duration();
-    let moved = o.pipeline.fill(now, response, g.client.late());
+    let moved = o.pipeline.fill(now, g.client.late());
     let out = o.pipeline.output();
     if out.is_empty() {
         return false;
@@ -403,7 +435,7 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
             let written = engine::write_with_rts(g, out);
             // The answer's timeout starts when the frame has left (as a blocking
             // call's): the sequence took the frame's time on the line.
-            o.pipeline.restart_clocks(moved, transport::now(), response);
+            o.pipeline.restart_clocks(moved, transport::now());
             written
         }
         None => {
@@ -468,7 +500,7 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
 
 /// Completes `e` with `result` and the answer's data.
 fn push(o: &mut Outstanding, e: Entry<Completion>, result: std::result::Result<i32, i32>, data: Vec<u8>) {
-    o.complete(Done { id: e.id, completion: e.payload, result, data });
+    o.complete(Done { id: e.id, timeout: e.timeout, completion: e.payload, result, data });
 }
 
 /// A broadcast is out: it completes as its write would (the count it wrote).

@@ -84,6 +84,9 @@ unsafe impl Send for Completion {}
 /// A request that completed: its result, and the values to copy out.
 pub struct Done {
     pub id: c_int,
+    /// Its response timeout (the next round of a call answered in several goes with
+    /// it).
+    pub timeout: std::time::Duration,
     pub completion: Completion,
     /// What the blocking call returns (>= 0), or the errno it sets.
     pub result: Result<c_int, i32>,
@@ -202,7 +205,13 @@ impl Outstanding {
         self.connect_until = None;
         self.quiet_until = None;
         for e in self.pipeline.drain() {
-            self.complete(Done { id: e.id, completion: e.payload, result: Err(errno), data: Vec::new() });
+            self.complete(Done {
+                id: e.id,
+                timeout: e.timeout,
+                completion: e.payload,
+                result: Err(errno),
+                data: Vec::new(),
+            });
         }
     }
 

@@ -832,6 +832,51 @@ static void own_servers(void)
            "a callback freed its context: the request behind it completed inside modbus_free (EIDRM), once");
     close(lf);
 
+    /* 2b. (issue 39, item 8) A request keeps the response timeout of its submit;
+     *     modbus_set_request_timeout gives one its own, counted from its send. */
+    {
+        int p2, l2 = listen_any(&p2);
+        modbus_t *c = modbus_new_tcp("127.0.0.1", p2);
+        modbus_set_max_in_flight(c, 4);
+        modbus_set_response_timeout(c, 1, 0);
+        reset();
+        double s0 = now_s();
+        int a = modbus_read_registers_async(c, 0, 1, v, on_done, NULL);
+        int b = modbus_read_registers_async(c, 0, 1, v, on_done, NULL);
+        int rb = modbus_set_request_timeout(c, b, 0, 200000);
+        EXPECT(rb == 0, "modbus_set_request_timeout(b, 0.2 s): %d (%s)", rb, rb == -1 ? modbus_strerror(errno) : "ok");
+        /* Changed after the submit: not a's timeout. */
+        modbus_set_response_timeout(c, 0, 100000);
+        errno = 0;
+        EXPECT(modbus_set_request_timeout(c, a, 0, 1000000) == -1 && errno == EINVAL,
+               "modbus_set_request_timeout with usec 1000000: -1 EINVAL");
+        errno = 0;
+        EXPECT(modbus_set_request_timeout(c, 9999, 1, 0) == -1 && errno == EINVAL,
+               "modbus_set_request_timeout of an unknown id: -1 EINVAL");
+        while (results[b].done == 0 && results[a].done == 0 && now_s() - s0 < 5) {
+            struct pollfd pfd;
+            int timeout;
+            modbus_get_pollfd(c, &pfd, &timeout);
+            int n = poll(&pfd, pfd.fd >= 0 && pfd.events ? 1 : 0, timeout < 0 || timeout > 1000 ? 1000 : timeout);
+            modbus_process(c, n > 0 ? pfd.revents : 0);
+        }
+        double tb = now_s() - s0;
+        EXPECT(results[b].done == 1 && results[b].error == ETIMEDOUT && results[a].done == 0 && tb >= 0.19 && tb < 0.6,
+               "a request with its own timeout (0.2 s) timed out after %.3f s, the one with the context's (1 s, "
+               "changed to 0.1 s after its submit) has not (done %d)",
+               tb, results[a].done);
+        errno = 0;
+        EXPECT(modbus_set_request_timeout(c, b, 1, 0) == -1 && errno == EINVAL,
+               "modbus_set_request_timeout of a finished request: -1 EINVAL");
+        drive(c, 5);
+        double ta = now_s() - s0;
+        EXPECT(results[a].done == 1 && results[a].error == ETIMEDOUT && ta >= 0.99 && ta < 1.6,
+               "the other times out at the timeout of its submit: %.3f s (1 s)", ta);
+        modbus_close(c);
+        modbus_free(c);
+        close(l2);
+    }
+
     /* 3. Late answers: request 1 times out, its answer comes while request 2 waits;
      *    request 2 gets its own answer (the value is the transaction id). */
     struct late_server s = {.delay_ms = {700, 0, 0, 0}};

@@ -57,7 +57,7 @@ unsafe fn fire(ctx: *mut Modbus, g: &mut Guard<'_>) -> c_int {
                     Streamed::Done(rc) => (rc, 0),
                     Streamed::Next(req) => {
                         let c = Completion { deliver: Deliver::Stream { decode, args }, ..done.completion };
-                        match event::resubmit(g, done.id, &req, c) {
+                        match event::resubmit(g, done.id, &req, c, done.timeout) {
                             Ok(_) => continue,
                             Err(e) => (-1, e.errno()),
                         }
@@ -533,6 +533,24 @@ pub unsafe extern "C" fn modbus_cancel(ctx: *mut Modbus, request_id: c_int) -> c
             Ok(0)
         })
     }
+}
+
+/// Request `request_id`'s response timeout becomes `to_sec` s + `to_usec` µs, counted
+/// from its send (a request takes the context's response timeout when it is queued).
+/// Returns 0, or -1 with errno (EINVAL: no such request pending, `to_usec` of a
+/// second or more, or both 0).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_set_request_timeout(
+    ctx: *mut Modbus,
+    request_id: c_int,
+    to_sec: u32,
+    to_usec: u32,
+) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| event::set_request_timeout(g, request_id, to_sec, to_usec).map(|()| 0)) }
 }
 
 /// How many requests may be on the wire at once on a TCP context (pipelining):

@@ -5,7 +5,8 @@
 //! `max_in_flight` of them are on the wire at once (always one on a serial framing);
 //! [`Pipeline::fill`] moves the next ones from the queue to the wire, their bytes
 //! appended to one output buffer so that requests queued together go out in one
-//! write. Each request in flight has its own deadline, the response timeout from the
+//! write. Each request in flight has its own deadline: its response timeout (the
+//! context's when it was queued, or its own: [`Pipeline::set_timeout`]) from the
 //! moment it went out. An answer is matched by its transaction id on TCP (in any
 //! order), or is the answer of the one request in flight on a serial line
 //! ([`Pipeline::answer`]); an answer whose request is gone (it timed out, or was
@@ -43,14 +44,16 @@ pub struct Entry<T> {
     /// The transaction id (TCP).
     pub tid: u16,
     pub broadcast: bool,
-    /// When the answer is due (set when it goes out).
-    deadline: Option<Duration>,
+    /// Its response timeout, taken when it was queued.
+    pub timeout: Duration,
+    /// When it went out (set by [`Pipeline::fill`]): its deadline counts from then.
+    sent_at: Option<Duration>,
     pub payload: T,
 }
 
 impl<T> Entry<T> {
     /// `None` for an ADU longer than a frame.
-    fn new(id: i32, adu: &[u8], wire: &[u8], tid: u16, broadcast: bool, payload: T) -> Option<Self> {
+    fn new(id: i32, adu: &[u8], wire: &[u8], tid: u16, broadcast: bool, timeout: Duration, payload: T) -> Option<Self> {
         if adu.len() > MAX_ADU_LENGTH {
             return None;
         }
@@ -58,7 +61,13 @@ impl<T> Entry<T> {
         bytes.extend_from_slice(adu);
         bytes.extend_from_slice(wire);
         let adu_len = adu.len() as u16;
-        Some(Entry { id, bytes: bytes.into_boxed_slice(), adu_len, tid, broadcast, deadline: None, payload })
+        Some(Entry { id, bytes: bytes.into_boxed_slice(), adu_len, tid, broadcast, timeout, sent_at: None, payload })
+    }
+
+    /// When it is due: its answer's deadline, or the end of a broadcast's
+    /// turnaround; `None` while it has not gone out.
+    fn deadline(&self) -> Option<Duration> {
+        self.sent_at.map(|t| t + if self.broadcast { TURNAROUND } else { self.timeout })
     }
 
     /// The request's ADU (sealed, binary).
@@ -160,10 +169,18 @@ impl<T> Pipeline<T> {
     }
 
     /// Queues a request: `adu` sealed (binary), `wire` what goes on the line (the
-    /// same bytes, or its ASCII characters: empty means `adu`). Returns its id (>= 0),
-    /// or `None` when the queue is full.
-    pub fn submit(&mut self, adu: &[u8], wire: &[u8], tid: u16, broadcast: bool, payload: T) -> Option<i32> {
-        let e = Entry::new(self.next_id, adu, wire, tid, broadcast, payload)?;
+    /// same bytes, or its ASCII characters: empty means `adu`), `timeout` its
+    /// response timeout. Returns its id (>= 0), or `None` when the queue is full.
+    pub fn submit(
+        &mut self,
+        adu: &[u8],
+        wire: &[u8],
+        tid: u16,
+        broadcast: bool,
+        timeout: Duration,
+        payload: T,
+    ) -> Option<i32> {
+        let e = Entry::new(self.next_id, adu, wire, tid, broadcast, timeout, payload)?;
         let id = self.insert(self.entries.len(), e)?;
         self.next_id = if id == i32::MAX { 0 } else { id + 1 };
         Some(id)
@@ -172,8 +189,16 @@ impl<T> Pipeline<T> {
     /// Queues the next request of a call that takes several (a stream of device
     /// identification objects) under the id of the one that just completed, first in
     /// the queue. `None` when the queue is full.
-    pub fn resubmit(&mut self, id: i32, adu: &[u8], wire: &[u8], tid: u16, payload: T) -> Option<i32> {
-        let e = Entry::new(id, adu, wire, tid, false, payload)?;
+    pub fn resubmit(
+        &mut self,
+        id: i32,
+        adu: &[u8],
+        wire: &[u8],
+        tid: u16,
+        timeout: Duration,
+        payload: T,
+    ) -> Option<i32> {
+        let e = Entry::new(id, adu, wire, tid, false, timeout, payload)?;
         self.insert(self.sent, e)
     }
 
@@ -195,15 +220,15 @@ impl<T> Pipeline<T> {
     /// Moves the next requests from the queue to the wire, as many as the depth
     /// allows (a broadcast holds the line for its turnaround: nothing goes with it
     /// or after it until then); their bytes are appended to [`Pipeline::output`].
-    /// `response` is the response timeout, counted from `now`. `late`: the context's
-    /// late transaction ids. Returns how many went.
-    pub fn fill(&mut self, now: Duration, response: Duration, late: &mut LateIds) -> usize {
+    /// Each one's response timeout counts from `now`. `late`: the context's late
+    /// transaction ids. Returns how many went.
+    pub fn fill(&mut self, now: Duration, late: &mut LateIds) -> usize {
         let mut moved = 0;
         while self.sent < self.entries.len() && self.sent < self.max_in_flight() && !self.on_wire().any(|e| e.broadcast)
         {
             let e = &mut self.entries[self.sent];
             self.out.extend_from_slice(e.wire());
-            e.deadline = Some(now + if e.broadcast { TURNAROUND } else { response });
+            e.sent_at = Some(now);
             let tid = e.tid;
             // A transaction id used again: its old request's late answer can no
             // longer be told apart; this request's answer wins.
@@ -219,10 +244,22 @@ impl<T> Pipeline<T> {
     /// The last `n` requests [`Pipeline::fill`] moved to the wire count their time
     /// from `now` instead: their write took the frame's time on the line (an RTS
     /// sequence), and the answer's timeout, as a blocking call's, starts when it ends.
-    pub fn restart_clocks(&mut self, n: usize, now: Duration, response: Duration) {
+    pub fn restart_clocks(&mut self, n: usize, now: Duration) {
         let from = self.sent.saturating_sub(n);
         for e in self.entries.range_mut(from..self.sent) {
-            e.deadline = Some(now + if e.broadcast { TURNAROUND } else { response });
+            e.sent_at = Some(now);
+        }
+    }
+
+    /// Request `id`'s response timeout becomes `timeout` (counted from its send,
+    /// past or to come); false when no such request is pending.
+    pub fn set_timeout(&mut self, id: i32, timeout: Duration) -> bool {
+        match self.entries.iter_mut().find(|e| e.id == id) {
+            Some(e) => {
+                e.timeout = timeout;
+                true
+            }
+            None => false,
         }
     }
 
@@ -239,13 +276,13 @@ impl<T> Pipeline<T> {
     /// The earliest time something is due: an answer's deadline or the end of a
     /// broadcast's turnaround.
     pub fn deadline(&self) -> Option<Duration> {
-        self.on_wire().filter_map(|e| e.deadline).min()
+        self.on_wire().filter_map(Entry::deadline).min()
     }
 
     /// The earliest deadline of a request that waits for an answer (a receive's
     /// time limit).
     pub fn answer_deadline(&self) -> Option<Duration> {
-        self.on_wire().filter(|e| !e.broadcast).filter_map(|e| e.deadline).min()
+        self.on_wire().filter(|e| !e.broadcast).filter_map(Entry::deadline).min()
     }
 
     /// The oldest request in flight that expects an answer.
@@ -266,7 +303,7 @@ impl<T> Pipeline<T> {
         let mut ended = Vec::new();
         let mut i = 0;
         while i < self.sent {
-            if self.entries[i].deadline.is_some_and(|d| now >= d) {
+            if self.entries[i].deadline().is_some_and(|d| now >= d) {
                 let e = self.take(i);
                 if e.broadcast {
                     ended.push((e, End::Sent));
