@@ -358,6 +358,16 @@ struct pollfd;
 typedef void (*modbus_callback_t)(modbus_t *ctx, int request_id, int rc, int error, void *user_data);
 /* Many contexts behind one descriptor (modbus_multi_new(3)). */
 typedef struct _modbus_multi modbus_multi_t;
+/* A completion of a request given without a callback (cb NULL), read with
+ * modbus_completion_read(3): set struct_size to sizeof(modbus_completion_t) first. */
+typedef struct _modbus_completion {
+    size_t struct_size;
+    modbus_t *ctx;
+    int request_id;
+    int rc;                  /* what the callback would have got */
+    int error;
+    void *user_data;
+} modbus_completion_t;
 
 /* A server whose data is the application's code (modbus_reply_dispatch(3)).
  * What a callback learns of the request it serves: filled by the library and valid
@@ -439,7 +449,8 @@ MODBUS_API int modbus_get_checksum_length(modbus_t *ctx);
 /**
  * Reads `nb` coils (FC 01) into `dest` (one byte per coil), without waiting: returns
  * a request id (>= 0), or -1 with errno. `dest` must stay valid until `cb` runs,
- * which gets `rc` = `nb` or -1 with the error. A NULL `cb` only writes the values.
+ * which gets `rc` = `nb` or -1 with the error. With a NULL `cb` the completion is
+ * queued for `modbus_completion_read` instead.
  *
  * # Safety
  * `ctx` must be NULL or a live context; `dest` NULL or valid for `nb` bytes until the
@@ -683,6 +694,26 @@ int modbus_set_request_timeout(modbus_t *ctx,
                                int request_id,
                                uint32_t to_sec,
                                uint32_t to_usec);
+
+/**
+ * The number of requests that may be on the wire at once on `ctx`
+ * (`modbus_set_max_in_flight`; always 1 on a serial line), or -1 with errno.
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context.
+ */
+MODBUS_API int modbus_get_max_in_flight(modbus_t *ctx);
+
+/**
+ * Pull-style completion: the oldest completion of a request `ctx` was given without
+ * a callback (cb NULL), into `*c`: returns 1, or 0 when none is waiting, or -1 with
+ * errno (EINVAL: `ctx` or `c` NULL, or `c->struct_size` refused). A context in a
+ * multi handle queues its completions there (`modbus_multi_completion_read`).
+ *
+ * # Safety
+ * `ctx` must be NULL or a live context; `c` NULL or valid for `c->struct_size` bytes.
+ */
+MODBUS_API int modbus_completion_read(modbus_t *ctx, modbus_completion_t *c);
 
 /**
  * How many requests may be on the wire at once on a TCP context (pipelining):
@@ -1001,6 +1032,18 @@ MODBUS_API int modbus_multi_timeout(modbus_multi_t *m);
  * `m` NULL or a live multi handle.
  */
 MODBUS_API int modbus_multi_perform(modbus_multi_t *m, int timeout_ms);
+
+/**
+ * Pull-style completion on a multi handle: the oldest completion of a request given
+ * without a callback by any of its contexts, into `*c` (`c->ctx` says which): 1, 0
+ * when none is waiting, or -1 with errno (EINVAL: `m` or `c` NULL, or
+ * `c->struct_size` refused). Completions of a context that leaves the handle go
+ * back to it (`modbus_completion_read`), or with it when it is freed.
+ *
+ * # Safety
+ * `m` NULL or a live multi handle; `c` NULL or valid for `c->struct_size` bytes.
+ */
+MODBUS_API int modbus_multi_completion_read(modbus_multi_t *m, modbus_completion_t *c);
 
 /**
  * Frees `m`; its contexts leave it (they are not closed or freed).

@@ -18,7 +18,7 @@ use std::time::Duration;
 use crate::context::{Context, Shut};
 use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result};
-use crate::outstanding::{Completion, Deliver, Done, Outstanding, Receiving};
+use crate::outstanding::{Completion, Deliver, Done, Outstanding, Ready, Receiving};
 use crate::proto::confirm::{self, Rejection};
 use crate::proto::decode::counted_data;
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
@@ -59,6 +59,32 @@ pub fn set_max_in_flight(ctx: &mut Context, n: i32) -> Result<()> {
         return Err(Error::INVALID);
     }
     Ok(())
+}
+
+/// `modbus_get_max_in_flight`: the requests that may be on the wire at once (1 on a
+/// serial line, whatever was set).
+pub fn max_in_flight(ctx: &mut Context) -> Result<i32> {
+    Ok(match ctx.async_state()? {
+        Some(o) => o.pipeline.max_in_flight() as i32,
+        None => 1,
+    })
+}
+
+/// The completion of a request given without a callback, for the application to read:
+/// the multi handle's queue while the context is in one (`key`: the context's), else
+/// the context's own.
+pub fn ready(ctx: &mut Context, r: Ready) {
+    if let Ok(Some(o)) = ctx.async_state() {
+        match &o.multi {
+            Some((members, key)) => members.ready.lock().push_back((*key, r)),
+            None => o.ready.push_back(r),
+        }
+    }
+}
+
+/// `modbus_completion_read`: the oldest completion not read yet.
+pub fn take_ready(ctx: &mut Context) -> Result<Option<Ready>> {
+    Ok(ctx.async_state()?.and_then(|o| o.ready.pop_front()))
 }
 
 /// Queues `req`; returns its id. `EINVAL` without a slave (serial), `EAGAIN` when the

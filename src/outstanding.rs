@@ -94,6 +94,19 @@ pub struct Done {
     pub data: Vec<u8>,
 }
 
+/// A completed request of a NULL callback, waiting for `modbus_completion_read` (or
+/// `modbus_multi_completion_read`): what the callback would have been given.
+#[derive(Clone, Copy, Debug)]
+pub struct Ready {
+    pub id: c_int,
+    pub rc: c_int,
+    pub error: c_int,
+    pub user_data: *mut c_void,
+}
+
+// SAFETY: `user_data` is the application's, only handed back to it.
+unsafe impl Send for Ready {}
+
 /// A receive under way between two calls of `modbus_process`.
 pub struct Receiving {
     pub machine: Receiver,
@@ -110,6 +123,9 @@ pub struct Outstanding {
     /// waiting for its answer holds no receive buffer.
     pub receiving: Option<Box<Receiving>>,
     pub done: VecDeque<Done>,
+    /// The completions of requests given without a callback, for
+    /// `modbus_completion_read` (a context in a multi handle queues them there).
+    pub ready: VecDeque<Ready>,
     /// When the connect under way gives up (the response timeout from its start;
     /// again for a TLS handshake that follows).
     pub connect_until: Option<std::time::Duration>,
@@ -137,6 +153,9 @@ pub struct Members {
     /// A context was closed (from a signal handler, maybe: no lock) with requests
     /// left to complete: every member is asked again.
     pub closed: AtomicBool,
+    /// The completions of its contexts' requests given without a callback, with the
+    /// context's key, for `modbus_multi_completion_read`.
+    pub ready: OwnerMutex<VecDeque<(usize, Ready)>>,
 }
 
 /// What a multi handle registered for one context.
@@ -169,14 +188,25 @@ impl Members {
     }
 
     /// Takes the context of handle address `key` out (its registration with it: a
-    /// descriptor still open stops reporting).
-    pub fn remove(&self, key: usize) {
+    /// descriptor still open stops reporting), and returns its completions not read
+    /// yet.
+    pub fn remove(&self, key: usize) -> Vec<Ready> {
+        let mut ready = self.ready.lock();
+        let mut own = Vec::new();
+        ready.retain(|&(k, r)| {
+            if k == key {
+                own.push(r);
+            }
+            k != key
+        });
+        drop(ready);
         let mut list = self.list.lock();
         if let Some(m) = list.remove(&key) {
             if m.fd >= 0 && m.events != 0 {
                 let _ = crate::transport::epoll::control(self.epfd, libc::EPOLL_CTL_DEL, m.fd, 0, 0);
             }
         }
+        own
     }
 }
 
@@ -186,6 +216,7 @@ impl Outstanding {
             pipeline: Pipeline::new(framing),
             receiving: None,
             done: VecDeque::new(),
+            ready: VecDeque::new(),
             connect_until: None,
             handshake_wants: 0,
             quiet_until: None,

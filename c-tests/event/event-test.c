@@ -39,6 +39,7 @@
 #include <poll.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -1477,6 +1478,179 @@ static void close_and_free(void)
     close(lf);
 }
 
+/* ---------------------------------------------------------------- pull-style completions
+ * (issue 39, item 9) A request given with a NULL callback: its completion waits for
+ * modbus_completion_read (or modbus_multi_completion_read for a context of a multi
+ * handle), struct_size checked by the one rule. And modbus_get_max_in_flight. */
+static int read_all(modbus_t *ctx, modbus_completion_t *got, int max)
+{
+    int n = 0;
+    modbus_completion_t c;
+    for (;;) {
+        memset(&c, 0, sizeof(c));
+        c.struct_size = sizeof(c);
+        int r = modbus_completion_read(ctx, &c);
+        if (r != 1) {
+            if (r != 0) {
+                EXPECT(0, "modbus_completion_read: %d (%s)", r, modbus_strerror(errno));
+            }
+            return n;
+        }
+        if (n < max) {
+            got[n] = c;
+        }
+        n++;
+    }
+}
+
+/* Against the real server: the values, then the completion. */
+static void pull_values(modbus_t *ctx)
+{
+    uint16_t a[4] = {0}, b[4] = {0};
+    static int marker;
+    int id = modbus_read_registers_async(ctx, 0, 4, a, NULL, &marker);
+    drive(ctx, 5);
+    modbus_completion_t got[4];
+    int n = read_all(ctx, got, 4);
+    int brc = modbus_read_registers(ctx, 0, 4, b);
+    EXPECT(id >= 0 && n == 1 && got[0].ctx == ctx && got[0].request_id == id && got[0].rc == 4 &&
+               got[0].user_data == &marker && got[0].struct_size == sizeof(modbus_completion_t) && brc == 4 &&
+               memcmp(a, b, sizeof(a)) == 0,
+           "a read with a NULL callback: one completion read (rc %d, id %d of %d, user_data %s), the values as the "
+           "blocking call's",
+           n == 1 ? got[0].rc : -9, n == 1 ? got[0].request_id : -9, id,
+           n == 1 && got[0].user_data == &marker ? "kept" : "wrong");
+}
+
+static void pull_calls(void)
+{
+    int port, lf = listen_any(&port);
+    uint16_t v[8];
+    modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+    EXPECT(modbus_get_max_in_flight(ctx) == 1, "modbus_get_max_in_flight: 1 by default (%d)",
+           modbus_get_max_in_flight(ctx));
+    modbus_set_max_in_flight(ctx, 16);
+    EXPECT(modbus_get_max_in_flight(ctx) == 16, "modbus_get_max_in_flight after setting 16: %d",
+           modbus_get_max_in_flight(ctx));
+    errno = 0;
+    EXPECT(modbus_get_max_in_flight(NULL) == -1 && errno == EINVAL, "modbus_get_max_in_flight(NULL): -1 EINVAL");
+    modbus_t *rtu = modbus_new_rtu("/dev/null", 9600, 'N', 8, 1);
+    modbus_set_max_in_flight(rtu, 8);
+    EXPECT(modbus_get_max_in_flight(rtu) == 1, "on a serial line: 1 whatever was set (%d)",
+           modbus_get_max_in_flight(rtu));
+    modbus_free(rtu);
+
+    /* struct_size: the first size, a larger one with a zero tail; not others. */
+    struct {
+        modbus_completion_t c;
+        uint64_t tail;
+    } big;
+    modbus_completion_t c;
+    memset(&c, 0, sizeof(c));
+    c.struct_size = sizeof(c);
+    EXPECT(modbus_completion_read(ctx, &c) == 0, "nothing to read: 0");
+    size_t bad[] = {0, sizeof(size_t), offsetof(modbus_completion_t, error) + sizeof(int), sizeof(c) - 1, sizeof(c) + 1};
+    int refused = 0;
+    for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+        c.struct_size = bad[i];
+        errno = 0;
+        refused += modbus_completion_read(ctx, &c) == -1 && errno == EINVAL;
+    }
+    EXPECT(refused == 5, "struct_size 0, 8, 28, 39, 41: -1 EINVAL (%d of 5)", refused);
+    memset(&big, 0, sizeof(big));
+    big.c.struct_size = sizeof(big);
+    EXPECT(modbus_completion_read(ctx, &big.c) == 0, "a larger struct_size with a zero tail: taken");
+    big.tail = 1;
+    errno = 0;
+    EXPECT(modbus_completion_read(ctx, &big.c) == -1 && errno == EINVAL,
+           "a larger struct_size with a member this library does not know set: -1 EINVAL");
+    errno = 0;
+    EXPECT(modbus_completion_read(ctx, NULL) == -1 && errno == EINVAL, "modbus_completion_read(ctx, NULL): -1 EINVAL");
+
+    /* Three requests without a callback, one with: three completions to read, in
+     * the order they completed, each once; the callback's runs as before. */
+    reset();
+    int ids[3];
+    static int tags[3];
+    for (int i = 0; i < 3; i++) {
+        ids[i] = modbus_read_registers_async(ctx, 0, 1, &v[i], NULL, &tags[i]);
+        modbus_set_request_timeout(ctx, ids[i], 0, 100000 * (unsigned) (i + 1));
+    }
+    int cbid = modbus_read_registers_async(ctx, 0, 1, &v[3], on_done, NULL);
+    modbus_set_request_timeout(ctx, cbid, 0, 50000);
+    drive(ctx, 5);
+    modbus_completion_t got[8];
+    int n = read_all(ctx, got, 8);
+    int right = 0;
+    for (int i = 0; i < 3 && i < n; i++) {
+        right += got[i].ctx == ctx && got[i].request_id == ids[i] && got[i].rc == -1 && got[i].error == ETIMEDOUT &&
+                 got[i].user_data == &tags[i];
+    }
+    EXPECT(n == 3 && right == 3 && results[cbid].done == 1 && completed == 1,
+           "3 requests without a callback: %d completions read, %d right (id, rc -1, ETIMEDOUT, user_data); the "
+           "one with a callback called back (%d)",
+           n, right, completed);
+
+    /* A multi handle: its contexts' completions are read from it. */
+    modbus_multi_t *m = modbus_multi_new();
+    modbus_t *c2 = modbus_new_tcp("127.0.0.1", port);
+    modbus_multi_add(m, ctx);
+    modbus_multi_add(m, c2);
+    int mids[4];
+    for (int i = 0; i < 4; i++) {
+        modbus_t *x = i % 2 ? c2 : ctx;
+        mids[i] = modbus_read_registers_async(x, 0, 1, &v[i], NULL, &tags[i % 3]);
+        modbus_set_request_timeout(x, mids[i], 0, 100000);
+    }
+    double t0 = now_s();
+    int done = 0;
+    while (done < 4 && now_s() - t0 < 3) {
+        done += modbus_multi_perform(m, 200);
+    }
+    memset(&c, 0, sizeof(c));
+    c.struct_size = sizeof(c);
+    EXPECT(modbus_completion_read(ctx, &c) == 0, "a context of a multi handle: nothing on the context itself");
+    int mn = 0, mright = 0, own[2] = {0, 0};
+    for (;;) {
+        memset(&c, 0, sizeof(c));
+        c.struct_size = sizeof(c);
+        if (modbus_multi_completion_read(m, &c) != 1) {
+            break;
+        }
+        mn++;
+        for (int i = 0; i < 4; i++) {
+            if (c.request_id == mids[i] && c.ctx == (i % 2 ? c2 : ctx) && c.error == ETIMEDOUT) {
+                mright++;
+                own[i % 2]++;
+            }
+        }
+    }
+    EXPECT(done == 4 && mn == 4 && mright == 4 && own[0] == 2 && own[1] == 2,
+           "modbus_multi_completion_read: %d completions of 2 contexts (%d right, %d and %d), perform counted %d", mn,
+           mright, own[0], own[1], done);
+    /* One left unread when its context leaves the handle: it goes with it. */
+    int last = modbus_read_registers_async(c2, 0, 1, &v[0], NULL, NULL);
+    modbus_set_request_timeout(c2, last, 0, 50000);
+    t0 = now_s();
+    while (modbus_pending(c2) > 0 && now_s() - t0 < 3) {
+        modbus_multi_perform(m, 200);
+    }
+    modbus_multi_remove(m, c2);
+    memset(&c, 0, sizeof(c));
+    c.struct_size = sizeof(c);
+    int from_multi = modbus_multi_completion_read(m, &c);
+    memset(&c, 0, sizeof(c));
+    c.struct_size = sizeof(c);
+    int from_ctx = modbus_completion_read(c2, &c);
+    EXPECT(from_multi == 0 && from_ctx == 1 && c.request_id == last && c.ctx == c2,
+           "a completion not read when its context left the handle: read from the context (%d, %d)", from_multi,
+           from_ctx);
+    modbus_free(c2);
+    modbus_free(ctx);
+    modbus_multi_free(m);
+    close(lf);
+}
+
 /* ---------------------------------------------------------------- a user-defined function code */
 /* fc41 MODE ADDR: c-tests/event/fc41_device.py (MODE rtu|ascii on the pty end ADDR,
  * tcp|rtutcp on 127.0.0.1 port ADDR; or a gateway in front of it, MODE tcp) answers
@@ -1615,6 +1789,7 @@ int main(int argc, char **argv)
     modbus_set_response_timeout(ctx, 2, 0);
     chk_set_prefix(serial ? "rtu: " : tls ? "tls: " : "tcp: ");
     raw_calls(ctx, serial);
+    pull_values(ctx);
     compare_calls(ctx, serial);
     if (tls) {
         /* The same calls, the handshake too without waiting: a new context, not
@@ -1696,6 +1871,8 @@ int main(int argc, char **argv)
         multi_case();
         chk_set_prefix("close and free: ");
         close_and_free();
+        chk_set_prefix("pull: ");
+        pull_calls();
         chk_set_prefix("");
     }
     modbus_close(ctx);

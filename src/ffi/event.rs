@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::event;
 use crate::ffi::client::{read_bits_request, read_registers_request, write_bits_request, write_registers_request};
 use crate::ffi::{Modbus, fail, with_ctx};
-use crate::outstanding::{Completion, Deliver, Done, RawCallback, Streamed};
+use crate::outstanding::{Completion, Deliver, Done, RawCallback, Ready, Streamed};
 use crate::proto::data::{registers_from_be, set_bits_from_bytes};
 use crate::proto::fc;
 use crate::proto::request::Request;
@@ -68,10 +68,12 @@ unsafe fn fire(ctx: *mut Modbus, g: &mut Guard<'_>) -> c_int {
             _ => unsafe { deliver(&done) },
         };
         fired += 1;
-        if let Some(cb) = done.completion.callback {
-            let user = done.completion.user_data;
+        let user = done.completion.user_data;
+        match done.completion.callback {
             // SAFETY: the application's callback, with its own user data.
-            crate::engine::call_unlocked(g, || unsafe { cb(ctx.cast(), done.id, rc, error, user) });
+            Some(cb) => crate::engine::call_unlocked(g, || unsafe { cb(ctx.cast(), done.id, rc, error, user) }),
+            // Pull-style: read by `modbus_completion_read`.
+            None => event::ready(g, Ready { id: done.id, rc, error, user_data: user }),
         }
     }
     fired
@@ -159,7 +161,8 @@ pub(crate) unsafe fn submit_expecting<'a>(
 
 /// Reads `nb` coils (FC 01) into `dest` (one byte per coil), without waiting: returns
 /// a request id (>= 0), or -1 with errno. `dest` must stay valid until `cb` runs,
-/// which gets `rc` = `nb` or -1 with the error. A NULL `cb` only writes the values.
+/// which gets `rc` = `nb` or -1 with the error. With a NULL `cb` the completion is
+/// queued for `modbus_completion_read` instead.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context; `dest` NULL or valid for `nb` bytes until the
@@ -553,6 +556,96 @@ pub unsafe extern "C" fn modbus_set_request_timeout(
     unsafe { with_ctx(ctx, |g| event::set_request_timeout(g, request_id, to_sec, to_usec).map(|()| 0)) }
 }
 
+/// The number of requests that may be on the wire at once on `ctx`
+/// (`modbus_set_max_in_flight`; always 1 on a serial line), or -1 with errno.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_get_max_in_flight(ctx: *mut Modbus) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { with_ctx(ctx, |g| event::max_in_flight(g)) }
+}
+
+/// `modbus_completion_t`: a completion of a request given without a callback, as
+/// `modbus_completion_read` fills it. The application sets `struct_size` to
+/// `sizeof(modbus_completion_t)` before the call; the library sets it to the size it
+/// filled.
+#[repr(C)]
+#[allow(non_camel_case_types)]
+pub struct modbus_completion_t {
+    pub struct_size: usize,
+    pub ctx: *mut Modbus,
+    pub request_id: c_int,
+    pub rc: c_int,
+    pub error: c_int,
+    pub user_data: *mut c_void,
+}
+
+impl modbus_completion_t {
+    /// The ends of its members (the `struct_size` rule: `ffi::struct_size_ok`).
+    const ENDS: [usize; 7] = crate::member_ends!(modbus_completion_t: struct_size, ctx, request_id, rc, error, user_data);
+    /// The first published size: the whole struct.
+    const FIRST: usize = std::mem::size_of::<Self>();
+
+    /// Checks the application's `*c` by the `struct_size` rule.
+    ///
+    /// # Safety
+    /// `c` NULL or valid for its `struct_size` bytes.
+    pub(crate) unsafe fn check(c: *mut Self) -> Result<()> {
+        // SAFETY: NULL or valid (contract); `struct_size` is its first member.
+        let Some(size) = (unsafe { c.as_ref() }).map(|c| c.struct_size) else { return Err(Error::INVALID) };
+        // SAFETY: the application's struct, `size` bytes (contract).
+        unsafe { crate::ffi::struct_size_ok(c.cast(), size, Self::FIRST, &Self::ENDS) }.map(|_| ())
+    }
+
+    /// Fills the members this library knows with `r` of context `ctx`.
+    ///
+    /// # Safety
+    /// `c` passed [`modbus_completion_t::check`].
+    pub(crate) unsafe fn fill(c: *mut Self, ctx: *mut Modbus, r: Ready) {
+        // SAFETY: at least the whole struct is the application's (checked).
+        unsafe {
+            c.write(modbus_completion_t {
+                struct_size: std::mem::size_of::<Self>(),
+                ctx,
+                request_id: r.id,
+                rc: r.rc,
+                error: r.error,
+                user_data: r.user_data,
+            })
+        };
+    }
+}
+
+/// Pull-style completion: the oldest completion of a request `ctx` was given without
+/// a callback (cb NULL), into `*c`: returns 1, or 0 when none is waiting, or -1 with
+/// errno (EINVAL: `ctx` or `c` NULL, or `c->struct_size` refused). A context in a
+/// multi handle queues its completions there (`modbus_multi_completion_read`).
+///
+/// # Safety
+/// `ctx` must be NULL or a live context; `c` NULL or valid for `c->struct_size` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_completion_read(ctx: *mut Modbus, c: *mut modbus_completion_t) -> c_int {
+    // SAFETY: forwarded caller contract.
+    if let Err(e) = unsafe { modbus_completion_t::check(c) } {
+        return fail(e);
+    }
+    // SAFETY: forwarded caller contract.
+    unsafe {
+        with_ctx(ctx, |g| {
+            Ok(match event::take_ready(g)? {
+                Some(r) => {
+                    // SAFETY: checked above.
+                    modbus_completion_t::fill(c, ctx, r);
+                    1
+                }
+                None => 0,
+            })
+        })
+    }
+}
+
 /// How many requests may be on the wire at once on a TCP context (pipelining):
 /// 1..=256, default 1; a serial line always has one. Returns 0, or -1 with errno.
 ///
@@ -578,6 +671,7 @@ pub unsafe fn cancel_pending(ctx: *mut Modbus) {
         crate::handle::try_call(ctx, |g| {
             let Ok(Some(o)) = g.async_state() else { return };
             if let Some((members, key)) = o.multi.take() {
+                // (Its completions not read yet go with it.)
                 members.remove(key);
             }
             event::free(g);

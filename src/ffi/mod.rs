@@ -96,6 +96,10 @@ pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Resul
     status(unsafe { handle::call(ctx, f) })
 }
 
+/// The largest `struct_size` read (a page, as the callers of Linux's
+/// `copy_struct_from_user` take): beyond, EINVAL without reading.
+pub const STRUCT_SIZE_MAX: usize = 4096;
+
 /// The `struct_size` rules of every versioned struct the application passes in
 /// (`modbus_server_callbacks_t`, and any struct that starts with a `size_t
 /// struct_size`), the rule of Linux's `copy_struct_from_user`: `size` must be at
@@ -110,7 +114,7 @@ pub unsafe fn with_ctx(ctx: *mut Modbus, f: impl FnOnce(&mut Guard<'_>) -> Resul
 /// `p` must be valid for `size` bytes.
 pub unsafe fn struct_size_ok(p: *const u8, size: usize, first: usize, ends: &[usize]) -> Result<usize> {
     let known = ends.last().copied().unwrap_or(0);
-    if size < first {
+    if size < first || size > STRUCT_SIZE_MAX {
         return Err(Error::INVALID);
     }
     if size <= known {
@@ -179,5 +183,8 @@ mod tests {
         tail[39] = 1;
         assert_eq!(ok(&tail[..40], 12), Err(Error::INVALID), "larger, a member this library does not know");
         assert_eq!(ok(&tail[..39], 12), Ok(32), "the set byte is past the size");
+        let big = vec![0u8; STRUCT_SIZE_MAX + 8];
+        assert_eq!(ok(&big[..STRUCT_SIZE_MAX], 12), Ok(32), "a page, zero tail");
+        assert_eq!(ok(&big, 12), Err(Error::INVALID), "more than a page: not read");
     }
 }

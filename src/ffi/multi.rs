@@ -14,6 +14,7 @@ use std::time::Duration;
 
 use crate::error::{Error, Result};
 use crate::event;
+use crate::ffi::event::modbus_completion_t;
 use crate::ffi::{Modbus, fail, status};
 use crate::handle::lock::OwnerMutex;
 use crate::outstanding::{Member, Members};
@@ -91,6 +92,7 @@ pub extern "C" fn modbus_multi_new() -> *mut Multi {
                 list: OwnerMutex::new(Default::default()),
                 dirty: OwnerMutex::new(Default::default()),
                 closed: Default::default(),
+                ready: OwnerMutex::new(Default::default()),
             };
             Box::into_raw(Box::new(Multi { members: Arc::new(members), timers: OwnerMutex::new(Timers::default()) }))
         }
@@ -144,7 +146,9 @@ pub unsafe extern "C" fn modbus_multi_remove(m: *mut Multi, ctx: *mut Modbus) ->
             let o = g.async_state()?.ok_or(Error::INVALID)?;
             match &o.multi {
                 Some((own, key)) if Arc::ptr_eq(own, &m.members) => {
-                    m.members.remove(*key);
+                    // Its completions not read yet come back to it.
+                    let ready = m.members.remove(*key);
+                    o.ready.extend(ready);
                     o.multi = None;
                     Ok(0)
                 }
@@ -265,6 +269,34 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
     completed
 }
 
+/// Pull-style completion on a multi handle: the oldest completion of a request given
+/// without a callback by any of its contexts, into `*c` (`c->ctx` says which): 1, 0
+/// when none is waiting, or -1 with errno (EINVAL: `m` or `c` NULL, or
+/// `c->struct_size` refused). Completions of a context that leaves the handle go
+/// back to it (`modbus_completion_read`), or with it when it is freed.
+///
+/// # Safety
+/// `m` NULL or a live multi handle; `c` NULL or valid for `c->struct_size` bytes.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_completion_read(m: *mut Multi, c: *mut modbus_completion_t) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
+    // SAFETY: forwarded caller contract.
+    if let Err(e) = unsafe { modbus_completion_t::check(c) } {
+        return fail(e);
+    }
+    let next = m.members.ready.lock().pop_front();
+    match next {
+        Some((key, r)) => {
+            // SAFETY: checked above; `key` is a member's handle (its completions
+            // leave the queue with it).
+            unsafe { modbus_completion_t::fill(c, key as *mut Modbus, r) };
+            1
+        }
+        None => 0,
+    }
+}
+
 /// Frees `m`; its contexts leave it (they are not closed or freed).
 ///
 /// Linux only (epoll).
@@ -285,6 +317,9 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
             crate::handle::call(key as *mut Modbus, |g| {
                 if let Ok(Some(o)) = g.async_state() {
                     o.multi = None;
+                    // Its completions not read yet come back to it.
+                    let ready = m.members.remove(key);
+                    o.ready.extend(ready);
                 }
                 Ok::<(), Error>(())
             })
