@@ -10,6 +10,7 @@ Prints one "ok   - ..." or "FAIL - ..." line per check:
     and DIR/man3/NAME.3 was made from it; every section-3 page documents a row;
   - every section-3 source has the sections SYNOPSIS, DESCRIPTION, RETURN VALUE,
     ERRORS, EXAMPLE and SEE ALSO, in that order, and an example code block;
+  - no EXAMPLE ignores what an _async submit returns (a statement of its own);
   - every function named by a page is declared in its SYNOPSIS, with the prototype
     the headers in --headers declare (whitespace aside);
   - SEE ALSO and inline references NAME(3)/NAME(7) point to pages that exist (or to
@@ -182,6 +183,21 @@ def main():
         fail("every section-3 page has SYNOPSIS, DESCRIPTION, RETURN VALUE, ERRORS, EXAMPLE, SEE ALSO", *bad)
     else:
         ok("every section-3 page has SYNOPSIS, DESCRIPTION, RETURN VALUE, ERRORS, EXAMPLE, SEE ALSO")
+
+    # 2b. An example that queues a request checks that it was queued: a submit's -1
+    # (EAGAIN, ESHUTDOWN...) means its callback never runs.
+    bad = []
+    for p in pages:
+        for h, lang, text in p["blocks"]:
+            if h != "EXAMPLE" or lang != "c":
+                continue
+            for line in text.splitlines():
+                if re.match(r"\s*(\(void\)\s*)?modbus_\w+_async\s*\(.*\)\s*;\s*$", line):
+                    bad.append("%s: %s" % (os.path.basename(p["path"]), line.strip()))
+    if bad:
+        fail("no EXAMPLE ignores what an _async submit returns", *bad)
+    else:
+        ok("no EXAMPLE ignores what an _async submit returns")
 
     # 3. Prototypes.
     hdr = header_prototypes(args.headers)
