@@ -1149,14 +1149,16 @@ int main(int argc, char **argv)
     }
     write_status();
     logw(2, "rsmodbus-gateway stopped");
-    for (i = 0; i < G.nfronts; i++) {
-        modbus_server_free(G.fronts[i].server);
-        modbus_free(G.fronts[i].ctx);
-    }
+    /* The lines first: modbus_free runs the callback of a request still on a line
+     * (ESHUTDOWN after the close), which answers its master through its front. */
     for (i = 0; i < nlines; i++) {
         modbus_close(lines[i].ctx);
         modbus_free(lines[i].ctx);
         free(lines[i].masters);
+    }
+    for (i = 0; i < G.nfronts; i++) {
+        modbus_server_free(G.fronts[i].server);
+        modbus_free(G.fronts[i].ctx);
     }
     return 0;
 }
