@@ -243,6 +243,14 @@ pub fn closed(ctx: &mut Context) {
     }
 }
 
+/// A handler's `modbus_free` closed the context under the interrupted call: what it
+/// marked completes with EIDRM (a free), not ESHUTDOWN.
+pub fn closed_by_free(ctx: &mut Context) {
+    if ctx.shut() == Shut::Closing {
+        ctx.set_shut(Shut::Open);
+    }
+}
+
 /// `modbus_free`: what a close left completes with ESHUTDOWN, everything else with
 /// EIDRM; from now on a submission (from those callbacks) fails with EIDRM.
 pub fn free(ctx: &mut Context) {

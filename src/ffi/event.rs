@@ -661,21 +661,34 @@ pub unsafe extern "C" fn modbus_set_max_in_flight(ctx: *mut Modbus, n: c_int) ->
 /// what a close left), each callback run before the free returns, a submission from
 /// them refused (EIDRM); the context leaves its multi handle first. Nothing waits:
 /// when a call holds the context (another thread's, or one a signal handler
-/// interrupted), there is nothing to do here.
+/// interrupted: that call does it as it ends, `finish_handler_free`), there is
+/// nothing to do here.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 pub unsafe fn cancel_pending(ctx: *mut Modbus) {
     // SAFETY: forwarded caller contract (`try_call` takes NULL).
     unsafe {
-        crate::handle::try_call(ctx, |g| {
-            let Ok(Some(o)) = g.async_state() else { return };
-            if let Some((members, key)) = o.multi.take() {
-                // (Its completions not read yet go with it.)
-                members.remove(key);
-            }
-            event::free(g);
-            fire(ctx, g);
-        });
+        crate::handle::try_call(ctx, |g| complete_on_free(ctx, g, false));
     }
+}
+
+/// What `modbus_free` does to the event-driven client's requests (see
+/// [`cancel_pending`]); `by_handler`: the free came from a signal handler, whose
+/// close under the interrupted call is part of it (EIDRM, not ESHUTDOWN).
+///
+/// # Safety
+/// `ctx` is the live handle `g` locks.
+pub(crate) unsafe fn complete_on_free(ctx: *mut Modbus, g: &mut Guard<'_>, by_handler: bool) {
+    let Ok(Some(o)) = g.async_state() else { return };
+    if let Some((members, key)) = o.multi.take() {
+        // (Its completions not read yet go with it.)
+        members.remove(key);
+    }
+    if by_handler {
+        event::closed_by_free(g);
+    }
+    event::free(g);
+    // SAFETY: forwarded caller contract.
+    unsafe { fire(ctx, g) };
 }

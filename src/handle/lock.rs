@@ -325,6 +325,11 @@ impl<'a, T> OwnerGuard<'a, T> {
         }
     }
 
+    /// The flags up now.
+    pub(super) fn flags(g: &Self) -> usize {
+        g.lock.word.load(SeqCst) & FLAGS
+    }
+
     /// Takes `flags` down; returns those of them that were up.
     pub(super) fn take_flags(g: &mut Self, flags: usize) -> usize {
         g.lock.word.fetch_and(!(flags & FLAGS), SeqCst) & flags & FLAGS

@@ -57,6 +57,16 @@ pub trait Closable {
     /// (`Stop::close_in_handler`): `handled` is the descriptor it closed (kept open
     /// on /dev/null), or -1 when it found none.
     fn finish_handler_close(&mut self, handled: i32);
+    /// What the value finishes before it is freed when a signal handler freed it under
+    /// the call that just ended (after [`Closable::finish_handler_close`]), with the
+    /// lock, on that call's thread, outside the handler: `ptr` is its handle, kept
+    /// allocated until this returns (the event-driven client's callbacks run here).
+    ///
+    /// # Safety
+    /// `ptr` is the live handle whose lock `g` is.
+    unsafe fn finish_handler_free(g: &mut OwnerGuard<'_, Self>, ptr: *mut Handle<Self>)
+    where
+        Self: Sized;
 }
 
 /// A value behind its lock, with what stopping a call on it needs without the lock.
@@ -157,12 +167,20 @@ unsafe fn release_slow<T: Closable>(ptr: *mut Handle<T>, mut g: OwnerGuard<'_, T
     // SAFETY: guaranteed by the caller, until the release below.
     let handle = unsafe { &*ptr };
     let mut closed = false;
+    let mut freed = false;
     let flags = loop {
         if OwnerGuard::take_flags(&mut g, CLOSED) != 0 {
             if let Some(handled) = handle.stop.take_handled() {
                 g.finish_handler_close(handled);
             }
             closed = true;
+            // A handler's `modbus_free` (it raised both): what the value does before
+            // it goes, now that no handler runs.
+            if !freed && OwnerGuard::flags(&g) & FREED != 0 {
+                freed = true;
+                // SAFETY: `g` is the lock of the live `ptr` (the caller's contract).
+                unsafe { T::finish_handler_free(&mut g, ptr) };
+            }
         }
         match g.release_unless(CLOSED) {
             Ok(flags) => break flags,
