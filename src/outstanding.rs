@@ -229,8 +229,9 @@ impl Outstanding {
         self.pipeline.pending()
     }
 
-    /// Completes every request with `errno` (a close: ECANCELED; a lost line: its
-    /// error); their callbacks run when the C layer next fires the completed ones.
+    /// Completes every request with `errno` (a close: ESHUTDOWN; a free: EIDRM; a
+    /// lost line: its error); their callbacks run when the C layer next fires the
+    /// completed ones.
     pub fn fail_all(&mut self, errno: i32) {
         self.receiving = None;
         self.connect_until = None;

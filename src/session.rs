@@ -353,7 +353,8 @@ pub fn accepted(ctx: &mut Context, fd: i32, peer: Option<&str>) -> Result<()> {
 
 /// Closes the line (a serial line gets its saved settings back first), dropping
 /// what was read ahead: a recovery's close, and the end of `modbus_close` (which
-/// first cancels the event-driven client's requests: `event::close`).
+/// first marks the event-driven client's requests to complete with ESHUTDOWN:
+/// `event::close`).
 pub fn close_line(ctx: &mut Context) {
     ctx.rx.clear();
     ctx.line.close();
