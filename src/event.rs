@@ -226,13 +226,23 @@ pub fn shut_pending(ctx: &mut Context) {
 
 /// What a close left pending completes now with ESHUTDOWN (their callbacks run when
 /// the C layer next fires the completed ones): on the loop's thread, from
-/// `modbus_process` and `modbus_free`.
+/// `modbus_process` and `modbus_free`. Also what a free left while `modbus_process`
+/// had the requests (it freed from that call's RTS hook, or while the hook ran):
+/// EIDRM, and the context leaves its multi handle.
 pub fn complete_close(ctx: &mut Context) {
-    if ctx.shut() != Shut::Closing {
+    let shut = ctx.shut();
+    if shut == Shut::Open {
         return;
     }
     if let Ok(Some(o)) = ctx.async_state() {
-        o.fail_all(libc::ESHUTDOWN);
+        if shut == Shut::Freed {
+            if let Some((members, key)) = o.multi.take() {
+                members.remove(key);
+            }
+            o.fail_all(libc::EIDRM);
+        } else {
+            o.fail_all(libc::ESHUTDOWN);
+        }
     }
 }
 
@@ -337,9 +347,10 @@ pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
 
 fn run(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool, writable: bool) {
     for _ in 0..4 * MAX_PENDING {
-        if g.shut() == Shut::Closing {
-            // Closed from the RTS hook (or a signal handler) meanwhile: nothing more
-            // goes out; what is pending completes with ESHUTDOWN when this ends.
+        if g.shut() != Shut::Open || g.stopping() {
+            // Closed from the RTS hook (or a signal handler) meanwhile, or being
+            // closed (or freed) by another thread: nothing more goes out; what is
+            // pending completes with ESHUTDOWN (EIDRM) when that close is done.
             return;
         }
         let now = transport::now();
@@ -494,6 +505,11 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
 /// The line failed: everything pending completes with its error, and the line is
 /// closed (the next request opens it again).
 fn lost(g: &mut Guard<'_>, o: &mut Outstanding, e: Error) {
+    if g.stopping() {
+        // The failure is a close's (a signal handler's, another thread's): that
+        // close ends what is pending (ESHUTDOWN, or EIDRM for a free), not this error.
+        return;
+    }
     o.fail_all(e.errno());
     session::close_line(g);
 }

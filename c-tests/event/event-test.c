@@ -1330,6 +1330,32 @@ static int sig_count(const struct result *res, int n, int error)
     return k;
 }
 
+/* modbus_free from another thread while a call holds the context (serial case). */
+static modbus_t *ot_ctx;
+static pthread_t ot_freer;
+static uint16_t ot_vals[3];
+static int ot_calls, ot_eidrm, ot_on_freer, ot_rc, ot_error;
+static void ot_cb(modbus_t *ctx, int id, int rc, int error, void *user)
+{
+    (void) ctx;
+    (void) id;
+    (void) user;
+    ot_calls++;
+    ot_rc = rc;
+    ot_error = error;
+    ot_eidrm += rc == -1 && error == EIDRM;
+    ot_on_freer += pthread_equal(pthread_self(), ot_freer);
+}
+
+static void *ot_free_main(void *arg)
+{
+    (void) arg;
+    ot_freer = pthread_self();
+    usleep(100000);
+    modbus_free(ot_ctx);
+    return NULL;
+}
+
 static pthread_t sig_main;
 /* A handler that frees the context, when it interrupted a call on it (a call then
  * gives -1 EDEADLK in the handler). */
@@ -1924,8 +1950,27 @@ int main(int argc, char **argv)
         EXPECT(a.done == 1 && a.rc == 1, "the same asynchronous read: rc %d (%s)", a.rc,
                a.rc == -1 ? modbus_strerror(a.error) : "ok");
         modbus_set_response_timeout(ctx, 2, 0);
-        modbus_rtu_set_rts(ctx, MODBUS_RTU_RTS_NONE);
-        modbus_close(ctx);
+        /* (issue 39, item 2) modbus_free from another thread while modbus_process
+         * holds the context (in the RTS sequence's 300 ms): the requests (to a unit
+         * that does not answer) complete with EIDRM on the freeing thread once the
+         * call let go, each once. */
+        modbus_rtu_set_rts_delay(ctx, 300000);
+        modbus_set_slave(ctx, 99); /* a unit no one answers for: they stay pending */
+        ot_calls = ot_on_freer = 0;
+        int queued = 0;
+        for (int i = 0; i < 3; i++) {
+            queued += modbus_read_registers_async(ctx, 50, 1, &ot_vals[i], ot_cb, NULL) >= 0;
+        }
+        pthread_t freer;
+        ot_ctx = ctx;
+        pthread_create(&freer, NULL, ot_free_main, NULL);
+        modbus_process(ctx, 0); /* its write's RTS sequence: 300 ms, then more */
+        pthread_join(freer, NULL);
+        ctx = NULL; /* freed */
+        EXPECT(queued == 3 && ot_calls == 3 && ot_eidrm == 3,
+               "modbus_free from another thread during modbus_process: %d callbacks, %d with EIDRM (%d on the "
+               "freeing thread, the others as modbus_process ended; the last: rc %d, %s)",
+               ot_calls, ot_eidrm, ot_on_freer, ot_rc, ot_rc == -1 ? modbus_strerror(ot_error) : "ok");
     } else {
         chk_set_prefix("own servers: ");
         own_servers();

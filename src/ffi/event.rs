@@ -661,8 +661,7 @@ pub unsafe extern "C" fn modbus_set_max_in_flight(ctx: *mut Modbus, n: c_int) ->
 /// what a close left), each callback run before the free returns, a submission from
 /// them refused (EIDRM); the context leaves its multi handle first. Nothing waits:
 /// when a call holds the context (another thread's, or one a signal handler
-/// interrupted: that call does it as it ends, `finish_handler_free`), there is
-/// nothing to do here.
+/// interrupted), `handle::free` does it once that call lets go (`finish_free`).
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
@@ -674,13 +673,24 @@ pub unsafe fn cancel_pending(ctx: *mut Modbus) {
 }
 
 /// What `modbus_free` does to the event-driven client's requests (see
-/// [`cancel_pending`]); `by_handler`: the free came from a signal handler, whose
-/// close under the interrupted call is part of it (EIDRM, not ESHUTDOWN).
+/// [`cancel_pending`]); `by_handler`: the free closed the context under a call (a
+/// signal handler's, another thread's), a close that is part of it (EIDRM, not
+/// ESHUTDOWN).
 ///
 /// # Safety
 /// `ctx` is the live handle `g` locks.
 pub(crate) unsafe fn complete_on_free(ctx: *mut Modbus, g: &mut Guard<'_>, by_handler: bool) {
-    let Ok(Some(o)) = g.async_state() else { return };
+    let o = match g.async_state() {
+        Ok(Some(o)) => o,
+        Ok(None) => return,
+        Err(_) => {
+            // `modbus_process` has the requests (this free comes while its RTS hook
+            // runs, with the lock released): it completes them (EIDRM) as it ends,
+            // and the handle lives until then (that call holds a reference).
+            g.set_shut(crate::context::Shut::Freed);
+            return;
+        }
+    };
     if let Some((members, key)) = o.multi.take() {
         // (Its completions not read yet go with it.)
         members.remove(key);

@@ -56,10 +56,10 @@ impl Closable for Context {
         self.rx.clear();
     }
 
-    /// A handler's `modbus_free`: the event-driven client's requests complete with
-    /// EIDRM, their callbacks run here (the interrupted call's thread, after the
-    /// handler), as `modbus_free` does them from normal code.
-    unsafe fn finish_handler_free(g: &mut Guard<'_>, ptr: *mut Modbus) {
+    /// A `modbus_free` that closed the context under a call (a signal handler's, or
+    /// another thread's): the event-driven client's requests complete with EIDRM,
+    /// their callbacks run here, as `modbus_free` does them from normal code.
+    unsafe fn finish_free(g: &mut Guard<'_>, ptr: *mut Modbus) {
         // SAFETY: `ptr` is the live handle `g` locks (the trait's contract).
         unsafe { crate::ffi::event::complete_on_free(ptr, g, true) }
     }

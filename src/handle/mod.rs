@@ -57,14 +57,16 @@ pub trait Closable {
     /// (`Stop::close_in_handler`): `handled` is the descriptor it closed (kept open
     /// on /dev/null), or -1 when it found none.
     fn finish_handler_close(&mut self, handled: i32);
-    /// What the value finishes before it is freed when a signal handler freed it under
-    /// the call that just ended (after [`Closable::finish_handler_close`]), with the
-    /// lock, on that call's thread, outside the handler: `ptr` is its handle, kept
-    /// allocated until this returns (the event-driven client's callbacks run here).
+    /// What the value finishes before it is freed, with the lock, when `modbus_free`
+    /// had to close it under a call: a signal handler freed it under the call that
+    /// just ended (after [`Closable::finish_handler_close`], on that call's thread,
+    /// outside the handler), or another thread freed it while a call held it (on
+    /// that thread, once the call let go). `ptr` is its handle, kept allocated until
+    /// this returns (the event-driven client's callbacks run here).
     ///
     /// # Safety
     /// `ptr` is the live handle whose lock `g` is.
-    unsafe fn finish_handler_free(g: &mut OwnerGuard<'_, Self>, ptr: *mut Handle<Self>)
+    unsafe fn finish_free(g: &mut OwnerGuard<'_, Self>, ptr: *mut Handle<Self>)
     where
         Self: Sized;
 }
@@ -179,7 +181,7 @@ unsafe fn release_slow<T: Closable>(ptr: *mut Handle<T>, mut g: OwnerGuard<'_, T
             if !freed && OwnerGuard::flags(&g) & FREED != 0 {
                 freed = true;
                 // SAFETY: `g` is the lock of the live `ptr` (the caller's contract).
-                unsafe { T::finish_handler_free(&mut g, ptr) };
+                unsafe { T::finish_free(&mut g, ptr) };
             }
         }
         match g.release_unless(CLOSED) {
@@ -369,11 +371,13 @@ fn close_in_handler<T>(handle: &Handle<T>, freed: bool) {
 }
 
 /// Closes a handle whose lock another thread holds: stops its waits, then closes
-/// with the lock, which the waiting call gives up at once.
+/// with the lock, which the waiting call gives up at once; `freeing`: for
+/// `modbus_free`, which then finishes what the value does before it goes
+/// ([`Closable::finish_free`]).
 ///
 /// # Safety
 /// `ptr` must be a live handle.
-unsafe fn close_under_other_thread<T: Closable>(ptr: *mut Handle<T>) {
+unsafe fn close_under_other_thread<T: Closable>(ptr: *mut Handle<T>, freeing: bool) {
     // SAFETY: guaranteed by the caller.
     let handle = unsafe { &*ptr };
     handle.stop.begin_stop();
@@ -382,6 +386,10 @@ unsafe fn close_under_other_thread<T: Closable>(ptr: *mut Handle<T>) {
             close_locked(handle, &mut g);
             handle.stop.note_close();
             handle.stop.end_stop();
+            if freeing {
+                // SAFETY: `g` is the lock of the live `ptr`.
+                unsafe { T::finish_free(&mut g, ptr) };
+            }
             // SAFETY: `g` is the lock of `ptr`.
             unsafe { release_slow(ptr, g) };
         }
@@ -414,7 +422,7 @@ pub unsafe fn close<T: Closable>(ptr: *mut Handle<T>) {
         }
         None if handle.value.holder() == current_thread() => close_in_handler(handle, false),
         // SAFETY: `ptr` is live.
-        None => unsafe { close_under_other_thread(ptr) },
+        None => unsafe { close_under_other_thread(ptr, false) },
     }
     if deferred {
         cancel::resume();
@@ -446,7 +454,7 @@ pub unsafe fn free<T: Closable>(ptr: *mut Handle<T>) {
         }
         None => {
             // SAFETY: `ptr` is live.
-            unsafe { close_under_other_thread(ptr) };
+            unsafe { close_under_other_thread(ptr, true) };
             false
         }
     };
