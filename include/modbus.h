@@ -1039,6 +1039,7 @@ MODBUS_API int modbus_multi_perform(modbus_multi_t *m, int timeout_ms);
  * when none is waiting, or -1 with errno (EINVAL: `m` or `c` NULL, or
  * `c->struct_size` refused). Completions of a context that leaves the handle go
  * back to it (`modbus_completion_read`), or with it when it is freed.
+ * Linux only (epoll).
  *
  * # Safety
  * `m` NULL or a live multi handle; `c` NULL or valid for `c->struct_size` bytes.

@@ -274,6 +274,7 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
 /// when none is waiting, or -1 with errno (EINVAL: `m` or `c` NULL, or
 /// `c->struct_size` refused). Completions of a context that leaves the handle go
 /// back to it (`modbus_completion_read`), or with it when it is freed.
+/// Linux only (epoll).
 ///
 /// # Safety
 /// `m` NULL or a live multi handle; `c` NULL or valid for `c->struct_size` bytes.
