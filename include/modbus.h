@@ -638,10 +638,13 @@ int modbus_send_raw_request_async(modbus_t *ctx,
                                   void *user_data);
 
 /**
- * What to wait for: `pfd->fd` (-1 while not connected), `pfd->events` (`POLLIN`,
- * `POLLOUT`, or 0), and in `*timeout_ms` (may be NULL) the milliseconds until
- * `modbus_process` is due even without an event (-1: no deadline; 0: call it now).
- * Returns the number of requests pending, or -1 with errno.
+ * What to wait for: `pfd->fd` is the context's wake descriptor (an epoll set made
+ * by the first call, the same for the context's life), readable when the line has
+ * I/O ready, when a request is given (from any thread) and when the deadline
+ * comes; `pfd->events` is `POLLIN`. `*timeout_ms` (may be NULL) gets the
+ * milliseconds until `modbus_process` is due even without an event (-1: no
+ * deadline; 0: call it now, the descriptor may not be readable). Returns the number
+ * of requests pending, or -1 with errno.
  *
  * Linux only (epoll).
  *
@@ -652,10 +655,11 @@ int modbus_send_raw_request_async(modbus_t *ctx,
 MODBUS_API int modbus_get_pollfd(modbus_t *ctx, struct pollfd *pfd, int *timeout_ms);
 
 /**
- * Does the I/O that `revents` (from `poll`, for the descriptor of
- * `modbus_get_pollfd`; 0 when the wait timed out) says is ready and what the clock
- * says is due, without blocking, and calls the callbacks of the requests that
- * completed. Returns how many completed, or -1 with errno.
+ * Does the I/O that is ready and what the clock says is due, without blocking, and
+ * calls the callbacks of the requests that completed. `revents` (from `poll` on the
+ * descriptor of `modbus_get_pollfd`; 0 when the wait timed out) is only a hint: the
+ * context asks its descriptor what is ready. Returns how many completed, or -1 with
+ * errno.
  *
  * # Safety
  * `ctx` must be NULL or a live context.
@@ -996,21 +1000,37 @@ MODBUS_API int modbus_multi_add(modbus_multi_t *m, modbus_t *ctx);
 MODBUS_API int modbus_multi_remove(modbus_multi_t *m, modbus_t *ctx);
 
 /**
- * The descriptor that is readable when a context of `m` has I/O ready (put it in
- * the application's loop, then call `modbus_multi_perform(m, 0)`); -1 with EINVAL for
- * NULL. Deadlines do not make it readable: wait at most `modbus_multi_timeout`.
+ * The descriptor (an epoll set) that is readable when a context of `m` has I/O
+ * ready, when a request is given to one (from any thread), when the earliest
+ * deadline comes and after `modbus_multi_wakeup`: put it in the application's loop, wait at most `modbus_multi_timeout` (which brings it up to
+ * date: call it before each wait), then call `modbus_multi_perform(m, 0)`. -1 with
+ * EINVAL for NULL.
  *
  * Linux only (epoll).
  *
  * # Safety
  * `m` NULL or a live multi handle.
  */
-MODBUS_API int modbus_multi_get_fd(modbus_multi_t *m);
+MODBUS_API
+int modbus_multi_get_fd(modbus_multi_t *m);
+
+/**
+ * Wakes `m`: the `modbus_multi_perform` that waits returns (or the next returns at
+ * once), and `modbus_multi_get_fd` becomes readable. Safe from any thread and in a
+ * signal handler. Returns 0, or -1 with EINVAL for NULL.
+ *
+ * Linux only (epoll).
+ *
+ * # Safety
+ * `m` NULL or a live multi handle.
+ */
+MODBUS_API int modbus_multi_wakeup(modbus_multi_t *m);
 
 /**
  * Milliseconds until a context of `m` has something due without I/O (a timeout, a
  * connect, a request to send): 0 at once, -1 none. Brings the registrations up to
- * date.
+ * date, and from then on a request given to a context of `m` makes
+ * `modbus_multi_get_fd` readable.
  *
  * Linux only (epoll).
  *
@@ -1020,11 +1040,12 @@ MODBUS_API int modbus_multi_get_fd(modbus_multi_t *m);
 MODBUS_API int modbus_multi_timeout(modbus_multi_t *m);
 
 /**
- * Waits up to `timeout_ms` (0: not at all; -1: until something is due, not at all
- * when no request is pending) for I/O on
- * the contexts of `m`, then processes each context with I/O ready or a deadline
- * passed (as `modbus_process`, callbacks included). Returns the number of requests
- * completed, or -1 with errno.
+ * Waits up to `timeout_ms` (0: not at all; -1: until something is due) for I/O on
+ * the contexts of `m`, a request given to one of them (from another thread) or
+ * `modbus_multi_wakeup`, then processes each context with I/O ready, a deadline
+ * passed or a request to start (as `modbus_process`, callbacks included). With
+ * nothing pending, -1 waits for a request or a wake-up. Returns the number of
+ * requests completed, or -1 with errno.
  *
  * Linux only (epoll).
  *

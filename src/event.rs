@@ -18,7 +18,7 @@ use std::time::Duration;
 use crate::context::{Context, Shut};
 use crate::engine::{self, AduBuf, Guard};
 use crate::error::{Error, Result};
-use crate::outstanding::{Completion, Deliver, Done, Outstanding, Ready, Receiving};
+use crate::outstanding::{Completion, Deliver, Done, Outstanding, Ready, Receiving, Wake};
 use crate::proto::confirm::{self, Rejection};
 use crate::proto::decode::counted_data;
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
@@ -30,6 +30,7 @@ use crate::proto::session::{Recovery, Timeout};
 use crate::proto::{Diag, ascii};
 use crate::session::{self, Driver, Received, Recovered};
 use crate::transport;
+use crate::transport::epoll::{self, Registered, WakeSet};
 
 /// What to wait for before the next [`process`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -160,10 +161,14 @@ fn queue(
     id.ok_or(Error(libc::EAGAIN))
 }
 
-/// A context of a multi handle is to be asked again what it waits for.
+/// A context of a multi handle is to be asked again what it waits for; a waiter on
+/// the context's own descriptor that may not know of the change is woken.
 fn mark(o: &Outstanding) {
     if let Some((members, key)) = &o.multi {
         members.mark(*key);
+    }
+    if let Some(w) = &o.wake {
+        w.set.notify();
     }
 }
 
@@ -325,14 +330,71 @@ pub fn interest(ctx: &Context) -> Interest {
     Interest { fd, events, until }
 }
 
-/// `modbus_process`: the I/O `revents` says is ready, and what the clock says is due.
-/// Returns the number of requests completed (their results wait in the context for
-/// the C layer: [`take_done`]).
-pub fn process(g: &mut Guard<'_>, revents: i16) -> Result<usize> {
+/// `modbus_get_pollfd`: the context's wake descriptor (made by the first call),
+/// brought up to date with what the context waits for ([`interest`]): the line's
+/// events registered in it, its timerfd armed for the deadline, and a request given
+/// from now on (from any thread) makes it readable. Returns the descriptor and when
+/// [`process`] is due without an event (`None`: no deadline).
+pub fn wake_interest(ctx: &mut Context) -> Result<(i32, Option<Duration>)> {
+    let i = interest(ctx);
+    let generation = ctx.line.generation();
+    let o = state(ctx)?;
+    let w = match &mut o.wake {
+        Some(w) => w,
+        None => o.wake.insert(Box::new(Wake { set: WakeSet::new()?, line: Registered::default() })),
+    };
+    w.line.update(w.set.epfd, i.fd, generation, i.events, epoll::KEY_LINE)?;
+    if let Some(t) = i.until {
+        w.set.arm_by(t, transport::now());
+    }
+    w.set.watch();
+    Ok((w.set.epfd, i.until))
+}
+
+/// After `modbus_process` (its callbacks included): a request given from now on
+/// wakes a waiter on the context's descriptor, should the application wait without
+/// asking [`wake_interest`] first.
+pub fn watch(ctx: &mut Context) {
+    if let Ok(Some(Outstanding { wake: Some(w), .. })) = ctx.async_state() {
+        w.set.watch();
+    }
+}
+
+/// What the context's wake descriptor has ready, without waiting: the line's poll(2)
+/// events (the eventfd and the timerfd are drained). A line that reports while it
+/// waits for nothing leaves the set.
+fn learn(w: &mut Wake) -> i16 {
+    w.set.unwatch();
+    let mut events = [libc::epoll_event { events: 0, u64: 0 }; 4];
+    let Ok((n, _)) = w.set.take(0, &mut events) else { return 0 };
+    let mut line = 0;
+    for ev in &events[..n] {
+        if { ev.u64 } == epoll::KEY_LINE {
+            line |= { ev.events } as u16 as i16;
+        }
+    }
+    if line != 0 && w.line.idle_report(w.set.epfd) {
+        return 0;
+    }
+    line
+}
+
+/// `modbus_process`: the I/O that is ready, and what the clock says is due.
+/// `revents` is the line's poll(2) events when the caller knows them (the multi
+/// handle); from the application (`app`), it is only a hint: a context with its
+/// wake descriptor asks the descriptor what is ready. Returns the number of
+/// requests completed (their results wait in the context for the C layer:
+/// [`take_done`]).
+pub fn process(g: &mut Guard<'_>, revents: i16, app: bool) -> Result<usize> {
     // (From the RTS hook of a modbus_process: EBUSY.)
     g.async_state()?;
     complete_close(g);
     let Some(mut o) = g.lend_async() else { return Ok(0) };
+    let revents = match o.wake.as_deref_mut() {
+        Some(w) if app => learn(w),
+        Some(w) => revents | learn(w),
+        None => revents,
+    };
     let before = o.done.len();
     let mut readable = revents & (libc::POLLIN | libc::POLLERR | libc::POLLHUP) != 0;
     let writable = revents & (libc::POLLOUT | libc::POLLERR | libc::POLLHUP) != 0;

@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
 
 use crate::handle::lock::OwnerMutex;
+use crate::transport::epoll::{Registered, WakeSet};
 
 use crate::proto::frame::{Framing, MAX_ADU_LENGTH};
 use crate::proto::session::pipeline::Pipeline;
@@ -138,13 +139,25 @@ pub struct Outstanding {
     /// The multi handle the context is in, if any, and the context's key in it (its
     /// handle's address).
     pub multi: Option<(Arc<Members>, usize)>,
+    /// The context's own wake descriptor (`modbus_get_pollfd`), made by its first call.
+    pub wake: Option<Box<Wake>>,
+}
+
+/// A context's wake descriptor: an epoll set of the line, an eventfd (a new request)
+/// and a timerfd (the earliest deadline); see [`WakeSet`].
+pub struct Wake {
+    pub set: WakeSet,
+    /// The line as registered in the set (key `epoll::KEY_LINE`).
+    pub line: Registered,
 }
 
 /// The contexts of one multi handle (`modbus_multi_*`), shared by the handle and its
 /// contexts, so that a context leaves it wherever it goes (removed, or freed).
 pub struct Members {
-    /// The multi handle's epoll descriptor.
-    pub epfd: i32,
+    /// The multi handle's epoll set (`set.epfd`), with its eventfd (a request given
+    /// to a member, `modbus_multi_wakeup`) and timerfd (the members' earliest
+    /// deadline).
+    pub set: WakeSet,
     /// By handle address: what is registered for each, and what it waits for.
     pub list: OwnerMutex<HashMap<usize, Member>>,
     /// The contexts whose interest may have changed since the handle last asked
@@ -161,19 +174,10 @@ pub struct Members {
 /// What a multi handle registered for one context.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Member {
-    /// The descriptor (-1: none registered) and which of the line's it was.
-    pub fd: i32,
-    pub generation: u32,
-    /// The poll(2) events registered (0: none). A context that waits for nothing
-    /// keeps its registration (most will wait again soon: two `epoll_ctl` calls
-    /// per request saved); the handle drops it if it reports anyway.
-    pub events: i16,
-    /// The poll(2) events the context waits for, as last asked.
-    pub wants: i16,
+    /// Its line as registered in the handle's epoll set (under the context's key).
+    pub line: Registered,
     /// When it is due without I/O, as last asked.
     pub until: Option<std::time::Duration>,
-    /// It had requests pending, as last asked.
-    pub pending: bool,
 }
 
 impl Members {
@@ -185,6 +189,9 @@ impl Members {
     /// The context `key` is to be asked again before the next wait.
     pub fn mark(&self, key: usize) {
         self.dirty.lock().push(key);
+        // After the push: a wait that began before it (and took the list before it)
+        // is woken.
+        self.set.notify();
     }
 
     /// Takes the context of handle address `key` out (its registration with it: a
@@ -202,8 +209,8 @@ impl Members {
         drop(ready);
         let mut list = self.list.lock();
         if let Some(m) = list.remove(&key) {
-            if m.fd >= 0 && m.events != 0 {
-                let _ = crate::transport::epoll::control(self.epfd, libc::EPOLL_CTL_DEL, m.fd, 0, 0);
+            if m.line.fd >= 0 && m.line.events != 0 {
+                let _ = crate::transport::epoll::control(self.set.epfd, libc::EPOLL_CTL_DEL, m.line.fd, 0, 0);
             }
         }
         own
@@ -221,6 +228,7 @@ impl Outstanding {
             handshake_wants: 0,
             quiet_until: None,
             multi: None,
+            wake: None,
         }
     }
 

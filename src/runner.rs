@@ -187,9 +187,7 @@ impl Stopper {
 
     /// Wakes the run's wait (an answer given later is there to send).
     fn wake(&self) {
-        let one: u64 = 1;
-        // SAFETY: writes 8 bytes from a live local to the runner's eventfd.
-        unsafe { libc::write(self.wake, (&one as *const u64).cast(), 8) };
+        epoll::signal(self.wake);
     }
 }
 
@@ -338,35 +336,6 @@ pub struct Runner {
     requests: Requests,
 }
 
-fn eventfd() -> Result<i32> {
-    // SAFETY: plain system call with integer arguments.
-    let fd = unsafe { libc::eventfd(0, libc::EFD_CLOEXEC | libc::EFD_NONBLOCK) };
-    if fd < 0 { Err(transport::last_error()) } else { Ok(fd) }
-}
-
-fn timerfd() -> Result<i32> {
-    // SAFETY: plain system call with integer arguments.
-    let fd = unsafe { libc::timerfd_create(libc::CLOCK_MONOTONIC, libc::TFD_CLOEXEC | libc::TFD_NONBLOCK) };
-    if fd < 0 { Err(transport::last_error()) } else { Ok(fd) }
-}
-
-/// Arms `fd` for the monotonic time `at` (`None`: disarms).
-fn arm(fd: i32, at: Option<Duration>) {
-    let value = match at {
-        // A zero value would disarm: the earliest instant instead.
-        Some(t) => transport::to_timespec(t.max(Duration::from_nanos(1))),
-        None => libc::timespec { tv_sec: 0, tv_nsec: 0 },
-    };
-    let spec = libc::itimerspec { it_interval: libc::timespec { tv_sec: 0, tv_nsec: 0 }, it_value: value };
-    // SAFETY: `spec` is a live itimerspec; the old value is not asked for.
-    unsafe { libc::timerfd_settime(fd, libc::TFD_TIMER_ABSTIME, &spec, std::ptr::null_mut()) };
-}
-
-fn drain(fd: i32) {
-    let mut count = [0u8; 8];
-    let _ = transport::read(fd, &mut count);
-}
-
 impl Runner {
     /// A runner for the context `g`, for up to `max_clients` clients: a listening
     /// context's socket when it has one listening (`modbus_set_socket` with what
@@ -378,7 +347,7 @@ impl Runner {
     /// context's), else one bound to its address. EMBTLSCONFIG: a Modbus/TCP
     /// Security context without its certificate, key and CA.
     pub fn new(g: &mut Guard<'_>, max_clients: usize) -> Result<Runner> {
-        let wake = eventfd()?;
+        let wake = epoll::eventfd()?;
         let stopper = std::sync::Arc::new(Stopper { stopping: AtomicBool::new(false), wake });
         let epfd = epoll::create()?;
         let mut r = Runner {
@@ -400,7 +369,7 @@ impl Runner {
             stopper,
             requests: Requests::default(),
         };
-        r.timerfd = timerfd()?;
+        r.timerfd = epoll::timerfd()?;
         epoll::control(epfd, libc::EPOLL_CTL_ADD, wake, libc::POLLIN, KEY_WAKE)?;
         epoll::control(epfd, libc::EPOLL_CTL_ADD, r.timerfd, libc::POLLIN, KEY_TIMER)?;
         if !g.line.is_stream() {
@@ -492,7 +461,7 @@ impl Runner {
         let mut answered = 0;
         loop {
             if self.stopper.stopping.swap(false, Ordering::SeqCst) {
-                drain(self.stopper.wake);
+                epoll::drain(self.stopper.wake);
                 return Ok(answered);
             }
             let wait_ms = match end {
@@ -509,8 +478,8 @@ impl Runner {
                 let revents = { ev.events } as u16 as i16;
                 match key {
                     // A stop (seen above) or an answer given later (sent below).
-                    KEY_WAKE => drain(self.stopper.wake),
-                    KEY_TIMER => drain(self.timerfd),
+                    KEY_WAKE => epoll::drain(self.stopper.wake),
+                    KEY_TIMER => epoll::drain(self.timerfd),
                     KEY_LINE if self.own_line.is_some() => answered += self.own_line_ready(server, answer, true),
                     KEY_LINE => self.accept(server),
                     _ => answered += self.client_ready(key, revents, server, answer),
@@ -803,7 +772,7 @@ impl Runner {
         let next = self.timers.peek().map(|Reverse((at, ..))| *at);
         if next != self.armed {
             self.armed = next;
-            arm(self.timerfd, next);
+            epoll::arm(self.timerfd, next);
         }
     }
 }

@@ -8,7 +8,7 @@
 //   - an event-driven client: modbus_read_registers_async, then modbus_get_pollfd,
 //     poll() and modbus_process until its modbus_callback_t has run;
 //   - two more clients behind one multi handle (modbus_multi_*): a write and a read in
-//     flight at once, completed by modbus_multi_perform;
+//     flight at once, completed by modbus_multi_perform; modbus_multi_wakeup;
 //   - the other public types of the extensions (modbus_request_info_t,
 //     modbus_device_id_object_t, modbus_tls_authorize_t) used from C++.
 // It prints which libmodbus.so.5 the loader mapped ("LOADED path (rsmodbus version)"),
@@ -220,6 +220,10 @@ int main()
     check(write_done.done && write_done.rc == 1, "the multi's write completed with rc 1");
     check(input_done.done && input_done.rc == 2 && input[0] == 1100 && input[1] == 1101,
           "the multi's read of input registers got 1100, 1101");
+    // A wake-up given while none waits ends the next wait at once.
+    t0 = std::chrono::steady_clock::now();
+    check(modbus_multi_wakeup(multi) == 0 && modbus_multi_perform(multi, 5000) == 0 && seconds_since(t0) < 1,
+          "modbus_multi_wakeup ends the next modbus_multi_perform at once");
 
     // --- the other public types, from C++ --------------------------------------------
     modbus_device_id_object_t object;

@@ -19,6 +19,9 @@
  *                             cannot size: c-tests/event/fc41_device.py on MODE rtu|ascii
  *                             (pty end ADDR) or tcp|rtutcp (port ADDR), or a gateway
  *                             in front of it (tcp); the whole answer must come back
+ *   event-test wake           lost wake-ups (servers of its own): a request given while
+ *                             a loop or another thread waits, a deadline and
+ *                             modbus_multi_wakeup end the wait (issue 39)
  *   event-test threads PORT N mb-server tcp: two threads per context, one giving
  *                             requests, one processing them (N), on a context and
  *                             on a context of a multi handle (also run by "tcp"; the
@@ -762,9 +765,11 @@ static void multi_case(void)
     int id = modbus_read_registers_async(ctx[0], 0, 4, v, on_done, NULL);
     EXPECT(modbus_multi_perform(m, 100) == 0 && results[id].done == 0, "a removed context is not processed");
     {
+        /* Nothing pending: -1 waits for a request or a wake-up (see wake_cases). */
         double p0 = now_s();
+        modbus_multi_wakeup(m);
         int c = modbus_multi_perform(m, -1);
-        EXPECT(c == 0 && now_s() - p0 < 0.5, "modbus_multi_perform(-1) with nothing pending returns 0 at once (%d)", c);
+        EXPECT(c == 0 && now_s() - p0 < 0.5, "modbus_multi_perform(-1) with nothing pending, after modbus_multi_wakeup: 0 at once (%d)", c);
     }
     drive(ctx[0], 5);
     EXPECT(results[id].done == 1 && results[id].rc == 4, "it completes through its own modbus_process");
@@ -808,7 +813,8 @@ static void own_servers(void)
         struct pollfd pfd;
         int timeout = -2;
         modbus_get_pollfd(c2, &pfd, &timeout);
-        EXPECT(pfd.fd == -1 && timeout == 0, "not connected: no descriptor, process at once (fd %d, timeout %d)", pfd.fd,
+        EXPECT(pfd.fd >= 0 && pfd.events == POLLIN && timeout == 0,
+               "not connected: the context's wake descriptor (POLLIN), process at once (fd %d, timeout %d)", pfd.fd,
                timeout);
         drive(c2, 5);
         EXPECT(results[id2].done == 1 && results[id2].rc == -1 && results[id2].error == ECONNREFUSED,
@@ -1739,6 +1745,331 @@ static void pull_calls(void)
     close(lf);
 }
 
+/* ---------------------------------------------------------------- lost wake-ups (issue 39) */
+/* A request given while a loop or another thread waits on what modbus_get_pollfd,
+ * modbus_multi_get_fd or modbus_multi_perform(m, -1) waits on must end that wait;
+ * so must a deadline, and modbus_multi_wakeup. A wait that does not end is ended by
+ * a watchdog (SIGUSR1 to the waiting thread after a few seconds: poll and
+ * epoll_wait return EINTR) and reported as a failure instead of hanging. */
+static void on_usr1(int sig)
+{
+    (void) sig;
+}
+
+struct dog {
+    pthread_t target, th;
+    double until;
+    int stop, fired; /* atomics */
+};
+
+static void *dog_main(void *arg)
+{
+    struct dog *d = arg;
+    while (!__atomic_load_n(&d->stop, __ATOMIC_SEQ_CST)) {
+        if (now_s() >= d->until) {
+            __atomic_store_n(&d->fired, 1, __ATOMIC_SEQ_CST);
+            pthread_kill(d->target, SIGUSR1);
+            usleep(100000);
+            continue;
+        }
+        usleep(2000);
+    }
+    return NULL;
+}
+
+static void dog_start(struct dog *d, double secs)
+{
+    d->target = pthread_self();
+    d->until = now_s() + secs;
+    d->stop = 0;
+    d->fired = 0;
+    pthread_create(&d->th, NULL, dog_main, d);
+}
+
+static int dog_fired(struct dog *d)
+{
+    return __atomic_load_n(&d->fired, __ATOMIC_SEQ_CST);
+}
+
+/* Stops the watchdog; whether it had to end a wait. */
+static int dog_stop(struct dog *d)
+{
+    __atomic_store_n(&d->stop, 1, __ATOMIC_SEQ_CST);
+    pthread_join(d->th, NULL);
+    return dog_fired(d);
+}
+
+/* A thread that gives one request (or wakes a multi handle) after a pause. */
+struct giver {
+    modbus_t *ctx;
+    modbus_multi_t *m; /* non-NULL: modbus_multi_wakeup(m) instead of a request */
+    uint16_t *dest;
+    int delay_ms;
+    int id;
+    double at; /* when it gave it */
+    pthread_t th;
+};
+
+static void *giver_main(void *arg)
+{
+    struct giver *g = arg;
+    usleep((unsigned) g->delay_ms * 1000);
+    g->at = now_s();
+    int id = g->m != NULL ? modbus_multi_wakeup(g->m) : modbus_read_registers_async(g->ctx, 0, 4, g->dest, on_done, NULL);
+    __atomic_store_n(&g->id, id, __ATOMIC_SEQ_CST);
+    return NULL;
+}
+
+static void giver_start(struct giver *g)
+{
+    g->id = -2;
+    pthread_create(&g->th, NULL, giver_main, g);
+}
+
+static int wake_cases(void)
+{
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_usr1; /* no SA_RESTART: a wait it interrupts returns */
+    sigaction(SIGUSR1, &sa, NULL);
+    struct many_server s = {0};
+    int port, dead_port, on = 1;
+    s.listen_fd = listen_any(&port);
+    ioctl(s.listen_fd, FIONBIO, &on);
+    /* A device that never answers: connects are taken by the backlog, nothing more. */
+    int dead = listen_any(&dead_port);
+    pthread_t th;
+    pthread_create(&th, NULL, many_server_main, &s);
+    chk_set_prefix("wake: ");
+    uint16_t v[4], w[4];
+    struct dog d;
+    struct pollfd pfd;
+    int t, id;
+    double t0;
+
+    /* (a) One thread: the loop reads the timeout (-1: nothing pending, not connected),
+     * then gives a request, then waits as it was told. */
+    {
+        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+        modbus_set_response_timeout(ctx, 1, 0);
+        reset();
+        dog_start(&d, 3);
+        int n0 = modbus_get_pollfd(ctx, &pfd, &t);
+        int t_first = t;
+        t0 = now_s();
+        id = modbus_read_registers_async(ctx, 0, 4, v, on_done, NULL);
+        while (id >= 0 && results[id].done == 0 && !dog_fired(&d)) {
+            int n = poll(&pfd, 1, t);
+            modbus_process(ctx, n > 0 ? pfd.revents : 0);
+            if (modbus_get_pollfd(ctx, &pfd, &t) < 0) {
+                break;
+            }
+        }
+        double took = now_s() - t0;
+        int fired = dog_stop(&d);
+        EXPECT(n0 == 0 && t_first == -1 && !fired && id >= 0 && results[id].done == 1 && results[id].rc == 4 && took < 1.0,
+               "(a) context: a request given after modbus_get_pollfd said -1 (nothing pending): the wait it was told "
+               "ends, the request completes in %.3f s (response timeout 1 s; %s, rc %d)",
+               took, fired ? "the watchdog had to end the wait" : "no watchdog", id >= 0 ? results[id].rc : -9);
+        modbus_close(ctx);
+        modbus_free(ctx);
+    }
+    {
+        modbus_multi_t *m = modbus_multi_new();
+        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+        modbus_set_response_timeout(ctx, 1, 0);
+        modbus_multi_add(m, ctx);
+        reset();
+        dog_start(&d, 3);
+        t = modbus_multi_timeout(m);
+        int t_first = t;
+        pfd.fd = modbus_multi_get_fd(m);
+        pfd.events = POLLIN;
+        t0 = now_s();
+        id = modbus_read_registers_async(ctx, 0, 4, v, on_done, NULL);
+        while (id >= 0 && results[id].done == 0 && !dog_fired(&d)) {
+            poll(&pfd, 1, t);
+            modbus_multi_perform(m, 0);
+            t = modbus_multi_timeout(m);
+        }
+        double took = now_s() - t0;
+        int fired = dog_stop(&d);
+        EXPECT(t_first == -1 && !fired && id >= 0 && results[id].done == 1 && results[id].rc == 4 && took < 1.0,
+               "(a) multi: a request given after modbus_multi_timeout said -1: the wait on modbus_multi_get_fd ends, "
+               "the request completes in %.3f s (response timeout 1 s; %s)",
+               took, fired ? "the watchdog had to end the wait" : "no watchdog");
+        modbus_multi_free(m);
+        modbus_close(ctx);
+        modbus_free(ctx);
+    }
+
+    /* (b) A thread in modbus_multi_perform(m, -1), waiting on a device that never
+     * answers (response timeout 10 s), while another thread gives a request to a
+     * second context of the handle. */
+    {
+        modbus_multi_t *m = modbus_multi_new();
+        modbus_t *slow = modbus_new_tcp("127.0.0.1", dead_port), *ctx = modbus_new_tcp("127.0.0.1", port);
+        modbus_set_response_timeout(slow, 10, 0);
+        modbus_set_response_timeout(ctx, 1, 0);
+        modbus_multi_add(m, slow);
+        modbus_multi_add(m, ctx);
+        reset();
+        modbus_read_registers_async(slow, 0, 4, w, on_done, NULL);
+        struct giver g = {.ctx = ctx, .dest = v, .delay_ms = 300};
+        dog_start(&d, 3);
+        giver_start(&g);
+        int calls = 0;
+        for (;;) {
+            int gid = __atomic_load_n(&g.id, __ATOMIC_SEQ_CST);
+            if (dog_fired(&d) || (gid >= 0 && results[gid].done) || gid == -1) {
+                break;
+            }
+            modbus_multi_perform(m, -1);
+            calls++;
+        }
+        double end = now_s();
+        int fired = dog_stop(&d);
+        pthread_join(g.th, NULL);
+        double took = end - g.at;
+        EXPECT(!fired && g.id >= 0 && results[g.id].done == 1 && results[g.id].rc == 4 && took < 1.0,
+               "(b) another thread gives a request while modbus_multi_perform(m, -1) waits: it completes %.3f s after "
+               "it was given (response timeout 1 s; %s; %d calls)",
+               took, fired ? "the watchdog had to end the wait" : "no watchdog", calls);
+        modbus_multi_free(m);
+        modbus_free(slow);
+        modbus_close(ctx);
+        modbus_free(ctx);
+    }
+
+    /* (c) The same on one context: a thread waits on the descriptor of
+     * modbus_get_pollfd as it was told (-1: nothing pending) while another gives a
+     * request. */
+    {
+        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+        modbus_set_response_timeout(ctx, 1, 0);
+        reset();
+        struct giver g = {.ctx = ctx, .dest = v, .delay_ms = 300};
+        dog_start(&d, 3);
+        giver_start(&g);
+        for (;;) {
+            int gid = __atomic_load_n(&g.id, __ATOMIC_SEQ_CST);
+            if (dog_fired(&d) || (gid >= 0 && results[gid].done) || gid == -1) {
+                break;
+            }
+            if (modbus_get_pollfd(ctx, &pfd, &t) < 0) {
+                break;
+            }
+            int n = poll(&pfd, 1, t);
+            modbus_process(ctx, n > 0 ? pfd.revents : 0);
+        }
+        double end = now_s();
+        int fired = dog_stop(&d);
+        pthread_join(g.th, NULL);
+        double took = end - g.at;
+        EXPECT(!fired && g.id >= 0 && results[g.id].done == 1 && results[g.id].rc == 4 && took < 1.0,
+               "(c) another thread gives a request while a thread polls the modbus_get_pollfd descriptor: it completes "
+               "%.3f s after it was given (response timeout 1 s; %s)",
+               took, fired ? "the watchdog had to end the wait" : "no watchdog");
+        modbus_close(ctx);
+        modbus_free(ctx);
+    }
+
+    /* (d) modbus_multi_wakeup: a modbus_multi_perform(m, -1) that waits (nothing
+     * pending) returns early; a wake-up given while none waits ends the next wait at
+     * once. */
+    {
+        modbus_multi_t *m = modbus_multi_new();
+        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+        modbus_multi_add(m, ctx);
+        struct giver g = {.m = m, .delay_ms = 300};
+        dog_start(&d, 3);
+        giver_start(&g);
+        t0 = now_s();
+        int rc = modbus_multi_perform(m, -1);
+        double took = now_s() - t0;
+        int fired = dog_stop(&d);
+        pthread_join(g.th, NULL);
+        EXPECT(rc == 0 && g.id == 0 && !fired && took >= 0.25 && took < 1.0,
+               "(d) modbus_multi_wakeup from another thread: modbus_multi_perform(m, -1) (nothing pending) returned %d "
+               "after %.3f s (woken at 0.3 s; %s)",
+               rc, took, fired ? "the watchdog had to end the wait" : "no watchdog");
+        dog_start(&d, 3);
+        int wrc = modbus_multi_wakeup(m);
+        t0 = now_s();
+        rc = modbus_multi_perform(m, -1);
+        took = now_s() - t0;
+        fired = dog_stop(&d);
+        EXPECT(wrc == 0 && rc == 0 && !fired && took < 0.2,
+               "(d) a wake-up given before the wait: the next modbus_multi_perform(m, -1) returns at once (%.3f s)", took);
+        errno = 0;
+        EXPECT(modbus_multi_wakeup(NULL) == -1 && errno == EINVAL, "(d) modbus_multi_wakeup(NULL): -1 EINVAL");
+        modbus_multi_free(m);
+        modbus_free(ctx);
+    }
+
+    /* (e) A deadline wakes the descriptor: a device that never answers, response
+     * timeout 0.3 s, waited for with poll(-1) on modbus_multi_get_fd (each wait after
+     * modbus_multi_timeout, whose value is only looked at for 0: call now) and on
+     * modbus_get_pollfd's. */
+    {
+        modbus_multi_t *m = modbus_multi_new();
+        modbus_t *ctx = modbus_new_tcp("127.0.0.1", dead_port);
+        modbus_set_response_timeout(ctx, 0, 300000);
+        modbus_multi_add(m, ctx);
+        reset();
+        dog_start(&d, 3);
+        t0 = now_s();
+        id = modbus_read_registers_async(ctx, 0, 4, v, on_done, NULL);
+        pfd.fd = modbus_multi_get_fd(m);
+        pfd.events = POLLIN;
+        while (id >= 0 && results[id].done == 0 && !dog_fired(&d)) {
+            if (modbus_multi_timeout(m) != 0) {
+                poll(&pfd, 1, -1);
+            }
+            modbus_multi_perform(m, 0);
+        }
+        double took = now_s() - t0;
+        int fired = dog_stop(&d);
+        EXPECT(!fired && id >= 0 && results[id].done == 1 && results[id].error == ETIMEDOUT && took >= 0.29 &&
+                   took < 1.0,
+               "(e) multi: poll(-1) on modbus_multi_get_fd wakes for the deadline: ETIMEDOUT after %.3f s (response "
+               "timeout 0.3 s; %s)",
+               took, fired ? "the watchdog had to end the wait" : "no watchdog");
+        modbus_multi_free(m);
+        modbus_free(ctx);
+    }
+    {
+        modbus_t *ctx = modbus_new_tcp("127.0.0.1", dead_port);
+        modbus_set_response_timeout(ctx, 0, 300000);
+        reset();
+        dog_start(&d, 3);
+        t0 = now_s();
+        id = modbus_read_registers_async(ctx, 0, 4, v, on_done, NULL);
+        while (id >= 0 && results[id].done == 0 && !dog_fired(&d)) {
+            if (modbus_get_pollfd(ctx, &pfd, &t) < 0) {
+                break;
+            }
+            int n = t == 0 ? 0 : poll(&pfd, 1, -1);
+            modbus_process(ctx, n > 0 ? pfd.revents : 0);
+        }
+        double took = now_s() - t0;
+        int fired = dog_stop(&d);
+        EXPECT(!fired && id >= 0 && results[id].done == 1 && results[id].error == ETIMEDOUT && took >= 0.29 &&
+                   took < 1.0,
+               "(e) context: poll(-1) on the modbus_get_pollfd descriptor wakes for the deadline: ETIMEDOUT after "
+               "%.3f s (response timeout 0.3 s; %s)",
+               took, fired ? "the watchdog had to end the wait" : "no watchdog");
+        modbus_free(ctx);
+    }
+
+    chk_set_prefix("");
+    s.stop = 1;
+    pthread_join(th, NULL);
+    close(s.listen_fd);
+    close(dead);
+    return chk_summary();
+}
+
 /* ---------------------------------------------------------------- a user-defined function code */
 /* fc41 MODE ADDR: c-tests/event/fc41_device.py (MODE rtu|ascii on the pty end ADDR,
  * tcp|rtutcp on 127.0.0.1 port ADDR; or a gateway in front of it, MODE tcp) answers
@@ -1842,6 +2173,14 @@ static int fc41(const char *mode, const char *addr)
 
 int main(int argc, char **argv)
 {
+    if (argc == 2 && strcmp(argv[1], "wake") == 0) {
+        setvbuf(stdout, NULL, _IOLBF, 0);
+        if (!mbt_is_rsmodbus()) {
+            fprintf(stderr, "the event-driven client is rsmodbus': this is not it\n");
+            return 97;
+        }
+        return wake_cases();
+    }
     if (argc < 3) {
         fprintf(stderr, "usage: %s tcp PORT | rtu DEVICE | tls PORT\n", argv[0]);
         return 2;

@@ -155,6 +155,13 @@ for mode in rtu ascii tcp rtutcp; do
     stop pty
 done
 
+section "lost wake-ups: a request from the loop or another thread, a deadline, modbus_multi_wakeup (issue 39)"
+if selected wake; then
+    WORK=$OUT/wake
+    mkdir -p "$WORK"
+    event_test wake 60 -- wake
+fi
+
 section "1,000 devices from one thread, every 10th dead (c-tests/event/sim-devices.c)"
 if selected many; then
     WORK=$OUT/many

@@ -452,10 +452,13 @@ pub unsafe extern "C" fn modbus_send_raw_request_async(
     }
 }
 
-/// What to wait for: `pfd->fd` (-1 while not connected), `pfd->events` (`POLLIN`,
-/// `POLLOUT`, or 0), and in `*timeout_ms` (may be NULL) the milliseconds until
-/// `modbus_process` is due even without an event (-1: no deadline; 0: call it now).
-/// Returns the number of requests pending, or -1 with errno.
+/// What to wait for: `pfd->fd` is the context's wake descriptor (an epoll set made
+/// by the first call, the same for the context's life), readable when the line has
+/// I/O ready, when a request is given (from any thread) and when the deadline
+/// comes; `pfd->events` is `POLLIN`. `*timeout_ms` (may be NULL) gets the
+/// milliseconds until `modbus_process` is due even without an event (-1: no
+/// deadline; 0: call it now, the descriptor may not be readable). Returns the number
+/// of requests pending, or -1 with errno.
 ///
 /// Linux only (epoll).
 ///
@@ -470,11 +473,11 @@ pub unsafe extern "C" fn modbus_get_pollfd(ctx: *mut Modbus, pfd: *mut libc::pol
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let i = event::interest(g);
+            let (fd, until) = event::wake_interest(g)?;
             // SAFETY: `pfd` is non-NULL and writable (contract).
-            *pfd = libc::pollfd { fd: i.fd, events: i.events, revents: 0 };
+            *pfd = libc::pollfd { fd, events: libc::POLLIN, revents: 0 };
             if !timeout_ms.is_null() {
-                *timeout_ms = match i.until {
+                *timeout_ms = match until {
                     None => -1,
                     Some(t) => {
                         let left = t.saturating_sub(crate::transport::now());
@@ -489,21 +492,39 @@ pub unsafe extern "C" fn modbus_get_pollfd(ctx: *mut Modbus, pfd: *mut libc::pol
     }
 }
 
-/// Does the I/O that `revents` (from `poll`, for the descriptor of
-/// `modbus_get_pollfd`; 0 when the wait timed out) says is ready and what the clock
-/// says is due, without blocking, and calls the callbacks of the requests that
-/// completed. Returns how many completed, or -1 with errno.
+/// Does the I/O that is ready and what the clock says is due, without blocking, and
+/// calls the callbacks of the requests that completed. `revents` (from `poll` on the
+/// descriptor of `modbus_get_pollfd`; 0 when the wait timed out) is only a hint: the
+/// context asks its descriptor what is ready. Returns how many completed, or -1 with
+/// errno.
 ///
 /// # Safety
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_process(ctx: *mut Modbus, revents: c_short) -> c_int {
     // SAFETY: forwarded caller contract.
+    unsafe { process(ctx, revents, true) }
+}
+
+/// `modbus_process` for the multi handle, which knows the line's `revents`.
+///
+/// # Safety
+/// `ctx` must be NULL or a live context.
+pub(crate) unsafe fn process_member(ctx: *mut Modbus, revents: c_short) -> c_int {
+    // SAFETY: forwarded caller contract.
+    unsafe { process(ctx, revents, false) }
+}
+
+/// # Safety
+/// `ctx` must be NULL or a live context.
+unsafe fn process(ctx: *mut Modbus, revents: c_short, app: bool) -> c_int {
+    // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            event::process(g, revents)?;
+            event::process(g, revents, app)?;
             let fired = fire(ctx, g);
             event::closed(g);
+            event::watch(g);
             Ok(fired)
         })
     }

@@ -18,7 +18,8 @@ use crate::ffi::event::modbus_completion_t;
 use crate::ffi::{Modbus, fail, status};
 use crate::handle::lock::OwnerMutex;
 use crate::outstanding::{Member, Members};
-use crate::transport::{self, epoll};
+use crate::transport;
+use crate::transport::epoll::{self, WakeSet};
 
 /// The opaque `modbus_multi_t`.
 pub struct Multi {
@@ -85,10 +86,10 @@ fn holds(list: &HashMap<usize, Member>, key: usize, t: Duration) -> bool {
 /// Linux only (epoll).
 #[unsafe(no_mangle)]
 pub extern "C" fn modbus_multi_new() -> *mut Multi {
-    match epoll::create() {
-        Ok(epfd) => {
+    match WakeSet::new() {
+        Ok(set) => {
             let members = Members {
-                epfd,
+                set,
                 list: OwnerMutex::new(Default::default()),
                 dirty: OwnerMutex::new(Default::default()),
                 closed: Default::default(),
@@ -122,7 +123,7 @@ pub unsafe extern "C" fn modbus_multi_add(m: *mut Multi, ctx: *mut Modbus) -> c_
                 return Err(Error(libc::EBUSY));
             }
             let key = ctx as usize;
-            members.list.lock().insert(key, Member { fd: -1, ..Member::default() });
+            members.list.lock().insert(key, Member::default());
             members.mark(key);
             o.multi = Some((members, key));
             Ok(0)
@@ -158,9 +159,11 @@ pub unsafe extern "C" fn modbus_multi_remove(m: *mut Multi, ctx: *mut Modbus) ->
     })
 }
 
-/// The descriptor that is readable when a context of `m` has I/O ready (put it in
-/// the application's loop, then call `modbus_multi_perform(m, 0)`); -1 with EINVAL for
-/// NULL. Deadlines do not make it readable: wait at most `modbus_multi_timeout`.
+/// The descriptor (an epoll set) that is readable when a context of `m` has I/O
+/// ready, when a request is given to one (from any thread), when the earliest
+/// deadline comes and after `modbus_multi_wakeup`: put it in the application's loop, wait at most `modbus_multi_timeout` (which brings it up to
+/// date: call it before each wait), then call `modbus_multi_perform(m, 0)`. -1 with
+/// EINVAL for NULL.
 ///
 /// Linux only (epoll).
 ///
@@ -170,14 +173,35 @@ pub unsafe extern "C" fn modbus_multi_remove(m: *mut Multi, ctx: *mut Modbus) ->
 pub unsafe extern "C" fn modbus_multi_get_fd(m: *mut Multi) -> c_int {
     // SAFETY: guaranteed by the caller.
     match unsafe { m.as_ref() } {
-        Some(m) => m.members.epfd,
+        Some(m) => m.members.set.epfd,
+        None => fail(Error::INVALID),
+    }
+}
+
+/// Wakes `m`: the `modbus_multi_perform` that waits returns (or the next returns at
+/// once), and `modbus_multi_get_fd` becomes readable. Safe from any thread and in a
+/// signal handler. Returns 0, or -1 with EINVAL for NULL.
+///
+/// Linux only (epoll).
+///
+/// # Safety
+/// `m` NULL or a live multi handle.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn modbus_multi_wakeup(m: *mut Multi) -> c_int {
+    // SAFETY: guaranteed by the caller.
+    match unsafe { m.as_ref() } {
+        Some(m) => {
+            m.members.set.wake();
+            0
+        }
         None => fail(Error::INVALID),
     }
 }
 
 /// Milliseconds until a context of `m` has something due without I/O (a timeout, a
 /// connect, a request to send): 0 at once, -1 none. Brings the registrations up to
-/// date.
+/// date, and from then on a request given to a context of `m` makes
+/// `modbus_multi_get_fd` readable.
 ///
 /// Linux only (epoll).
 ///
@@ -187,6 +211,8 @@ pub unsafe extern "C" fn modbus_multi_get_fd(m: *mut Multi) -> c_int {
 pub unsafe extern "C" fn modbus_multi_timeout(m: *mut Multi) -> c_int {
     // SAFETY: guaranteed by the caller.
     let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
+    // Before the registrations are read: a request given after that wakes the wait.
+    m.members.set.watch();
     // SAFETY: the members are live contexts (a context leaves the list as it is freed).
     match unsafe { sync(m) } {
         Ok(earliest) => ms_until(earliest),
@@ -194,11 +220,12 @@ pub unsafe extern "C" fn modbus_multi_timeout(m: *mut Multi) -> c_int {
     }
 }
 
-/// Waits up to `timeout_ms` (0: not at all; -1: until something is due, not at all
-/// when no request is pending) for I/O on
-/// the contexts of `m`, then processes each context with I/O ready or a deadline
-/// passed (as `modbus_process`, callbacks included). Returns the number of requests
-/// completed, or -1 with errno.
+/// Waits up to `timeout_ms` (0: not at all; -1: until something is due) for I/O on
+/// the contexts of `m`, a request given to one of them (from another thread) or
+/// `modbus_multi_wakeup`, then processes each context with I/O ready, a deadline
+/// passed or a request to start (as `modbus_process`, callbacks included). With
+/// nothing pending, -1 waits for a request or a wake-up. Returns the number of
+/// requests completed, or -1 with errno.
 ///
 /// Linux only (epoll).
 ///
@@ -208,16 +235,14 @@ pub unsafe extern "C" fn modbus_multi_timeout(m: *mut Multi) -> c_int {
 pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) -> c_int {
     // SAFETY: guaranteed by the caller.
     let Some(m) = (unsafe { m.as_ref() }) else { return fail(Error::INVALID) };
+    // Before the registrations are read: a request given after that wakes the wait.
+    m.members.set.watch();
     // SAFETY: as in `modbus_multi_timeout`.
     let earliest = match unsafe { sync(m) } {
         Ok(s) => s,
         Err(e) => return fail(e),
     };
     let until_due = ms_until(earliest);
-    if timeout_ms < 0 && until_due < 0 && !any_pending(m) {
-        // Nothing pending anywhere: nothing would ever end a wait without end.
-        return 0;
-    }
     let wait = match (timeout_ms, until_due) {
         (0, _) => 0,
         (t, -1) => t.max(-1),
@@ -228,12 +253,20 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
     let mut completed = 0;
     let mut processed = HashSet::new();
     let mut wait = wait;
+    let mut woken = false;
     loop {
-        let n = match epoll::wait(m.members.epfd, &mut events, wait) {
-            Ok(n) => n,
+        let (n, woke) = match m.members.set.take(wait, &mut events) {
+            Ok(r) => r,
             Err(e) => return fail(e),
         };
+        // The wait is over: what the contexts do from now on (their requests given
+        // by the callbacks below) is asked before the next.
+        m.members.set.unwatch();
+        woken |= woke;
         for ev in &events[..n] {
+            if matches!({ ev.u64 }, epoll::KEY_WAKE | epoll::KEY_TIMER) {
+                continue;
+            }
             let key = ev.u64 as usize;
             // (`ev` is a copy: the packed field is read by value.)
             let revents = { ev.events } as u16 as i16;
@@ -246,7 +279,7 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
             if idle_registration(m, key) == Some(false) {
                 processed.insert(key);
                 // SAFETY: a member is a live context.
-                completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, revents) }.max(0);
+                completed += unsafe { crate::ffi::event::process_member(key as *mut Modbus, revents) }.max(0);
             }
         }
         // A full batch: more may be ready now; take them without waiting.
@@ -254,6 +287,14 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
             break;
         }
         wait = 0;
+    }
+    if woken {
+        // A request given (or a wake-up): the contexts it marked are asked now, so
+        // that one due at once (a connect, a request to send) is processed below.
+        // SAFETY: as in `modbus_multi_timeout`.
+        if let Err(e) = unsafe { sync(m) } {
+            return fail(e);
+        }
     }
     let now = transport::now();
     let due = {
@@ -263,7 +304,7 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
     for key in due {
         if processed.insert(key) && is_member(m, key) {
             // SAFETY: a member is a live context.
-            completed += unsafe { crate::ffi::event::modbus_process(key as *mut Modbus, 0) }.max(0);
+            completed += unsafe { crate::ffi::event::process_member(key as *mut Modbus, 0) }.max(0);
         }
     }
     completed
@@ -327,13 +368,7 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
         };
         m.members.remove(key);
     }
-    transport::close(m.members.epfd);
-}
-
-/// Some member had requests pending when last asked (`sync` asks every one whose
-/// interest may have changed).
-fn any_pending(m: &Multi) -> bool {
-    m.members.list.lock().values().any(|mb| mb.pending)
+    // The epoll set closes with the last reference to the members.
 }
 
 /// `None` when `key` is not a member; `Some(true)` when it waits for nothing (its
@@ -341,13 +376,7 @@ fn any_pending(m: &Multi) -> bool {
 fn idle_registration(m: &Multi, key: usize) -> Option<bool> {
     let mut list = m.members.list.lock();
     let mb = list.get_mut(&key)?;
-    if mb.wants != 0 || mb.events == 0 {
-        return Some(false);
-    }
-    let _ = epoll::control(m.members.epfd, libc::EPOLL_CTL_DEL, mb.fd, 0, 0);
-    mb.events = 0;
-    mb.fd = -1;
-    Some(true)
+    Some(mb.line.idle_report(m.members.set.epfd))
 }
 
 fn is_member(m: &Multi, key: usize) -> bool {
@@ -381,50 +410,23 @@ unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
             continue;
         }
         // SAFETY: guaranteed by the caller.
-        let asked = unsafe {
-            crate::handle::call(key as *mut Modbus, |g| {
-                Ok((event::interest(g), g.line.generation(), event::pending(g) > 0))
-            })
-        };
-        let Ok((interest, generation, pending)) = asked else { continue };
+        let asked =
+            unsafe { crate::handle::call(key as *mut Modbus, |g| Ok((event::interest(g), g.line.generation()))) };
+        let Ok((interest, generation)) = asked else { continue };
         let mut list = m.members.list.lock();
         let Some(member) = list.get_mut(&key) else { continue };
-        let epfd = m.members.epfd;
-        let active = interest.fd >= 0 && interest.events != 0;
-        // What is registered is still this descriptor (a closed one left the epoll
-        // set by itself; its number may be another context's now: left alone).
-        let registered = member.events != 0 && member.fd == interest.fd && member.generation == generation;
-        match (registered, active) {
-            (true, true) if member.events == interest.events => {}
-            (true, true) => epoll::control(epfd, libc::EPOLL_CTL_MOD, interest.fd, interest.events, key as u64)?,
-            (false, true) => {
-                match epoll::control(epfd, libc::EPOLL_CTL_ADD, interest.fd, interest.events, key as u64) {
-                    Err(e) if e.0 == libc::EEXIST => {
-                        epoll::control(epfd, libc::EPOLL_CTL_MOD, interest.fd, interest.events, key as u64)?
-                    }
-                    r => r?,
-                }
-            }
-            // Waiting for nothing: the registration stays (see `Member::events`).
-            (_, false) => {}
-        }
+        member.line.update(m.members.set.epfd, interest.fd, generation, interest.events, key as u64)?;
         let changed = member.until != interest.until;
-        *member = match (active, registered) {
-            (true, _) => Member {
-                fd: interest.fd,
-                generation,
-                events: interest.events,
-                wants: interest.events,
-                until: interest.until,
-                pending,
-            },
-            (false, true) => Member { wants: 0, until: interest.until, pending, ..*member },
-            (false, false) => Member { fd: -1, generation, events: 0, wants: 0, until: interest.until, pending },
-        };
+        member.until = interest.until;
         if let (true, Some(t)) = (changed, interest.until) {
             m.timers.lock().push(&list, t, key);
         }
     }
     let list = m.members.list.lock();
-    Ok(m.timers.lock().earliest(&list))
+    let earliest = m.timers.lock().earliest(&list);
+    if let Some(t) = earliest {
+        // The descriptor wakes for it (an application waiting without the timeout).
+        m.members.set.arm_by(t, transport::now());
+    }
+    Ok(earliest)
 }
