@@ -657,9 +657,10 @@ MODBUS_API int modbus_get_pollfd(modbus_t *ctx, struct pollfd *pfd, int *timeout
 /**
  * Does the I/O that is ready and what the clock says is due, without blocking, and
  * calls the callbacks of the requests that completed. `revents` (from `poll` on the
- * descriptor of `modbus_get_pollfd`; 0 when the wait timed out) is only a hint: the
- * context asks its descriptor what is ready. Returns how many completed, or -1 with
- * errno.
+ * descriptor of `modbus_get_pollfd`) is only a hint: when it is not 0 the context
+ * asks its descriptor what is ready; 0 (the wait timed out) saves the asking (what
+ * became ready meanwhile keeps the descriptor readable). Returns how many
+ * completed, or -1 with errno.
  *
  * # Safety
  * `ctx` must be NULL or a live context.

@@ -41,6 +41,8 @@ pub struct Interest {
     pub events: i16,
     /// Call [`process`] by then at the latest (`None`: no deadline).
     pub until: Option<Duration>,
+    /// The time `until` was reckoned at (zero when it is `None` for want of requests).
+    pub now: Duration,
 }
 
 /// The context's event-driven state, made on first use; `EBUSY` while
@@ -284,20 +286,21 @@ pub fn take_done(ctx: &mut Context) -> Option<Done> {
 /// What to wait for (see [`Interest`]).
 pub fn interest(ctx: &Context) -> Interest {
     let fd = ctx.fd();
-    let Some(o) = ctx.async_view() else { return Interest { fd, events: 0, until: None } };
+    let Some(o) = ctx.async_view() else { return Interest { fd, events: 0, until: None, now: Duration::ZERO } };
     if ctx.shut() == Shut::Closing {
         // A close left requests to complete: at once.
-        return Interest { fd, events: 0, until: Some(transport::now()) };
+        let now = transport::now();
+        return Interest { fd, events: 0, until: Some(now), now };
     }
     if o.pending() == 0 {
-        return Interest { fd, events: 0, until: None };
+        return Interest { fd, events: 0, until: None, now: Duration::ZERO };
     }
     let now = transport::now();
     if ctx.line.connecting() {
-        return Interest { fd, events: libc::POLLOUT, until: o.connect_until };
+        return Interest { fd, events: libc::POLLOUT, until: o.connect_until, now };
     }
     if ctx.line.handshaking() {
-        return Interest { fd, events: o.handshake_wants, until: o.connect_until };
+        return Interest { fd, events: o.handshake_wants, until: o.connect_until, now };
     }
     // Bytes already read (a TLS session's plaintext, the read-ahead of the last
     // answer) that an expected answer may be made of.
@@ -305,7 +308,7 @@ pub fn interest(ctx: &Context) -> Interest {
     let here = expecting && (ctx.line.pending() > 0 || (o.receiving.is_none() && !ctx.rx.available().is_empty()));
     if fd < 0 || !o.done.is_empty() || here {
         // To connect, to report, or bytes already here: at once.
-        return Interest { fd, events: 0, until: Some(now) };
+        return Interest { fd, events: 0, until: Some(now), now };
     }
     let mut events = 0;
     if !o.pipeline.output().is_empty() {
@@ -327,7 +330,7 @@ pub fn interest(ctx: &Context) -> Interest {
         // Room on the wire for a queued request: go now.
         until = Some(now);
     }
-    Interest { fd, events, until }
+    Interest { fd, events, until, now }
 }
 
 /// `modbus_get_pollfd`: the context's wake descriptor (made by the first call),
@@ -338,14 +341,18 @@ pub fn interest(ctx: &Context) -> Interest {
 pub fn wake_interest(ctx: &mut Context) -> Result<(i32, Option<Duration>)> {
     let i = interest(ctx);
     let generation = ctx.line.generation();
-    let o = state(ctx)?;
+    if ctx.async_view().is_none() {
+        // (Lent to a modbus_process under way, from its RTS hook: EBUSY.)
+        state(ctx)?;
+    }
+    let o = ctx.async_state()?.ok_or(Error::INVALID)?;
     let w = match &mut o.wake {
         Some(w) => w,
         None => o.wake.insert(Box::new(Wake { set: WakeSet::new()?, line: Registered::default() })),
     };
     w.line.update(w.set.epfd, i.fd, generation, i.events, epoll::KEY_LINE)?;
     if let Some(t) = i.until {
-        w.set.arm_by(t, transport::now());
+        w.set.arm_by(t, i.now);
     }
     w.set.watch();
     Ok((w.set.epfd, i.until))
@@ -364,7 +371,6 @@ pub fn watch(ctx: &mut Context) {
 /// events (the eventfd and the timerfd are drained). A line that reports while it
 /// waits for nothing leaves the set.
 fn learn(w: &mut Wake) -> i16 {
-    w.set.unwatch();
     let mut events = [libc::epoll_event { events: 0, u64: 0 }; 4];
     let Ok((n, _)) = w.set.take(0, &mut events) else { return 0 };
     let mut line = 0;
@@ -379,20 +385,44 @@ fn learn(w: &mut Wake) -> i16 {
     line
 }
 
+/// A readable wake descriptor can only be the line's input: the eventfd was not
+/// written, the timerfd has not expired, and the line (`(fd, generation)`, the
+/// context's) is registered, and waited on, for POLLIN alone.
+fn only_line_readable(w: &Wake, line: (i32, u32)) -> bool {
+    let r = &w.line;
+    r.events == libc::POLLIN
+        && r.wants == libc::POLLIN
+        && (r.fd, r.generation) == line
+        && !w.set.may_have_woken(transport::now)
+}
+
 /// `modbus_process`: the I/O that is ready, and what the clock says is due.
 /// `revents` is the line's poll(2) events when the caller knows them (the multi
-/// handle); from the application (`app`), it is only a hint: a context with its
-/// wake descriptor asks the descriptor what is ready. Returns the number of
-/// requests completed (their results wait in the context for the C layer:
-/// [`take_done`]).
+/// handle). From the application (`app`), it is only a hint: a context with its
+/// wake descriptor asks the descriptor what is ready when `revents` says something
+/// is (0, a wait that timed out, saves the asking: what became ready since stays
+/// readable for the next wait). Returns the number of requests completed (their
+/// results wait in the context for the C layer: [`take_done`]).
 pub fn process(g: &mut Guard<'_>, revents: i16, app: bool) -> Result<usize> {
     // (From the RTS hook of a modbus_process: EBUSY.)
     g.async_state()?;
     complete_close(g);
     let Some(mut o) = g.lend_async() else { return Ok(0) };
+    let line = (g.fd(), g.line.generation());
     let revents = match o.wake.as_deref_mut() {
-        Some(w) if app => learn(w),
-        Some(w) => revents | learn(w),
+        Some(w) => {
+            // This call looks at every request: none given from now on needs to
+            // wake anyone until the next watch.
+            w.set.unwatch();
+            match (revents, app) {
+                (0, _) => 0,
+                // The set is readable, not for its eventfd or timerfd: for the line,
+                // registered for POLLIN alone (the pipelined path: no system call).
+                (_, true) if only_line_readable(w, line) => libc::POLLIN,
+                (_, true) => learn(w),
+                (r, false) => r | learn(w),
+            }
+        }
         None => revents,
     };
     let before = o.done.len();

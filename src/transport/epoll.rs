@@ -107,14 +107,22 @@ pub struct WakeSet {
     /// A waiter may sleep on the set with what it was last told: the next
     /// [`WakeSet::notify`] writes the eventfd.
     watched: AtomicBool,
+    /// The eventfd was written and not drained since.
+    signalled: AtomicBool,
 }
 
 impl WakeSet {
     /// The epoll set with its eventfd and timerfd.
     pub fn new() -> Result<WakeSet> {
         let epfd = create()?;
-        let mut w =
-            WakeSet { epfd, event: -1, timer: -1, armed: AtomicU64::new(NOT_ARMED), watched: AtomicBool::new(false) };
+        let mut w = WakeSet {
+            epfd,
+            event: -1,
+            timer: -1,
+            armed: AtomicU64::new(NOT_ARMED),
+            watched: AtomicBool::new(false),
+            signalled: AtomicBool::new(false),
+        };
         w.event = eventfd()?;
         w.timer = timerfd()?;
         control(epfd, libc::EPOLL_CTL_ADD, w.event, libc::POLLIN, KEY_WAKE)?;
@@ -136,6 +144,7 @@ impl WakeSet {
     /// one `write` at most between two [`WakeSet::watch`]es.
     pub fn notify(&self) {
         if self.watched.load(Ordering::Relaxed) && self.watched.swap(false, Ordering::SeqCst) {
+            self.signalled.store(true, Ordering::SeqCst);
             signal(self.event);
         }
     }
@@ -143,17 +152,36 @@ impl WakeSet {
     /// Wakes a waiter, whether or not one sleeps now (the next wait ends at once).
     /// Safe in a signal handler and from any thread.
     pub fn wake(&self) {
+        self.signalled.store(true, Ordering::SeqCst);
         signal(self.event);
     }
 
     /// The set becomes readable by `at` at the latest: the timerfd is armed when `at`
     /// is in the future and before what it is armed for (a deadline due now is the
     /// caller's timeout of 0, not an expiry).
+    #[inline]
     pub fn arm_by(&self, at: Duration, now: Duration) {
-        let nanos = u64::try_from(at.as_nanos()).unwrap_or(NOT_ARMED - 1);
-        if at > now && nanos < self.armed.load(Ordering::Relaxed) {
+        if at <= now {
+            return;
+        }
+        let nanos = at.as_secs().saturating_mul(1_000_000_000).saturating_add(u64::from(at.subsec_nanos()));
+        if nanos < self.armed.load(Ordering::Relaxed) {
             self.armed.store(nanos, Ordering::Relaxed);
             arm(self.timer, Some(at));
+        }
+    }
+
+    /// The set may be readable for its eventfd or its timerfd (written since the last
+    /// [`WakeSet::take`], or expired by `now`, read only when the timer is armed):
+    /// when not, a readable set means that what is registered in it is ready.
+    pub fn may_have_woken(&self, now: impl FnOnce() -> Duration) -> bool {
+        if self.signalled.load(Ordering::SeqCst) {
+            return true;
+        }
+        let armed = self.armed.load(Ordering::Relaxed);
+        armed != NOT_ARMED && {
+            let now = now();
+            armed <= now.as_secs().saturating_mul(1_000_000_000).saturating_add(u64::from(now.subsec_nanos()))
         }
     }
 
@@ -169,6 +197,7 @@ impl WakeSet {
             let key = ev.u64;
             match key {
                 KEY_WAKE => {
+                    self.signalled.store(false, Ordering::SeqCst);
                     drain(self.event);
                     woken = true;
                 }
@@ -216,7 +245,17 @@ impl Default for Registered {
 impl Registered {
     /// Brings the registration in `epfd` up to date: the line's descriptor `fd` (-1:
     /// none) of `generation`, waiting for `events`, reported under `key`.
+    #[inline]
     pub fn update(&mut self, epfd: i32, fd: i32, generation: u32, events: i16, key: u64) -> Result<()> {
+        if events != 0 && events == self.events && fd == self.fd && generation == self.generation {
+            // Registered as it is to be (the usual case: nothing to do).
+            self.wants = events;
+            return Ok(());
+        }
+        self.change(epfd, fd, generation, events, key)
+    }
+
+    fn change(&mut self, epfd: i32, fd: i32, generation: u32, events: i16, key: u64) -> Result<()> {
         let active = fd >= 0 && events != 0;
         // What is registered is still this descriptor (a closed one left the epoll
         // set by itself; its number may be another's now: left alone).
