@@ -482,7 +482,7 @@ static void *many_server_main(void *arg)
     int n = 1;
     pfd[0].fd = s->listen_fd;
     pfd[0].events = POLLIN;
-    while (!s->stop) {
+    while (!__atomic_load_n(&s->stop, __ATOMIC_SEQ_CST)) {
         if (poll(pfd, (nfds_t) n, 50) <= 0) {
             continue;
         }
@@ -779,7 +779,7 @@ static void multi_case(void)
         }
     }
     modbus_multi_free(m);
-    s.stop = 1;
+    __atomic_store_n(&s.stop, 1, __ATOMIC_SEQ_CST);
     pthread_join(th, NULL);
     close(s.listen_fd);
 }
@@ -1826,6 +1826,21 @@ static void giver_start(struct giver *g)
     pthread_create(&g->th, NULL, giver_main, g);
 }
 
+/* A context on 127.0.0.1:port with that response timeout; added to *m (made when
+ * NULL) when m is not NULL. */
+static modbus_t *wake_ctx(int port, uint32_t sec, uint32_t usec, modbus_multi_t **m)
+{
+    modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
+    modbus_set_response_timeout(ctx, sec, usec);
+    if (m != NULL) {
+        if (*m == NULL) {
+            *m = modbus_multi_new();
+        }
+        modbus_multi_add(*m, ctx);
+    }
+    return ctx;
+}
+
 static int wake_cases(void)
 {
     struct sigaction sa;
@@ -1850,8 +1865,7 @@ static int wake_cases(void)
     /* (a) One thread: the loop reads the timeout (-1: nothing pending, not connected),
      * then gives a request, then waits as it was told. */
     {
-        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
-        modbus_set_response_timeout(ctx, 1, 0);
+        modbus_t *ctx = wake_ctx(port, 1, 0, NULL);
         reset();
         dog_start(&d, 3);
         int n0 = modbus_get_pollfd(ctx, &pfd, &t);
@@ -1875,10 +1889,8 @@ static int wake_cases(void)
         modbus_free(ctx);
     }
     {
-        modbus_multi_t *m = modbus_multi_new();
-        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
-        modbus_set_response_timeout(ctx, 1, 0);
-        modbus_multi_add(m, ctx);
+        modbus_multi_t *m = NULL;
+        modbus_t *ctx = wake_ctx(port, 1, 0, &m);
         reset();
         dog_start(&d, 3);
         t = modbus_multi_timeout(m);
@@ -1907,12 +1919,8 @@ static int wake_cases(void)
      * answers (response timeout 10 s), while another thread gives a request to a
      * second context of the handle. */
     {
-        modbus_multi_t *m = modbus_multi_new();
-        modbus_t *slow = modbus_new_tcp("127.0.0.1", dead_port), *ctx = modbus_new_tcp("127.0.0.1", port);
-        modbus_set_response_timeout(slow, 10, 0);
-        modbus_set_response_timeout(ctx, 1, 0);
-        modbus_multi_add(m, slow);
-        modbus_multi_add(m, ctx);
+        modbus_multi_t *m = NULL;
+        modbus_t *slow = wake_ctx(dead_port, 10, 0, &m), *ctx = wake_ctx(port, 1, 0, &m);
         reset();
         modbus_read_registers_async(slow, 0, 4, w, on_done, NULL);
         struct giver g = {.ctx = ctx, .dest = v, .delay_ms = 300};
@@ -1945,8 +1953,7 @@ static int wake_cases(void)
      * modbus_get_pollfd as it was told (-1: nothing pending) while another gives a
      * request. */
     {
-        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
-        modbus_set_response_timeout(ctx, 1, 0);
+        modbus_t *ctx = wake_ctx(port, 1, 0, NULL);
         reset();
         struct giver g = {.ctx = ctx, .dest = v, .delay_ms = 300};
         dog_start(&d, 3);
@@ -1978,9 +1985,8 @@ static int wake_cases(void)
      * pending) returns early; a wake-up given while none waits ends the next wait at
      * once. */
     {
-        modbus_multi_t *m = modbus_multi_new();
-        modbus_t *ctx = modbus_new_tcp("127.0.0.1", port);
-        modbus_multi_add(m, ctx);
+        modbus_multi_t *m = NULL;
+        modbus_t *ctx = wake_ctx(port, 1, 0, &m);
         struct giver g = {.m = m, .delay_ms = 300};
         dog_start(&d, 3);
         giver_start(&g);
@@ -2012,10 +2018,8 @@ static int wake_cases(void)
      * modbus_multi_timeout, whose value is only looked at for 0: call now) and on
      * modbus_get_pollfd's. */
     {
-        modbus_multi_t *m = modbus_multi_new();
-        modbus_t *ctx = modbus_new_tcp("127.0.0.1", dead_port);
-        modbus_set_response_timeout(ctx, 0, 300000);
-        modbus_multi_add(m, ctx);
+        modbus_multi_t *m = NULL;
+        modbus_t *ctx = wake_ctx(dead_port, 0, 300000, &m);
         reset();
         dog_start(&d, 3);
         t0 = now_s();
@@ -2039,8 +2043,7 @@ static int wake_cases(void)
         modbus_free(ctx);
     }
     {
-        modbus_t *ctx = modbus_new_tcp("127.0.0.1", dead_port);
-        modbus_set_response_timeout(ctx, 0, 300000);
+        modbus_t *ctx = wake_ctx(dead_port, 0, 300000, NULL);
         reset();
         dog_start(&d, 3);
         t0 = now_s();
@@ -2063,7 +2066,7 @@ static int wake_cases(void)
     }
 
     chk_set_prefix("");
-    s.stop = 1;
+    __atomic_store_n(&s.stop, 1, __ATOMIC_SEQ_CST);
     pthread_join(th, NULL);
     close(s.listen_fd);
     close(dead);

@@ -202,8 +202,9 @@ if [ "$VALGRIND" = 1 ] && command -v valgrind >/dev/null; then
 fi
 
 # Two threads on one context (one gives requests, one processes them) and on a multi
-# handle, with the library and event-test built for ThreadSanitizer (the threads
-# suite's build of the library, target/tsan).
+# handle, and the lost wake-ups' cases (event-test wake), with the library and
+# event-test built for ThreadSanitizer (the threads suite's build of the library,
+# target/tsan).
 if [ "$TSAN" = 1 ] && selected tsan; then
     section "under ThreadSanitizer: two threads on a context (event-test threads)"
     WORK=$OUT/tsan
@@ -225,6 +226,17 @@ if [ "$TSAN" = 1 ] && selected tsan; then
                 result "tsan: no ThreadSanitizer report" FAIL "$(grep -E '^(WARNING|SUMMARY)' "$WORK/err.log" | head -n 5)"
             else
                 result "tsan: no ThreadSanitizer report" PASS
+            fi
+            # The lost wake-ups' threads: a request given, a wake-up, while another waits.
+            TSAN_OPTIONS="halt_on_error=0 exitcode=66" LD_LIBRARY_PATH=$TSAN_LIB_DIR timeout -k 5 120 \
+                "$(c_build_dir thread)/event-test" wake >"$WORK/wake-out.log" 2>"$WORK/wake-err.log"
+            rc=$?
+            program_checks tsan-wake "$WORK/wake-out.log" "$rc"
+            if grep -q ThreadSanitizer "$WORK/wake-err.log"; then
+                result "tsan-wake: no ThreadSanitizer report" FAIL \
+                    "$(grep -E '^(WARNING|SUMMARY)' "$WORK/wake-err.log" | head -n 5)"
+            else
+                result "tsan-wake: no ThreadSanitizer report" PASS
             fi
         else
             result "tsan: mb-server ready" FAIL "$(tail -n 3 "$WORK/server.log")"
