@@ -220,14 +220,22 @@ pub fn close(ctx: &mut Context) {
 
 /// A close with requests pending: they are to complete with ESHUTDOWN, and
 /// submissions wait for that (see [`Shut::Closing`]). A multi handle learns it
-/// without a lock (`Members::closed`).
+/// without a lock (`Members::closed`); a thread waiting on either wake descriptor
+/// wakes.
 pub fn shut_pending(ctx: &mut Context) {
     if ctx.pending() == 0 || ctx.shut() != Shut::Open {
         return;
     }
     ctx.set_shut(Shut::Closing);
-    if let Some((members, _)) = ctx.async_view().and_then(|o| o.multi.as_ref()) {
+    let Some(o) = ctx.async_view() else { return };
+    // A thread asleep on the wake descriptor (the context's, or its multi handle's)
+    // is woken to complete them: one `write` each, safe in a signal handler.
+    if let Some((members, _)) = o.multi.as_ref() {
         members.closed();
+        members.set.wake();
+    }
+    if let Some(w) = o.wake.as_ref() {
+        w.set.wake();
     }
 }
 

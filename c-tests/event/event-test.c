@@ -1826,6 +1826,22 @@ static void giver_start(struct giver *g)
     pthread_create(&g->th, NULL, giver_main, g);
 }
 
+/* A thread that closes a context after a pause. */
+struct closer {
+    modbus_t *ctx;
+    int delay_ms;
+    int done;
+};
+
+static void *closer_main(void *arg)
+{
+    struct closer *c = arg;
+    usleep((unsigned) c->delay_ms * 1000);
+    modbus_close(c->ctx);
+    __atomic_store_n(&c->done, 1, __ATOMIC_SEQ_CST);
+    return NULL;
+}
+
 /* A context on 127.0.0.1:port with that response timeout; added to *m (made when
  * NULL) when m is not NULL. */
 static modbus_t *wake_ctx(int port, uint32_t sec, uint32_t usec, modbus_multi_t **m)
@@ -2062,6 +2078,53 @@ static int wake_cases(void)
                "(e) context: poll(-1) on the modbus_get_pollfd descriptor wakes for the deadline: ETIMEDOUT after "
                "%.3f s (response timeout 0.3 s; %s)",
                took, fired ? "the watchdog had to end the wait" : "no watchdog");
+        modbus_free(ctx);
+    }
+
+    /* (f) A close from another thread (a signal handler's would do the same: one
+     * write) wakes a wait on either descriptor: the request to a device that never
+     * answers, response timeout 10 s, completes with ESHUTDOWN at once. */
+    for (int multi = 0; multi < 2; multi++) {
+        modbus_multi_t *m = NULL;
+        modbus_t *ctx = wake_ctx(dead_port, 10, 0, multi ? &m : NULL);
+        reset();
+        id = modbus_read_registers_async(ctx, 0, 4, v, on_done, NULL);
+        /* Connected and sent first: then the wait has nothing but the deadline. */
+        for (int i = 0; i < 20 && id >= 0; i++) {
+            if (multi) {
+                modbus_multi_perform(m, 10);
+            } else if (modbus_get_pollfd(ctx, &pfd, &t) >= 0) {
+                int n = poll(&pfd, 1, 10);
+                modbus_process(ctx, n > 0 ? pfd.revents : 0);
+            }
+        }
+        struct closer c = {ctx, 300, 0};
+        pthread_t cth;
+        dog_start(&d, 3);
+        t0 = now_s();
+        pthread_create(&cth, NULL, closer_main, &c);
+        while (id >= 0 && results[id].done == 0 && !dog_fired(&d)) {
+            if (multi) {
+                modbus_multi_perform(m, -1);
+            } else {
+                if (modbus_get_pollfd(ctx, &pfd, &t) < 0) {
+                    break;
+                }
+                int n = t == 0 ? 0 : poll(&pfd, 1, -1);
+                modbus_process(ctx, n > 0 ? pfd.revents : 0);
+            }
+        }
+        double took = now_s() - t0;
+        int fired = dog_stop(&d);
+        pthread_join(cth, NULL);
+        EXPECT(!fired && id >= 0 && results[id].done == 1 && results[id].error == ESHUTDOWN && took < 1.5,
+               "(f) %s: a modbus_close from another thread wakes a wait with -1: ESHUTDOWN after %.3f s (closed at "
+               "0.3 s, response timeout 10 s; %s)",
+               multi ? "multi: modbus_multi_perform(m, -1)" : "context: poll(-1) on the modbus_get_pollfd descriptor",
+               took, fired ? "the watchdog had to end the wait" : "no watchdog");
+        if (m != NULL) {
+            modbus_multi_free(m);
+        }
         modbus_free(ctx);
     }
 

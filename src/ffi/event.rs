@@ -606,7 +606,8 @@ pub struct modbus_completion_t {
 
 impl modbus_completion_t {
     /// The ends of its members (the `struct_size` rule: `ffi::struct_size_ok`).
-    const ENDS: [usize; 7] = crate::member_ends!(modbus_completion_t: struct_size, ctx, request_id, rc, error, user_data);
+    const ENDS: [usize; 7] =
+        crate::member_ends!(modbus_completion_t: struct_size, ctx, request_id, rc, error, user_data);
     /// The first published size: the whole struct.
     const FIRST: usize = std::mem::size_of::<Self>();
 
