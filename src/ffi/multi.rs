@@ -374,9 +374,29 @@ pub unsafe extern "C" fn modbus_multi_free(m: *mut Multi) {
 /// `None` when `key` is not a member; `Some(true)` when it waits for nothing (its
 /// registration, kept, is dropped now), `Some(false)` otherwise.
 fn idle_registration(m: &Multi, key: usize) -> Option<bool> {
-    let mut list = m.members.list.lock();
-    let mb = list.get_mut(&key)?;
-    Some(mb.line.idle_report(m.members.set.epfd))
+    {
+        let list = m.members.list.lock();
+        let line = list.get(&key)?.line;
+        if line.wants != 0 || line.events == 0 {
+            return Some(false);
+        }
+    }
+    // Dropped under the context's lock, as `sync` registers (see there); a line
+    // closed since left the set by itself (its number may be another's now).
+    // SAFETY: a member is a live context.
+    let dropped = unsafe {
+        crate::handle::call(key as *mut Modbus, |g| {
+            let current = (g.fd(), g.line.generation());
+            let mut list = m.members.list.lock();
+            let Some(mb) = list.get_mut(&key) else { return Ok(true) };
+            if (mb.line.fd, mb.line.generation) != current {
+                mb.line = Default::default();
+                return Ok(true);
+            }
+            Ok(mb.line.idle_report(m.members.set.epfd))
+        })
+    };
+    Some(dropped.unwrap_or(true))
 }
 
 fn is_member(m: &Multi, key: usize) -> bool {
@@ -409,17 +429,33 @@ unsafe fn sync(m: &Multi) -> Result<Option<Duration>> {
         if !is_member(m, key) {
             continue;
         }
+        // Registered under the context's lock: a close from another thread (which
+        // takes it) cannot close the descriptor, nor its number be reused, between
+        // the asking and the registration.
         // SAFETY: guaranteed by the caller.
-        let asked =
-            unsafe { crate::handle::call(key as *mut Modbus, |g| Ok((event::interest(g), g.line.generation()))) };
-        let Ok((interest, generation)) = asked else { continue };
-        let mut list = m.members.list.lock();
-        let Some(member) = list.get_mut(&key) else { continue };
-        member.line.update(m.members.set.epfd, interest.fd, generation, interest.events, key as u64)?;
-        let changed = member.until != interest.until;
-        member.until = interest.until;
-        if let (true, Some(t)) = (changed, interest.until) {
-            m.timers.lock().push(&list, t, key);
+        let registered = unsafe {
+            crate::handle::call(key as *mut Modbus, |g| {
+                let interest = event::interest(g);
+                let mut list = m.members.list.lock();
+                let Some(member) = list.get_mut(&key) else { return Ok(Ok(())) };
+                let r = member.line.update(
+                    m.members.set.epfd,
+                    interest.fd,
+                    g.line.generation(),
+                    interest.events,
+                    key as u64,
+                );
+                let changed = member.until != interest.until;
+                member.until = interest.until;
+                if let (true, Some(t)) = (changed, interest.until) {
+                    m.timers.lock().push(&list, t, key);
+                }
+                Ok(r)
+            })
+        };
+        // (A context that could not be asked: skipped.)
+        if let Ok(r) = registered {
+            r?;
         }
     }
     let list = m.members.list.lock();
