@@ -1550,6 +1550,14 @@ static void close_and_free(void)
             if (!free_done) {
                 modbus_get_pollfd(ctx, &pfd, &timeout);
             }
+            /* A call that makes a system call with the context locked (a recv that
+             * finds nothing): modbus_process and modbus_get_pollfd make none on this
+             * path, and under valgrind a signal waits for a system call or the end
+             * of a time slice, so that the handler seldom found a call to interrupt
+             * before the requests' 10 s timeout. */
+            if (!free_done) {
+                modbus_flush(ctx);
+            }
         }
         pthread_join(th, NULL);
     }
