@@ -1865,6 +1865,26 @@ static modbus_t *wake_ctx(int port, uint32_t sec, uint32_t usec, modbus_multi_t 
     return ctx;
 }
 
+/* Until request `id` completes (or the watchdog fires): waits with -1 on the
+ * modbus_get_pollfd descriptor (honouring its timeout 0: process now), or in
+ * modbus_multi_perform(m, -1) when m is not NULL. */
+static void wait_forever(modbus_t *ctx, modbus_multi_t *m, int id, struct dog *d)
+{
+    struct pollfd pfd;
+    int t;
+    while (id >= 0 && results[id].done == 0 && !dog_fired(d)) {
+        if (m != NULL) {
+            modbus_multi_perform(m, -1);
+            continue;
+        }
+        if (modbus_get_pollfd(ctx, &pfd, &t) < 0) {
+            break;
+        }
+        int n = t == 0 ? 0 : poll(&pfd, 1, -1);
+        modbus_process(ctx, n > 0 ? pfd.revents : 0);
+    }
+}
+
 static int wake_cases(void)
 {
     struct sigaction sa;
@@ -2072,13 +2092,7 @@ static int wake_cases(void)
         dog_start(&d, 3);
         t0 = now_s();
         id = modbus_read_registers_async(ctx, 0, 4, v, on_done, NULL);
-        while (id >= 0 && results[id].done == 0 && !dog_fired(&d)) {
-            if (modbus_get_pollfd(ctx, &pfd, &t) < 0) {
-                break;
-            }
-            int n = t == 0 ? 0 : poll(&pfd, 1, -1);
-            modbus_process(ctx, n > 0 ? pfd.revents : 0);
-        }
+        wait_forever(ctx, NULL, id, &d);
         double took = now_s() - t0;
         int fired = dog_stop(&d);
         EXPECT(!fired && id >= 0 && results[id].done == 1 && results[id].error == ETIMEDOUT && took >= 0.29 &&
@@ -2111,17 +2125,7 @@ static int wake_cases(void)
         dog_start(&d, 3);
         t0 = now_s();
         pthread_create(&cth, NULL, closer_main, &c);
-        while (id >= 0 && results[id].done == 0 && !dog_fired(&d)) {
-            if (multi) {
-                modbus_multi_perform(m, -1);
-            } else {
-                if (modbus_get_pollfd(ctx, &pfd, &t) < 0) {
-                    break;
-                }
-                int n = t == 0 ? 0 : poll(&pfd, 1, -1);
-                modbus_process(ctx, n > 0 ? pfd.revents : 0);
-            }
-        }
+        wait_forever(ctx, m, id, &d);
         double took = now_s() - t0;
         int fired = dog_stop(&d);
         pthread_join(cth, NULL);

@@ -50,6 +50,7 @@
 #include <modbus.h>
 
 #include "../common/check.h"
+#include "../common/mbt-loopback.h"
 
 int mbt_is_rsmodbus(void); /* c-tests/common/libinfo.c, which prints LIBINFO first */
 
@@ -135,30 +136,6 @@ static int open_pty(struct line *l)
     cfsetospeed(&t, B115200);
     tcsetattr(l->slave_fd, TCSANOW, &t);
     return 0;
-}
-
-static int tcp_connect(int port)
-{
-    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons((uint16_t) port)};
-    int s = socket(AF_INET, SOCK_STREAM, 0);
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    if (connect(s, (struct sockaddr *) &a, sizeof a) != 0) {
-        close(s);
-        return -1;
-    }
-    return s;
-}
-
-static int udp_peer(int port)
-{
-    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons((uint16_t) port)};
-    int s = socket(AF_INET, SOCK_DGRAM, 0);
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    if (connect(s, (struct sockaddr *) &a, sizeof a) != 0) {
-        close(s);
-        return -1;
-    }
-    return s;
 }
 
 /* A UDP port free now on 127.0.0.1. */
@@ -369,7 +346,7 @@ static int server_stop(struct server *sv)
         sv->quit = 1;
         if (sv->kind == TCP) {
             /* (modbus_tcp_accept waits for a client: one that leaves at once.) */
-            int c = tcp_connect(sv->port);
+            int c = mbt_loopback_connect(SOCK_STREAM, sv->port);
             if (c >= 0) {
                 close(c);
             }
@@ -483,7 +460,7 @@ static void traffic(struct server *sv, struct line *l, struct traffic *t)
     uint16_t tid = 1;
     memset(t, 0, sizeof *t);
     if (l->kind == TCP) {
-        l->fd = tcp_connect(sv->port);
+        l->fd = mbt_loopback_connect(SOCK_STREAM, sv->port);
         if (!EXPECT(l->fd >= 0, "tcp: connect to the server")) {
             return;
         }
@@ -499,7 +476,7 @@ static void traffic(struct server *sv, struct line *l, struct traffic *t)
     if (l->kind == TCP) {
         close(l->fd);
         sleep_ms(200);
-        l->fd = tcp_connect(sv->port);
+        l->fd = mbt_loopback_connect(SOCK_STREAM, sv->port);
         if (!EXPECT(l->fd >= 0, "tcp: connect again")) {
             return;
         }
@@ -750,8 +727,8 @@ static int stop_case(enum kind kind)
             return chk_summary();
         }
         if (kind == UDP) {
-            peer = udp_peer(l.port);
-            other = udp_peer(l.port);
+            peer = mbt_loopback_connect(SOCK_DGRAM, l.port);
+            other = mbt_loopback_connect(SOCK_DGRAM, l.port);
             if (!EXPECT(peer >= 0 && other >= 0, "udp: two peers")) {
                 return chk_summary();
             }

@@ -34,6 +34,7 @@
 #include <modbus.h>
 
 #include "../common/check.h"
+#include "../common/mbt-loopback.h"
 
 #define NB 100
 
@@ -122,19 +123,6 @@ static void listen_case(const char *how)
     modbus_mapping_free(m);
 }
 
-/* A datagram socket connected to the server's port. */
-static int peer(int port)
-{
-    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons((uint16_t) port)};
-    int s = socket(AF_INET, SOCK_DGRAM, 0);
-    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-    if (connect(s, (struct sockaddr *) &a, sizeof a) != 0) {
-        close(s);
-        return -1;
-    }
-    return s;
-}
-
 /* Sends a read of one register at `addr` (unit 1, transaction id `tid`). */
 static void send_read(int fd, int tid, int addr)
 {
@@ -182,7 +170,7 @@ static void udp_loop(const char *how)
         return;
     }
     modbus_set_indication_timeout(ctx, 2, 0);
-    int a = peer(port), b = peer(port);
+    int a = mbt_loopback_connect(SOCK_DGRAM, port), b = mbt_loopback_connect(SOCK_DGRAM, port);
     for (int round = 0; round < 3; round++) {
         /* Round 0 and 1: the same transaction id and unit from both peers, the
          * reads differ by their address; round 2: the ids differ (an exception's
