@@ -74,24 +74,28 @@ impl Framing {
     }
 
     /// Completes an ADU of `len` bytes in `buf` before sending: the MBAP length field
-    /// for TCP, the CRC for RTU. Returns the final length.
+    /// for TCP, the CRC for RTU. Returns the final length. TCP's two stores are
+    /// inlined into every sender; the checksums are a call.
+    #[inline(always)]
     pub fn seal(self, buf: &mut [u8], len: usize) -> usize {
-        match self {
-            Framing::Rtu => {
-                let crc = crc16(&buf[..len]);
-                buf[len..len + 2].copy_from_slice(&crc.to_le_bytes());
-                len + 2
-            }
-            Framing::Ascii => {
-                buf[len] = crate::ascii::lrc(&buf[..len]);
-                len + 1
-            }
-            Framing::Tcp => {
-                let mbap_len = (len - 6) as u16;
-                buf[4..6].copy_from_slice(&mbap_len.to_be_bytes());
-                len
-            }
+        if self == Framing::Tcp {
+            let mbap_len = (len - 6) as u16;
+            buf[4..6].copy_from_slice(&mbap_len.to_be_bytes());
+            return len;
         }
+        self.seal_serial(buf, len)
+    }
+
+    /// [`Framing::seal`] of a serial framing: the CRC (RTU) or the LRC (ASCII).
+    #[inline(never)]
+    fn seal_serial(self, buf: &mut [u8], len: usize) -> usize {
+        if self == Framing::Rtu {
+            let crc = crc16(&buf[..len]);
+            buf[len..len + 2].copy_from_slice(&crc.to_le_bytes());
+            return len + 2;
+        }
+        buf[len] = crate::ascii::lrc(&buf[..len]);
+        len + 1
     }
 
     /// The transaction id a reply must carry: copied from the request in TCP, 0 in RTU.
