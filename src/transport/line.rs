@@ -362,7 +362,9 @@ impl Line {
             }
         }
         if self.kind == Kind::Datagram && fd >= 0 {
-            held.connected = udp::has_peer(fd);
+            // Connected to a peer (a client's socket handed over with `modbus_set_socket`),
+            // rather than bound and answering each sender.
+            held.connected = udp::Peer::of_socket(fd).is_some();
             held.datagram = Some(Box::new(if held.connected { Datagram::default() } else { Datagram::serving() }));
         }
         self.install(fd, held);

@@ -120,16 +120,6 @@ pub fn duplicate(fd: i32) -> Result<i32> {
     if dup == -1 { Err(last_error()) } else { Ok(dup) }
 }
 
-/// Whether `fd` is connected to a peer (a client's socket handed over with
-/// `modbus_set_socket`), rather than bound and answering each sender.
-pub fn has_peer(fd: i32) -> bool {
-    // SAFETY: all-zero is a valid sockaddr_storage; the kernel writes at most `len`.
-    let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
-    let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
-    // SAFETY: `addr`/`len` describe a live buffer.
-    unsafe { libc::getpeername(fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len) == 0 }
-}
-
 /// The sender of a datagram (a server answers it there).
 #[derive(Clone, Copy)]
 pub struct Peer {
