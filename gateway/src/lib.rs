@@ -1,0 +1,3 @@
+//! rsmodbus-gateway: Modbus/TCP masters in front of Modbus lines, on rsmodbus' safe
+//! Rust API (`rsmodbus::api`). No `unsafe` here.
+#![forbid(unsafe_code)]
