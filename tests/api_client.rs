@@ -72,3 +72,10 @@ fn a_request_nobody_answers_times_out() {
     assert_eq!(Error::TIMED_OUT.to_string(), "Connection timed out");
     assert_eq!(Error::BAD_CRC.to_string(), "Invalid CRC");
 }
+
+#[test]
+fn contexts_and_servers_move_between_threads() {
+    fn send<T: Send>() {}
+    send::<Modbus>();
+    send::<Server>();
+}
