@@ -79,3 +79,17 @@ fn contexts_and_servers_move_between_threads() {
     send::<Modbus>();
     send::<Server>();
 }
+
+#[test]
+fn pipelined_raw_requests_complete_each_with_its_answer() {
+    let port = serve(Registers);
+    let mut m = Modbus::new_tcp(Some("127.0.0.1"), &port.to_string()).unwrap();
+    m.set_max_in_flight(4).unwrap();
+    let ids: Vec<i32> = (0..4u8).map(|i| m.send_raw(&[1, 0x03, 0x00, i, 0x00, 0x01]).unwrap()).collect();
+    assert_eq!(m.pending(), 4);
+    for (i, id) in ids.into_iter().enumerate() {
+        let c = wait_completion(&mut m, || {});
+        assert_eq!(c, Completion { id, result: Ok(vec![0x03, 2, 0x00, i as u8]) });
+    }
+    assert_eq!(m.set_max_in_flight(0), Err(Error::INVALID));
+}

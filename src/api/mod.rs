@@ -370,12 +370,25 @@ impl Modbus {
     /// (`modbus_process`); the completed requests wait for
     /// [`Modbus::next_completion`].
     pub fn process(&mut self) -> Result<()> {
+        self.process_events(libc::POLLIN)
+    }
+
+    /// [`Modbus::process`] given what the wait reported of the wake descriptor
+    /// (`revents`; 0, a wait that timed out, saves asking it what is ready).
+    pub fn process_events(&mut self, revents: i16) -> Result<()> {
         self.call(|g| {
-            event::process(g, libc::POLLIN, true)?;
+            event::process(g, revents, true)?;
             event::closed(g);
             event::watch(g);
             Ok(())
         })
+    }
+
+    /// How many requests may be on the wire at once on a TCP context (pipelining,
+    /// `modbus_set_max_in_flight`): 1 to 256, default 1; a serial line has one.
+    pub fn set_max_in_flight(&mut self, n: usize) -> Result<()> {
+        let n = i32::try_from(n).map_err(|_| Error::INVALID)?;
+        self.call(|g| event::set_max_in_flight(g, n))
     }
 
     /// The requests given and not completed (`modbus_pending`).

@@ -16,7 +16,7 @@ pub fn wait_completion(m: &mut Modbus, mut between: impl FnMut()) -> Completion 
         let (fd, until) = m.poll_fd().unwrap();
         let mut fds = [PollFd { fd, events: libc::POLLIN, revents: 0 }];
         poll(&mut fds, Some(until.unwrap_or(Duration::MAX).min(Duration::from_millis(20)))).unwrap();
-        m.process().unwrap();
+        m.process_events(fds[0].revents).unwrap();
         between();
     }
 }
