@@ -663,3 +663,19 @@ fn read_file_names_the_file() {
     assert_eq!(read_file(&f).unwrap(), "port = 1\n");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn the_fuzz_seeds_load_or_fail_as_meant() {
+    let seed = |name: &str| {
+        std::fs::read_to_string(format!("{}/../fuzz/corpus/gateway_config/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
+    };
+    for name in ["example.conf", "mbusd-keys.conf", "lines-and-routes.conf"] {
+        ok(&seed(name));
+    }
+    let every = seed("every-key.conf");
+    let args: Vec<String> = every.lines().next().unwrap()[2..].split_whitespace().map(String::from).collect();
+    let c = load(&parse_args(&args).unwrap(), Some((Path::new("gw.conf"), &every))).unwrap();
+    assert_eq!((c.loglevel, c.retries, c.port, c.roles.len()), (5, 1, 0, 3));
+    assert!(err(&seed("tls-refused.conf")).contains("tls_role.Op: the Modbus/TCP front (port 502)"));
+    assert!(err(&seed("errors.conf")).contains("gw.conf:2: line.a: line 'a' is defined already at line 1"));
+}
