@@ -148,11 +148,17 @@ if grep -q '^Remv libmodbus5 ' "$WORK/apt-sim.log" && grep -q '^Inst librsmodbus
 else
     bad "apt (simulated): the packages replace libmodbus5 and keep mbpoll" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim.log")"
 fi
-apt-get -s install "$RUNTIME" "$GW" >"$WORK/apt-sim-gw.log" 2>&1
-if grep -q '^Inst rsmodbus-gateway ' "$WORK/apt-sim-gw.log" && grep -q '^Inst librsmodbus5 ' "$WORK/apt-sim-gw.log"; then
+apt-get -s install "$GW" >"$WORK/apt-sim-gw.log" 2>&1
+if grep -q '^Inst rsmodbus-gateway ' "$WORK/apt-sim-gw.log" && ! grep -q -e '^Remv' -e '^Inst librsmodbus5 ' "$WORK/apt-sim-gw.log"; then
+    ok "apt (simulated): rsmodbus-gateway installs alone, beside Debian's libmodbus5"
+else
+    bad "apt (simulated): rsmodbus-gateway installs alone, beside Debian's libmodbus5" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim-gw.log")"
+fi
+apt-get -s install "$RUNTIME" "$GW" >"$WORK/apt-sim-gw2.log" 2>&1
+if grep -q '^Inst rsmodbus-gateway ' "$WORK/apt-sim-gw2.log" && grep -q '^Inst librsmodbus5 ' "$WORK/apt-sim-gw2.log"; then
     ok "apt (simulated): rsmodbus-gateway installs beside librsmodbus5"
 else
-    bad "apt (simulated): rsmodbus-gateway installs beside librsmodbus5" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim-gw.log")"
+    bad "apt (simulated): rsmodbus-gateway installs beside librsmodbus5" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim-gw2.log")"
 fi
 if apt-cache show collectd-core zabbix-agent >/dev/null 2>&1; then
     apt-get -s install "$RUNTIME" collectd-core zabbix-agent >"$WORK/apt-sim2.log" 2>&1
@@ -305,15 +311,16 @@ if out=$("$R/usr/bin/rsmodbus-gateway" -h 2>&1) && grep -q -- "^  -y file" <<<"$
 else
     bad "the packaged rsmodbus-gateway -h" "$(head -n 5 <<<"$out")"
 fi
-# The Rust binary (target/release's: the tests and the benchmark run the same code),
+# The Rust binary debian/rules built (cargo build --release, in target/deb-cargo),
 # stripped, as hardened as Debian's flags would make a C program: PIE, a read-only
 # relocation table bound at start (RELRO, BIND_NOW), no executable stack; it needs
 # no libmodbus.so.5.
 gw_bin=$R/usr/bin/rsmodbus-gateway
-if [ "$(text_of "$gw_bin")" = "$(text_of target/release/rsmodbus-gateway)" ]; then
-    ok "the packaged rsmodbus-gateway is target/release/rsmodbus-gateway (the same code), $(stat -c %s "$gw_bin") bytes"
+gw_built=target/deb-cargo/release/rsmodbus-gateway
+if [ "$(text_of "$gw_bin")" = "$(text_of $gw_built)" ]; then
+    ok "the packaged rsmodbus-gateway is $gw_built, stripped: $(stat -c %s "$gw_bin") bytes ($(stat -c %s $gw_built))"
 else
-    bad "the packaged rsmodbus-gateway is target/release/rsmodbus-gateway" "their .text differ"
+    bad "the packaged rsmodbus-gateway is $gw_built" "their .text differ"
 fi
 gw_dyn=$(readelf -d "$gw_bin")
 gw_seg=$(readelf -lW "$gw_bin")
