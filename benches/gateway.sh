@@ -20,7 +20,8 @@
 #     the latency of one read by each, in turn (p50, p99);
 #   - ours only, on the paced line: one master through the Modbus/TCP Security front
 #     against the plain front (the line is the bottleneck).
-# BENCH_SECONDS (5) per closed loop.
+# BENCH_SECONDS (5) per closed loop. The gateway measured: GATEWAY_BIN, by default
+# target/release/rsmodbus-gateway (built here by `cargo build --release`).
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
@@ -31,6 +32,7 @@ OUT=$ROOT/target/bench-gateway
 mkdir -p "$OUT"
 rm -f "$OUT"/*.log
 cargo build --release -q
+GATEWAY=${GATEWAY_BIN:-$ROOT/target/release/rsmodbus-gateway}
 ln -sf libmodbus.so target/release/libmodbus.so.5
 make -s -C c-tests gateway >/dev/null
 BIN=$(make -s -C c-tests print-CTEST_BUILD 2>/dev/null || true)
@@ -82,7 +84,7 @@ setup() {
     wait_for "$OUT/device-$which.log" READY
     PORT=$(free_port)
     if [ "$which" = ours ]; then
-        bg "$OUT/gw-$which.log" env LD_LIBRARY_PATH="$ROOT/target/release" "$BIN/rsmodbus-gateway" -d -L - -v 1 \
+        bg "$OUT/gw-$which.log" "$GATEWAY" -d -L - -v 1 \
             -p "$OUT/G" -s 115200 -P "$PORT" -R 1 -W 300 -N 1 "$@"
     else
         bg "$OUT/gw-$which.log" "$MBUSD" -d -L - -v 1 -p "$OUT/G" -s 115200 -P "$PORT" -R 1 -W 300 -N 1 "$@"

@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
-"""The Rust crates linked into libmodbus.so.5 and libmodbus.a, for debian/copyright.
+"""The Rust crates linked into libmodbus.so.5, libmodbus.a and rsmodbus-gateway, for
+debian/copyright.
 
 The packages ship code of the crates the library depends on (rustls, ring, the
-RustCrypto crates, libc, ...), statically linked. debian/copyright names each of them,
+RustCrypto crates, libc, ...) and those the gateway adds (nix, ...), statically linked. debian/copyright names each of them,
 with its licence and copyright holders, in the header's Comment, between two marker
 lines; this script writes that list from Cargo.lock (the normal dependencies of the
-rsmodbus crate, not the build tools), reading each crate's copyright lines from its
+rsmodbus and rsmodbus-gateway crates, not the build tools), reading each crate's copyright lines from its
 licence files in cargo's registry.
 
     python3 debian/embedded-crates.py           rewrites the list in debian/copyright
@@ -24,9 +25,9 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 COPYRIGHT = os.path.join(ROOT, "debian", "copyright")
-BEGIN = " Rust crates statically linked into the library (from crates.io, at the versions of"
+BEGIN = " Rust crates statically linked into the library and the gateway (from crates.io, at"
 END = " (End of the list written by debian/embedded-crates.py.)"
-OURS = {"rsmodbus", "rsmodbus-proto"}
+OURS = {"rsmodbus", "rsmodbus-proto", "rsmodbus-gateway"}
 
 
 def metadata():
@@ -38,11 +39,11 @@ def metadata():
     return json.loads(out.stdout)
 
 
-def linked(meta):
-    """The packages reached from rsmodbus through normal (not build or dev) dependencies."""
+def linked(meta, name):
+    """The packages reached from the crate NAME through normal (not build or dev) dependencies."""
     packages = {p["id"]: p for p in meta["packages"]}
     nodes = {n["id"]: n for n in meta["resolve"]["nodes"]}
-    root = next(p["id"] for p in meta["packages"] if p["name"] == "rsmodbus")
+    root = next(p["id"] for p in meta["packages"] if p["name"] == name)
     seen, todo = set(), [root]
     while todo:
         node = nodes[todo.pop()]
@@ -77,9 +78,12 @@ def holders(package):
 
 
 def block(meta):
-    lines = [BEGIN, " Cargo.lock; each under the licence its manifest states, texts below):"]
-    for p in linked(meta):
-        lines.append(f"  - {p['name']} {p['version']}: {p['license']}; {holders(p)}")
+    lines = [BEGIN, " the versions of Cargo.lock; each under the licence its manifest states, texts below):"]
+    library = {p["id"] for p in linked(meta, "rsmodbus")}
+    both = {p["id"]: p for p in linked(meta, "rsmodbus") + linked(meta, "rsmodbus-gateway")}
+    for p in sorted(both.values(), key=lambda p: (p["name"], p["version"])):
+        only = "" if p["id"] in library else " (the gateway only)"
+        lines.append(f"  - {p['name']} {p['version']}{only}: {p['license']}; {holders(p)}")
     lines.append(END)
     return lines
 

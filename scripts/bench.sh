@@ -17,7 +17,8 @@
 #                                    per idle client (TCP and TLS), TLS clients beside
 #                                    stalled handshakes (benches/server-many.sh, about
 #                                    2 minutes)
-#   scripts/bench.sh --gateway       rsmodbus-gateway beside mbusd (built from
+#   scripts/bench.sh --gateway       target/release/rsmodbus-gateway (or GATEWAY_BIN)
+#                                    beside mbusd (built from
 #                                    ../shared/anchors/mbusd when it is there) on an
 #                                    RTU line, a pty pair or one paced at 115200 baud:
 #                                    one master, 100 masters (spread), 1,000 held (RSS,

@@ -26,9 +26,16 @@ rm -rf "$out"
 mkdir -p "$out"
 version=$(dpkg-parsechangelog -SVersion)
 arch=$(dpkg-architecture -qDEB_HOST_ARCH)
-DEB_OUT_DIR=$out dpkg-buildpackage -b -us -uc --post-clean \
+# --post-clean: `debian/rules clean` after the build (dh_clean removes debian/PACKAGE/,
+# debian/tmp/ and debhelper's files); after a failed build too, here: the tree is left
+# as it was (c-tests/suites/package.sh checks).
+if ! DEB_OUT_DIR=$out dpkg-buildpackage -b -us -uc --post-clean \
     --buildinfo-option="-u$out" --buildinfo-file="$out/rsmodbus_${version}_${arch}.buildinfo" \
-    --changes-option="-u$out" --changes-file="$out/rsmodbus_${version}_${arch}.changes"
+    --changes-option="-u$out" --changes-file="$out/rsmodbus_${version}_${arch}.changes"; then
+    debian/rules clean >/dev/null 2>&1 || true
+    echo "build-deb.sh: dpkg-buildpackage failed" >&2
+    exit 1
+fi
 echo
 echo "packages in ${out#"$PWD"/}:"
 for deb in "$out"/*.deb; do

@@ -5,7 +5,7 @@
 #
 # Usage: scripts/install.sh [--prefix=DIR] [--libdir=DIR] [--includedir=DIR]
 #                           [--mandir=DIR] [--destdir=DIR] [--no-build] [--from=DIR]
-#                           [--no-strip]
+#                           [--no-strip] [--gateway[=BIN]] [--unitdir=DIR]
 #   --prefix      default /usr/local
 #   --libdir      default PREFIX/lib (Debian: /usr/lib/x86_64-linux-gnu)
 #   --includedir  default PREFIX/include (headers go into INCLUDEDIR/modbus)
@@ -16,6 +16,12 @@
 #   --from=DIR    use the build in DIR as it is, e.g. target/pgo/release from
 #                 scripts/build-pgo.sh (debian/rules); implies --no-build
 #   --no-strip    keep the symbol tables and debug sections
+#   --gateway     also the gateway (gateway/, Rust): BIN (default
+#                 target/release/rsmodbus-gateway, which `cargo build --release`
+#                 makes) as PREFIX/bin/rsmodbus-gateway, MANDIR/man8/rsmodbus-gateway.8
+#                 and the systemd unit template UNITDIR/rsmodbus-gateway@.service
+#                 (its ExecStart names PREFIX/bin); as the package rsmodbus-gateway
+#   --unitdir     default PREFIX/lib/systemd/system (Debian's package: /lib/systemd/system)
 #
 # Installs LIBDIR/libmodbus.so.5.1.0 with the links libmodbus.so.5 and libmodbus.so,
 # LIBDIR/libmodbus.a (debug sections and the embedded LLVM bitcode of the Rust
@@ -33,6 +39,8 @@ destdir=
 build=1
 built=target/release
 do_strip=1
+gateway=
+unitdir=
 for arg in "$@"; do
     case $arg in
         --prefix=*) prefix=${arg#*=} ;;
@@ -43,6 +51,9 @@ for arg in "$@"; do
         --no-build) build=0 ;;
         --from=*) built=${arg#*=}; build=0 ;;
         --no-strip) do_strip=0 ;;
+        --gateway) gateway=target/release/rsmodbus-gateway ;;
+        --gateway=*) gateway=${arg#*=} ;;
+        --unitdir=*) unitdir=${arg#*=} ;;
         -h | --help)
             sed -n '2,/^# SPDX/p' "$0" | sed 's/^# \{0,1\}//'
             exit 0
@@ -57,6 +68,7 @@ prefix=${prefix%/}
 libdir=${libdir:-$prefix/lib}
 includedir=${includedir:-$prefix/include}
 mandir=${mandir:-$prefix/share/man}
+unitdir=${unitdir:-$prefix/lib/systemd/system}
 
 REAL_NAME=libmodbus.so.5.1.0
 SONAME=libmodbus.so.5
@@ -67,6 +79,10 @@ fi
 for f in libmodbus.so libmodbus.a libmodbus.pc; do
     [ -f "$built/$f" ] || { echo "install.sh: $built/$f missing; build it first" >&2; exit 1; }
 done
+if [ -n "$gateway" ] && [ ! -x "$gateway" ]; then
+    echo "install.sh: $gateway missing; build it first (cargo build --release)" >&2
+    exit 1
+fi
 soname=$(objdump -p "$built/libmodbus.so" | awk '$1 == "SONAME" {print $2}')
 if [ "$soname" != "$SONAME" ]; then
     echo "install.sh: $built/libmodbus.so has soname '$soname', expected $SONAME" >&2
@@ -111,6 +127,17 @@ install -m 0644 include/modbus.h include/modbus-rtu.h include/modbus-tcp.h \
 install -m 0644 target/man/man3/*.3 "$D$mandir/man3/"
 install -m 0644 target/man/man7/*.7 "$D$mandir/man7/"
 
+if [ -n "$gateway" ]; then
+    install -d "$D$prefix/bin" "$D$mandir/man8" "$D$unitdir"
+    install -m 0755 "$gateway" "$D$prefix/bin/rsmodbus-gateway"
+    [ "$do_strip" = 0 ] || strip --strip-unneeded --remove-section=.comment "$D$prefix/bin/rsmodbus-gateway"
+    install -m 0644 target/man/man8/rsmodbus-gateway.8 "$D$mandir/man8/"
+    sed "s|/usr/bin/rsmodbus-gateway|$prefix/bin/rsmodbus-gateway|" gateway/rsmodbus-gateway@.service \
+        >"$D$unitdir/rsmodbus-gateway@.service"
+    chmod 0644 "$D$unitdir/rsmodbus-gateway@.service"
+    echo "installed the gateway into ${D:-/}: $prefix/bin/rsmodbus-gateway, $mandir/man8/rsmodbus-gateway.8," \
+        "$unitdir/rsmodbus-gateway@.service"
+fi
 echo "installed rsmodbus into ${D:-/}: $libdir/$REAL_NAME (+ $SONAME, libmodbus.so, libmodbus.a," \
     "pkgconfig/libmodbus.pc), $includedir/modbus/, $(ls target/man/man3 | wc -l) pages in $mandir/man3"
 if [ -z "$D" ] && [ "$(id -u)" = 0 ] && command -v ldconfig >/dev/null; then

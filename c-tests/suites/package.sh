@@ -2,9 +2,11 @@
 # package.sh: builds the Debian packages (scripts/build-deb.sh) and checks them
 # without installing them on this machine (Debian's libmodbus5 stays: it is the
 # oracle of the differential tests):
+#   - the build leaves the tree as it found it (git status, ignored files too);
 #   - control fields (dpkg-deb -f): names, version, Provides/Conflicts/Replaces
-#     libmodbus5 and libmodbus-dev, Depends (rsmodbus-gateway's on librsmodbus5); the ldconfig trigger, shlibs and symbols
-#     (dpkg-deb -I); the exact file lists (dpkg-deb -c);
+#     libmodbus5 and libmodbus-dev, Depends (rsmodbus-gateway: libc6, not the
+#     library it links in); the ldconfig trigger, shlibs and symbols (dpkg-deb -I);
+#     the exact file lists (dpkg-deb -c);
 #   - apt's resolver (simulation only): installing both packages removes libmodbus5
 #     and libmodbus-dev but keeps Debian's mbpoll, and collectd-core and zabbix-agent
 #     install with librsmodbus5 satisfying their libmodbus5 dependency;
@@ -18,7 +20,9 @@
 #     extracted root, against examples/tcp-server on loopback and examples/rtu-server
 #     over a pty: printed values, exit codes, and the libmodbus.so.5 it loaded
 #     (LD_DEBUG=libs, /proc/PID/maps), and through the packaged rsmodbus-gateway in
-#     front of that pty (its -h too).
+#     front of that pty (its -h too; it loads no libmodbus.so.5);
+#   - the packaged systemd unit: systemd-analyze verify, and systemd-analyze security
+#     --offline=yes rates its exposure 2.0 or below.
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
 # Usage: c-tests/suites/package.sh [--no-build]   (--no-build: use target/debian/*.deb)
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -37,15 +41,24 @@ DEBS=$ROOT_DIR/target/debian
 BUILT=target/pgo/release
 
 # --- build ------------------------------------------------------------------------
+# The tree's state (what git sees, ignored files too, but target/): the build must
+# leave it as it was (debian/PACKAGE/, debian/tmp/, debhelper's files removed).
+tree_state() { git status --porcelain --ignored 2>/dev/null | grep -vx '!! target/' | sort; }
 if [ "${1:-}" != "--no-build" ]; then
+    tree_state >"$WORK/tree.before"
     start_s=$(date +%s)
     if scripts/build-deb.sh "$DEBS" >"$WORK/build-deb.log" 2>&1; then
         ok "scripts/build-deb.sh built the packages in $(($(date +%s) - start_s)) s"
     else
         bad "scripts/build-deb.sh" "$(tail -n 30 "$WORK/build-deb.log")"
-        summary
-        exit 1
     fi
+    tree_state >"$WORK/tree.after"
+    if left=$(comm -13 "$WORK/tree.before" "$WORK/tree.after") && [ -z "$left" ]; then
+        ok "building the packages leaves the tree as it was (git status --porcelain --ignored)"
+    else
+        bad "building the packages leaves the tree as it was" "left behind:" "$left"
+    fi
+    [ -s "$WORK/build-deb.log" ] && grep -q '^packages in ' "$WORK/build-deb.log" || { summary; exit 1; }
 fi
 RUNTIME=$(ls "$DEBS"/librsmodbus5_*.deb 2>/dev/null | head -n 1)
 DEV=$(ls "$DEBS"/librsmodbus-dev_*.deb 2>/dev/null | head -n 1)
@@ -96,12 +109,13 @@ expect_field "$DEV" Section libdevel
 expect_field "$GW" Package rsmodbus-gateway
 expect_field "$GW" Version "$version"
 expect_field "$GW" Section net
-# The gateway uses rsmodbus' own calls: it needs librsmodbus5 (dpkg-shlibdeps adds
-# libmodbus5 (>= 3.1.4) for libmodbus' calls, which librsmodbus5 provides).
-if grep -q "^librsmodbus5 (= $version), libc6 (>= " <<<"$(field "$GW" Depends)"; then
-    ok "rsmodbus-gateway: Depends: $(field "$GW" Depends)"
+# The gateway links the library in (an rlib): dpkg-shlibdeps finds libc6 (and
+# libgcc-s1), no libmodbus5 or librsmodbus5.
+gw_depends=$(field "$GW" Depends)
+if grep -q "libc6 (>= " <<<"$gw_depends" && ! grep -q "modbus" <<<"$gw_depends"; then
+    ok "rsmodbus-gateway: Depends: $gw_depends (no libmodbus5: the library is linked in)"
 else
-    bad "rsmodbus-gateway: Depends on librsmodbus5 (= $version) and libc6" "got: $(field "$GW" Depends)"
+    bad "rsmodbus-gateway: Depends on libc6 and on no libmodbus5 or librsmodbus5" "got: $gw_depends"
 fi
 if grep -q 'libc6 (>= ' <<<"$(field "$RUNTIME" Depends)"; then
     ok "librsmodbus5: Depends (from dpkg-shlibdeps): $(field "$RUNTIME" Depends)"
@@ -134,11 +148,17 @@ if grep -q '^Remv libmodbus5 ' "$WORK/apt-sim.log" && grep -q '^Inst librsmodbus
 else
     bad "apt (simulated): the packages replace libmodbus5 and keep mbpoll" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim.log")"
 fi
-apt-get -s install "$RUNTIME" "$GW" >"$WORK/apt-sim-gw.log" 2>&1
-if grep -q '^Inst rsmodbus-gateway ' "$WORK/apt-sim-gw.log" && grep -q '^Inst librsmodbus5 ' "$WORK/apt-sim-gw.log"; then
+apt-get -s install "$GW" >"$WORK/apt-sim-gw.log" 2>&1
+if grep -q '^Inst rsmodbus-gateway ' "$WORK/apt-sim-gw.log" && ! grep -q -e '^Remv' -e '^Inst librsmodbus5 ' "$WORK/apt-sim-gw.log"; then
+    ok "apt (simulated): rsmodbus-gateway installs alone, beside Debian's libmodbus5"
+else
+    bad "apt (simulated): rsmodbus-gateway installs alone, beside Debian's libmodbus5" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim-gw.log")"
+fi
+apt-get -s install "$RUNTIME" "$GW" >"$WORK/apt-sim-gw2.log" 2>&1
+if grep -q '^Inst rsmodbus-gateway ' "$WORK/apt-sim-gw2.log" && grep -q '^Inst librsmodbus5 ' "$WORK/apt-sim-gw2.log"; then
     ok "apt (simulated): rsmodbus-gateway installs beside librsmodbus5"
 else
-    bad "apt (simulated): rsmodbus-gateway installs beside librsmodbus5" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim-gw.log")"
+    bad "apt (simulated): rsmodbus-gateway installs beside librsmodbus5" "$(grep -E '^(Inst|Remv|E:)' "$WORK/apt-sim-gw2.log")"
 fi
 if apt-cache show collectd-core zabbix-agent >/dev/null 2>&1; then
     apt-get -s install "$RUNTIME" collectd-core zabbix-agent >"$WORK/apt-sim2.log" 2>&1
@@ -285,27 +305,71 @@ else
 fi
 
 # The packaged gateway: its help lists mbusd's options and the extended keys.
-if out=$(LD_LIBRARY_PATH=$RL "$R/usr/bin/rsmodbus-gateway" -h 2>&1) && grep -q -- "^  -y file" <<<"$out" &&
+if out=$("$R/usr/bin/rsmodbus-gateway" -h 2>&1) && grep -q -- "^  -y file" <<<"$out" &&
     grep -q "tls_role" <<<"$out"; then
     ok "the packaged rsmodbus-gateway -h exits 0 and lists -y and tls_role"
 else
     bad "the packaged rsmodbus-gateway -h" "$(head -n 5 <<<"$out")"
 fi
-# Debian's hardening flags (dpkg-buildflags): fortified calls and a read-only
-# relocation table, besides the PIE gcc makes anyway.
+# The Rust binary debian/rules built (cargo build --release, in target/deb-cargo),
+# stripped, as hardened as Debian's flags would make a C program: PIE, a read-only
+# relocation table bound at start (RELRO, BIND_NOW), no executable stack; it needs
+# no libmodbus.so.5.
 gw_bin=$R/usr/bin/rsmodbus-gateway
-fortified=$(nm -D "$gw_bin" 2>/dev/null | grep -c '__[a-z]*_chk')
-if [ "$fortified" -gt 0 ] && grep -q GNU_RELRO <<<"$(readelf -l "$gw_bin")" &&
-    [ "$(readelf -h "$gw_bin" | awk '$1 == "Type:" {print $2}')" = DYN ]; then
-    ok "rsmodbus-gateway is built with Debian's hardening flags: $fortified fortified calls, RELRO, PIE"
+gw_built=target/deb-cargo/release/rsmodbus-gateway
+if [ "$(text_of "$gw_bin")" = "$(text_of $gw_built)" ]; then
+    ok "the packaged rsmodbus-gateway is $gw_built, stripped: $(stat -c %s "$gw_bin") bytes ($(stat -c %s $gw_built))"
 else
-    bad "rsmodbus-gateway is built with Debian's hardening flags" "fortified calls: $fortified" \
-        "$(readelf -l "$gw_bin" | grep -c GNU_RELRO) RELRO segments; $(readelf -h "$gw_bin" | grep Type)"
+    bad "the packaged rsmodbus-gateway is $gw_built" "their .text differ"
+fi
+gw_dyn=$(readelf -d "$gw_bin")
+gw_seg=$(readelf -lW "$gw_bin")
+if [ "$(readelf -h "$gw_bin" | awk '$1 == "Type:" {print $2}')" = DYN ] && grep -q GNU_RELRO <<<"$gw_seg" &&
+    grep -q 'FLAGS.*BIND_NOW\|FLAGS_1.*NOW' <<<"$gw_dyn" && grep -q 'GNU_STACK.* RW  ' <<<"$gw_seg" &&
+    ! grep -q -e '\.symtab' -e '\.debug_' <<<"$(readelf -S "$gw_bin")"; then
+    ok "rsmodbus-gateway: PIE, RELRO, BIND_NOW, no executable stack, stripped"
+else
+    bad "rsmodbus-gateway: PIE, RELRO, BIND_NOW, no executable stack, stripped" "$(readelf -h "$gw_bin" | grep Type)" \
+        "$(grep -e GNU_RELRO -e GNU_STACK <<<"$gw_seg")" "$(grep FLAGS <<<"$gw_dyn")"
+fi
+if ! grep -q 'NEEDED.*libmodbus' <<<"$gw_dyn"; then
+    ok "rsmodbus-gateway needs no libmodbus.so.5 (NEEDED: $(sed -n 's/.*NEEDED.*\[\(.*\)\]/\1/p' <<<"$gw_dyn" | tr '\n' ' '))"
+else
+    bad "rsmodbus-gateway needs no libmodbus.so.5" "$(grep NEEDED <<<"$gw_dyn")"
 fi
 if [ -d "$R/etc/rsmodbus-gateway" ]; then
     ok "rsmodbus-gateway makes /etc/rsmodbus-gateway (the unit template's configurations)"
 else
     bad "rsmodbus-gateway makes /etc/rsmodbus-gateway"
+fi
+
+# The packaged unit template: gateway/'s; systemd-analyze verify finds nothing to say
+# (on a copy whose ExecStart names the extracted binary: this machine has no
+# /usr/bin/rsmodbus-gateway); its exposure (systemd-analyze security, offline) is
+# 2.0 or below (the unit as it was, running as root: 9.6).
+unit=$R/lib/systemd/system/rsmodbus-gateway@.service
+if cmp -s "$unit" gateway/rsmodbus-gateway@.service; then
+    ok "the packaged unit template is gateway/rsmodbus-gateway@.service"
+else
+    bad "the packaged unit template is gateway/rsmodbus-gateway@.service" "$(diff "$unit" gateway/rsmodbus-gateway@.service | head)"
+fi
+if command -v systemd-analyze >/dev/null; then
+    sed "s|/usr/bin/rsmodbus-gateway|$R/usr/bin/rsmodbus-gateway|" "$unit" >"$WORK/rsmodbus-gateway@.service"
+    if out=$(systemd-analyze verify --man=no "$WORK/rsmodbus-gateway@.service" 2>&1) && [ -z "$out" ]; then
+        ok "systemd-analyze verify: the unit template has nothing to report"
+    else
+        bad "systemd-analyze verify: the unit template has nothing to report" "$out"
+    fi
+    systemd-analyze security --offline=yes --no-pager "$unit" >"$WORK/unit-security.txt" 2>&1
+    exposure=$(sed -n 's/.*Overall exposure level for .*: \([0-9.]*\) .*/\1/p' "$WORK/unit-security.txt")
+    if [ -n "$exposure" ] && awk -v e="$exposure" 'BEGIN { exit !(e <= 2.0) }'; then
+        ok "systemd-analyze security --offline=yes: the unit's exposure is $exposure (at most 2.0)"
+    else
+        bad "systemd-analyze security --offline=yes: the unit's exposure is at most 2.0" "got: ${exposure:-none}" \
+            "$(grep -e '✗' -e 'exposure' "$WORK/unit-security.txt" | head -n 20)"
+    fi
+else
+    bad "systemd-analyze is installed (apt-get install systemd) for the unit's checks"
 fi
 
 # --- examples against the extracted root --------------------------------------------
@@ -461,10 +525,10 @@ if [ -x "$MBPOLL" ] && grep -q '^mbpoll:' <<<"$(dpkg -S "$MBPOLL" 2>/dev/null)";
                     # (registers 0-2 hold what rtu-client wrote)
                     mbpoll_run gateway-read 0 -m tcp -p "$gport" -a 17 -r 4 -c 3 -1 127.0.0.1
                     expect_values gateway-read 4:1003 5:1004 6:1005
-                    if grep -qF "$RL/libmodbus.so.5.1.0" "/proc/${_pids[pkg-gateway]}/maps"; then
-                        ok "the packaged rsmodbus-gateway maps the extracted libmodbus.so.5.1.0"
+                    if ! grep -qF "libmodbus.so" "/proc/${_pids[pkg-gateway]}/maps"; then
+                        ok "the packaged rsmodbus-gateway maps no libmodbus.so.5 (the library is linked in)"
                     else
-                        bad "the packaged rsmodbus-gateway maps the extracted library" \
+                        bad "the packaged rsmodbus-gateway maps no libmodbus.so.5" \
                             "$(grep libmodbus "/proc/${_pids[pkg-gateway]}/maps" | head -n 2)"
                     fi
                 else
