@@ -1,3 +1,6 @@
 //! rsmodbus-gateway: Modbus/TCP masters in front of Modbus lines, on rsmodbus' safe
 //! Rust API (`rsmodbus::api`). No `unsafe` here.
 #![forbid(unsafe_code)]
+
+pub mod core;
+pub mod log;
