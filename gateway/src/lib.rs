@@ -2,5 +2,6 @@
 //! Rust API (`rsmodbus::api`). No `unsafe` here.
 #![forbid(unsafe_code)]
 
+pub mod config;
 pub mod core;
 pub mod log;
