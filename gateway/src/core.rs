@@ -597,6 +597,34 @@ fn refuse<L: Log>(line: &mut Line, log: &mut L, now: Instant, master: Option<u64
     Verdict::Exception(exception::SLAVE_OR_SERVER_BUSY)
 }
 
+/// The rules of the running configuration.
+impl Rules for crate::config::Config {
+    fn route(&self, unit: u8) -> Option<(usize, u8)> {
+        crate::config::Config::route(self, unit)
+    }
+    fn authorized(&self, role: Option<&str>, unit: u8, function: u8) -> bool {
+        crate::config::Config::authorized(self, role, unit, function)
+    }
+    fn plain_reaches(&self, unit: u8) -> bool {
+        crate::config::Config::plain_reaches(self, unit)
+    }
+    fn allowed_udp(&self, ip: IpAddr) -> bool {
+        crate::config::Config::allowed_udp(self, ip)
+    }
+    fn retries(&self) -> u8 {
+        self.retries
+    }
+    fn pause(&self) -> Duration {
+        Duration::from_millis(u64::from(self.pause_ms))
+    }
+    fn reply_on_broadcast(&self) -> bool {
+        self.replyonbroadcast
+    }
+    fn udp_masters_max(&self) -> usize {
+        self.maxconn as usize
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -5,3 +5,6 @@
 pub mod config;
 pub mod core;
 pub mod log;
+pub mod privs;
+pub mod run;
+pub mod status;
