@@ -687,6 +687,11 @@ fn values(framing: Framing, deliver: Deliver, rsp: &[u8], count: i32) -> (i32, V
         }
         // The whole answer, as it came.
         Deliver::Raw { .. } => (rsp.len() as i32, rsp.to_vec()),
+        // Its PDU (without the checksum).
+        Deliver::Pdu => {
+            let pdu = &rsp[h..rsp.len() - framing.checksum_length()];
+            (pdu.len() as i32, pdu.to_vec())
+        }
         // The decoder reads the PDU (without the checksum).
         Deliver::Decode { .. } | Deliver::Stream { .. } => {
             (count, rsp[h..rsp.len() - framing.checksum_length()].to_vec())
@@ -719,7 +724,7 @@ fn answered(g: &mut Guard<'_>, o: &mut Outstanding, rsp: &[u8]) {
             return;
         }
     };
-    if let Deliver::Raw { .. } = e.payload.deliver {
+    if let Deliver::Raw { .. } | Deliver::Pdu = e.payload.deliver {
         return answered_raw(g, o, e, rsp);
     }
     let mut diag = g.diag();

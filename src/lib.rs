@@ -32,6 +32,7 @@ pub use rsmodbus_proto as proto;
 pub use rsmodbus_proto::error;
 use rsmodbus_proto::server_ext;
 
+pub mod api;
 pub mod context;
 pub mod engine;
 pub mod event;

@@ -37,6 +37,11 @@ pub enum Deliver {
     /// too), to a buffer of `MODBUS_MAX_ADU_LENGTH` bytes; the call returns its length
     /// (`modbus_send_raw_request_async`).
     Raw { dest: *mut u8 },
+    /// A raw request of the Rust API (`api::Modbus::send_raw`): the answer's PDU
+    /// (function code first, no header or checksum; exception answers too) stays in
+    /// [`Done::data`], for `api::Modbus::next_completion`; the call returns its
+    /// length.
+    Pdu,
     /// The answer's PDU handed to `decode` with the check's count and the call's
     /// arguments (the extensions' calls); it writes the values out and returns what
     /// the call returns.

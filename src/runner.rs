@@ -54,8 +54,21 @@ pub trait Answer {
     /// Answers `req`, the runner's request `id`, on the client's context `g`; the
     /// answer is queued on its line (a socket's) or sent (a serial line's). `None`:
     /// the answer comes later ([`Answers::give`] with `id`).
+    /// [`CLOSE_CONNECTION`] closes the client's connection (a socket's; on the
+    /// context's own line, nothing is answered).
     fn answer(&mut self, g: &mut Guard<'_>, req: &[u8], id: i32) -> Result<Option<usize>>;
+    /// A client's connection ended (it closed it, the idle timeout, an error,
+    /// [`CLOSE_CONNECTION`]): told from the run, after the event that closed it.
+    fn closed(&mut self, _connection_id: u64) {}
 }
+
+/// What [`Answer::answer`] returns to have the client's connection closed, with no
+/// answer (a connection lost).
+pub const CLOSE_CONNECTION: Error = Error(libc::ECONNABORTED);
+
+/// How long a listener rests after an accept failed (out of descriptors or memory)
+/// before it is asked again, unless a client's close brings it back first.
+pub const ACCEPT_RETRY: Duration = Duration::from_millis(100);
 
 /// An answer given later (`modbus_server_answer` and its typed siblings).
 pub enum Later {
@@ -299,6 +312,8 @@ enum Due {
     Wait,
     /// The idle timeout.
     Idle,
+    /// The listener comes back after an accept failed ([`ACCEPT_RETRY`]).
+    Retry,
 }
 
 /// (deadline, slot (u32::MAX: the context's own line), generation, what).
@@ -326,6 +341,12 @@ pub struct Runner {
     free: Vec<u32>,
     live: usize,
     max_clients: usize,
+    /// At the maximum, a new connection is accepted and closed at once (mbusd's
+    /// way), rather than left in the backlog.
+    close_when_full: bool,
+    /// The connection ids of the clients closed since the run last told the
+    /// answerer ([`Answer::closed`]).
+    closed: Vec<u64>,
     generation: u32,
     timers: BinaryHeap<Timer>,
     idle: Option<Duration>,
@@ -362,6 +383,8 @@ impl Runner {
             free: Vec::new(),
             live: 0,
             max_clients,
+            close_when_full: false,
+            closed: Vec::new(),
             generation: 0,
             timers: BinaryHeap::new(),
             idle: Some(Duration::from_secs(60)),
@@ -433,9 +456,24 @@ impl Runner {
         self.epfd
     }
 
+    /// The socket it listens on (or the UDP socket it serves), -1 for a serial line.
+    pub fn socket(&self) -> i32 {
+        match &self.own_line {
+            Some((fd, _)) if self.listen_fd < 0 => *fd,
+            _ => self.listen_fd,
+        }
+    }
+
     /// Clients connected now.
     pub fn clients(&self) -> usize {
         self.live
+    }
+
+    /// At the maximum of clients, accept a new connection and close it at once
+    /// (true), or leave it in the listening socket's backlog (false, the default).
+    pub fn set_close_when_full(&mut self, on: bool) {
+        self.close_when_full = on;
+        self.resume_listening();
     }
 
     /// `modbus_server_set_idle_timeout` (zero: none).
@@ -460,6 +498,7 @@ impl Runner {
         let mut events = [libc::epoll_event { events: 0, u64: 0 }; 256];
         let mut answered = 0;
         loop {
+            self.tell_closed(answer);
             if self.stopper.stopping.swap(false, Ordering::SeqCst) {
                 epoll::drain(self.stopper.wake);
                 return Ok(answered);
@@ -488,25 +527,53 @@ impl Runner {
             answered += self.fire_timers(server, answer);
             answered += self.send_later(server);
             if end.is_some_and(|e| transport::now() >= e) && !self.stopper.stopping.load(Ordering::SeqCst) {
+                self.tell_closed(answer);
                 return Ok(answered);
             }
         }
     }
 
-    /// Accepts the clients waiting, up to the maximum.
+    /// Tells the answerer of the clients closed since it was last told.
+    fn tell_closed(&mut self, answer: &mut dyn Answer) {
+        for id in std::mem::take(&mut self.closed) {
+            answer.closed(id);
+        }
+    }
+
+    /// Accepts the clients waiting, up to the maximum (beyond it, with
+    /// `close_when_full`, accepts and closes them).
     fn accept(&mut self, server: OnServer<'_>) {
-        while self.live < self.max_clients {
+        loop {
+            let full = self.live >= self.max_clients;
+            if full && !self.close_when_full {
+                break;
+            }
             let (fd, peer) = match listen::accept_now(self.listen_fd) {
                 Ok(Some(accepted)) => accepted,
                 Ok(None) => return,
                 Err(e) => {
-                    // Out of descriptors or memory: the listener rests until a client
-                    // leaves (a level-triggered listener would report at once again).
+                    // Out of descriptors or memory: the listener rests (a
+                    // level-triggered listener would report at once again) until a
+                    // client leaves or the retry timer comes, whichever is first:
+                    // descriptors freed elsewhere in the process (another runner's
+                    // clients) bring it back too.
                     let _ = server(&mut |g| session::error_print(g, e, Some("accept")));
                     self.pause_listening();
+                    self.timers.push(Reverse((transport::now() + ACCEPT_RETRY, OWN_SLOT, 0, Due::Retry)));
+                    self.rearm();
                     return;
                 }
             };
+            if full {
+                let live = self.live;
+                let _ = server(&mut |g| {
+                    if g.debug {
+                        g.diag().out(format_args!("Connection refused: {live} clients already\n"));
+                    }
+                });
+                transport::close(fd);
+                continue;
+            }
             let mut made = None;
             let _ = server(&mut |g| {
                 if g.debug {
@@ -563,7 +630,7 @@ impl Runner {
     }
 
     fn resume_listening(&mut self) {
-        if !self.listening && self.listen_fd >= 0 && self.live < self.max_clients {
+        if !self.listening && self.listen_fd >= 0 && (self.live < self.max_clients || self.close_when_full) {
             self.listening =
                 epoll::control(self.epfd, libc::EPOLL_CTL_ADD, self.listen_fd, libc::POLLIN, KEY_LINE).is_ok();
         }
@@ -713,6 +780,7 @@ impl Runner {
         }
         // What is still queued goes if the socket takes it at once.
         let _ = ctx.line.send_queued();
+        self.closed.push(ctx.connection.id);
         ctx.line.close();
         drop(c);
         self.free.push(slot);
@@ -729,6 +797,10 @@ impl Runner {
                 break;
             }
             self.timers.pop();
+            if due == Due::Retry {
+                self.resume_listening();
+                continue;
+            }
             if slot == OWN_SLOT {
                 if let Some((_, conn)) = self.own_line.as_mut() {
                     if conn.timer == Some(at) {
@@ -761,6 +833,8 @@ impl Runner {
                         self.close_client(slot);
                     }
                 }
+                // (Taken above.)
+                Due::Retry => {}
             }
         }
         self.rearm();

@@ -131,6 +131,23 @@ impl Error {
     }
 }
 
+/// `modbus_strerror`'s text: the library's own message for its codes, the system's
+/// for the others (without the "(os error N)" the standard library adds).
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match strerror_modbus(self.0) {
+            Some(s) => f.write_str(s),
+            None => {
+                let text = std::io::Error::from_raw_os_error(self.0).to_string();
+                let suffix = format!(" (os error {})", self.0);
+                f.write_str(text.strip_suffix(&suffix).unwrap_or(&text))
+            }
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
 impl fmt::Debug for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "Error({} = {:?})", self.0, strerror_modbus(self.0))

@@ -200,6 +200,39 @@ impl Peer {
         ((&self.addr as *const libc::sockaddr_storage).cast(), self.len)
     }
 
+    /// The local address of a socket (`getsockname`), `None` when it has none.
+    pub fn of_local(fd: i32) -> Option<Peer> {
+        // SAFETY: all-zero is a valid sockaddr_storage; the kernel writes at most `len`.
+        let mut addr: libc::sockaddr_storage = unsafe { zeroed() };
+        let mut len = size_of::<libc::sockaddr_storage>() as libc::socklen_t;
+        // SAFETY: `addr`/`len` describe a live buffer.
+        let rc = unsafe { libc::getsockname(fd, (&mut addr as *mut libc::sockaddr_storage).cast(), &mut len) };
+        (rc == 0 && len > 0).then_some(Peer { addr, len })
+    }
+
+    /// The address as the standard library holds it (`None`: neither IPv4 nor IPv6).
+    pub fn socket_addr(&self) -> Option<std::net::SocketAddr> {
+        use std::net::{Ipv4Addr, Ipv6Addr, SocketAddr, SocketAddrV4, SocketAddrV6};
+        match i32::from(self.addr.ss_family) {
+            libc::AF_INET if self.len as usize >= size_of::<libc::sockaddr_in>() => {
+                // SAFETY: the family says the storage holds a sockaddr_in, which it
+                // is large and aligned enough for; read by value.
+                let a: libc::sockaddr_in =
+                    unsafe { std::ptr::read((&self.addr as *const libc::sockaddr_storage).cast()) };
+                let ip = Ipv4Addr::from(u32::from_be(a.sin_addr.s_addr));
+                Some(SocketAddr::V4(SocketAddrV4::new(ip, u16::from_be(a.sin_port))))
+            }
+            libc::AF_INET6 if self.len as usize >= size_of::<libc::sockaddr_in6>() => {
+                // SAFETY: as above, a sockaddr_in6.
+                let a: libc::sockaddr_in6 =
+                    unsafe { std::ptr::read((&self.addr as *const libc::sockaddr_storage).cast()) };
+                let ip = Ipv6Addr::from(a.sin6_addr.s6_addr);
+                Some(SocketAddr::V6(SocketAddrV6::new(ip, u16::from_be(a.sin6_port), a.sin6_flowinfo, a.sin6_scope_id)))
+            }
+            _ => None,
+        }
+    }
+
     /// The address's bytes (a key: the same sender gives the same bytes).
     pub fn bytes(&self) -> &[u8] {
         let len = (self.len as usize).min(size_of::<libc::sockaddr_storage>());
