@@ -56,6 +56,10 @@ if [ -x "$GATEWAY_BIN" ] && "${GW[@]}" -h >"$WORK/gateway-h.log" 2>&1; then
 else
     bad "the gateway under test: $GATEWAY_BIN runs (-h exits 0)" "$(head -n 3 "$WORK/gateway-h.log" 2>&1)"
 fi
+# Since issue 40 the policy keys are needed where a plain front reaches a role's units
+# (allow_plain) and beside udp_port (udp_allow); a gateway of before does not know them.
+NEW_KEYS=0
+! grep -q allow_plain "$WORK/gateway-h.log" || NEW_KEYS=1
 MBUSD=
 MBUSD_SRC=$(realpath -m "$ROOT/../shared/anchors/mbusd")
 if [ -f "$MBUSD_SRC/CMakeLists.txt" ]; then
@@ -292,6 +296,7 @@ tls_ca = $C/ca.pem
 tls_role.Operator = rw 1-3
 tls_role.Reader = r 1-247
 EOF
+    [ "$NEW_KEYS" = 0 ] || echo "allow_plain = yes" >>"$WORK/tls.conf"
     start tls-gw "${GW[@]}" -d -v 3 -c "$WORK/tls.conf"
     sleep 0.5
     rc=0
@@ -356,6 +361,7 @@ if line fronts; then
     RTUTCP_PORT=$(free_port)
     UDP_PORT=$(free_port)
     printf 'rtutcp_port = %s\nudp_port = %s\n' "$RTUTCP_PORT" "$UDP_PORT" >"$WORK/fronts.conf"
+    [ "$NEW_KEYS" = 0 ] || echo "udp_allow = 127.0.0.1/32" >>"$WORK/fronts.conf"
     start fronts-gw "${GW[@]}" -c "$WORK/fronts.conf" -d -L - \
         -p "$WORK/fronts-G" -s 115200 -P "$PORT" -R 1 -W 300 -N 1
     sleep 0.5
@@ -701,6 +707,15 @@ line fx && FX_SOCAT=$SOCAT
 fake_line fy && FY_SOCAT=$SOCAT
 FY_LOG=$WORK/fy-device.log
 FYARGS=(-d -L - -v 2 -p "$WORK/fy-G" -s 115200 -R 1 -W 300 -N 0)
+
+# The new keys in -h and the manual page's CONFIGURATION FILE.
+missing=
+for k in user plain_units allow_plain udp_allow; do
+    re="(^|[^a-z_.])$k([^a-z_]|\$)"
+    grep -qE -- "$re" <<<"$keys_help" && grep -qE -- "$re" <<<"$keys_page" || missing+=" $k"
+done
+result "findings 4, 9, 10: -h and rsmodbus-gateway(8) list user, plain_units, allow_plain, udp_allow${missing:+ (missing:$missing)}" \
+    "$([ -z "$missing" ] && echo PASS || echo FAIL)"
 
 # --- 1. An 8th line.* entry wrote past lines[] (C: SIGSEGV at start). Limit: 64.
 fx_conf "$F/f1.conf" "backend = tcp 127.0.0.1 $DEAD_PORT"
