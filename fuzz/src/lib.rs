@@ -14,6 +14,7 @@
 //! | `ffi_async`  | the event-driven client: requests pipelined, answers in chunks       |
 //! | `server_ascii`, `client_ascii` | the same paths with Modbus ASCII: characters -> `ascii::Decoder` -> LRC -> ... |
 //! | `security`   | Modbus/TCP Security: TLS record boundaries of a server's reads, the role of a certificate, what a request asks the authorization callback |
+//! | `gateway_config` | the gateway's configuration file and command line -> `rsmodbus_gateway::config::load` (`gateway_config.rs`) |
 //!
 //! The FFI targets choose TCP, RTU or ASCII contexts from their first byte.
 //!
@@ -31,8 +32,10 @@ use modbus::proto::request::Request;
 use modbus::proto::{Diag, ascii};
 
 pub mod ffi;
+mod gateway_config;
 
 pub use ffi::{authorization, ffi_async, ffi_client, ffi_server};
+pub use gateway_config::gateway_config;
 
 /// A debug sink that really formats every message (so formatting code runs too) and
 /// keeps memory bounded.
@@ -916,7 +919,7 @@ pub fn security(data: &[u8]) {
 pub type Target = fn(&[u8]);
 
 /// Every target by name, for the replay tool.
-pub const TARGETS: [(&str, Target); 11] = [
+pub const TARGETS: [(&str, Target); 12] = [
     ("server_rtu", server_rtu),
     ("server_tcp", server_tcp),
     ("server_ascii", server_ascii),
@@ -928,6 +931,7 @@ pub const TARGETS: [(&str, Target); 11] = [
     ("ffi_async", ffi_async),
     ("security", security),
     ("authorization", authorization),
+    ("gateway_config", gateway_config),
 ];
 
 pub fn target(name: &str) -> Option<Target> {

@@ -130,6 +130,16 @@ fn mbusds_example_and_ours_load() {
     let c = ok(example);
     assert_eq!(c.device, PathBuf::from("/dev/ttyUSB0"));
     assert_eq!(c.config_path, Some(PathBuf::from("gw.conf")));
+    // Its TLS part uncommented: plain_units keeps the plain front off the roles' units.
+    let tls: String = example
+        .lines()
+        .map(|l| l.strip_prefix('#').filter(|l| !l.starts_with([' ', '#'])).unwrap_or(l))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let c = ok(&tls);
+    assert_eq!((c.roles.len(), c.port, c.plain_units.to_string()), (2, 502, "248-255".to_string()));
+    assert!(c.tls.is_some());
+    assert!(err(&tls.replace("plain_units = 248-255", "")).contains("reaches units that tls_role.* protects"));
 }
 
 #[test]
@@ -662,4 +672,44 @@ fn read_file_names_the_file() {
     std::fs::write(&f, "port = 1\n").unwrap();
     assert_eq!(read_file(&f).unwrap(), "port = 1\n");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_fuzz_seeds_load_or_fail_as_meant() {
+    let seed = |name: &str| {
+        std::fs::read_to_string(format!("{}/../fuzz/corpus/gateway_config/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
+    };
+    for name in ["example.conf", "mbusd-keys.conf", "lines-and-routes.conf"] {
+        ok(&seed(name));
+    }
+    let every = seed("every-key.conf");
+    let args: Vec<String> = every.lines().next().unwrap()[2..].split_whitespace().map(String::from).collect();
+    let c = load(&parse_args(&args).unwrap(), Some((Path::new("gw.conf"), &every))).unwrap();
+    assert_eq!((c.loglevel, c.retries, c.port, c.roles.len()), (5, 1, 0, 3));
+    assert!(err(&seed("tls-refused.conf")).contains("tls_role.Op: the Modbus/TCP front (port 502)"));
+    assert!(err(&seed("errors.conf")).contains("gw.conf:2: line.a: line 'a' is defined already at line 1"));
+}
+
+/// The man page: its CONFIGURATION FILE section names every key, and its EXAMPLE
+/// (TLS with roles) loads: it is safe.
+#[test]
+fn the_man_page_documents_every_key_and_its_example_loads() {
+    let page = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../man/src/rsmodbus-gateway.md")).unwrap();
+    let section = &page[page.find("## CONFIGURATION FILE").unwrap()..page.find("## SIGNALS").unwrap()];
+    let section = section.replace('`', "");
+    for k in KEYS.iter().copied().chain(["tls_role.", "line.", "route"]) {
+        // As the test suite looks for it: not inside a longer word.
+        let found = section.match_indices(k).any(|(i, _)| {
+            let before =
+                section[..i].chars().next_back().is_none_or(|c| !(c.is_ascii_lowercase() || c == '_' || c == '.'));
+            let after = section[i + k.len()..].chars().next().is_none_or(|c| !(c.is_ascii_lowercase() || c == '_'));
+            before && after
+        });
+        assert!(found, "{k} is not in the man page's CONFIGURATION FILE");
+    }
+    let example = &page[page.find("## EXAMPLE").unwrap()..];
+    let example = &example[example.find("```\n").unwrap() + 4..];
+    let example = &example[..example.find("```").unwrap()];
+    let c = ok(example);
+    assert!(c.tls.is_some() && !c.roles.is_empty() && !c.allow_plain);
 }

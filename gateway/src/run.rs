@@ -547,7 +547,10 @@ impl Gateway {
     fn service_line(&mut self, i: usize, woken: bool) {
         let l = &mut self.lines[i];
         let Some(ctx) = l.ctx.as_mut() else { return };
-        if woken || ctx.pending() > 0 {
+        // Only when its wake descriptor says so: the library takes the call as
+        // "the line may be readable", and a serial line read with nothing there
+        // reads as the end of the line (ECONNRESET).
+        if woken {
             if let Err(e) = ctx.process() {
                 let name = self.core.lines()[i].name().to_owned();
                 logf!(&mut self.core.log, 1, "line {name}: {e}");
@@ -592,11 +595,8 @@ impl Gateway {
         let Some(raw) = self.core.next_send(i, now) else { return };
         l.connected_at_send = l.net.is_none() || ctx.is_connected();
         match ctx.send_raw(raw) {
-            Ok(id) => {
-                l.in_flight = Some(id);
-                // What can go out now does.
-                let _ = ctx.process();
-            }
+            // It goes out at the next process (the request woke the descriptor).
+            Ok(id) => l.in_flight = Some(id),
             Err(e) => {
                 if let Some((dest, answer)) = self.core.completed(i, Err((Failure::NotSent, &e)), now) {
                     answer_to(&self.fronts, dest, answer);
