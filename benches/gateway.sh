@@ -32,7 +32,6 @@ OUT=$ROOT/target/bench-gateway
 mkdir -p "$OUT"
 rm -f "$OUT"/*.log
 cargo build --release -q
-GATEWAY=${GATEWAY_BIN:-$ROOT/target/release/rsmodbus-gateway}
 ln -sf libmodbus.so target/release/libmodbus.so.5
 make -s -C c-tests gateway >/dev/null
 BIN=$(make -s -C c-tests print-CTEST_BUILD 2>/dev/null || true)
@@ -41,6 +40,8 @@ CFLAGS=(-std=gnu11 -O2 -Wall -Wextra -Werror)
 gcc "${CFLAGS[@]}" benches/line-pace.c -o "$OUT/line-pace"
 gcc "${CFLAGS[@]}" -I/usr/include/modbus benches/bench-client.c c-tests/common/libinfo.c -o "$OUT/bench-client" \
     -lmodbus -ldl
+# The gateway under test (GATEWAY_BIN=... for another build, e.g. the C one).
+GATEWAY_BIN=${GATEWAY_BIN:-$ROOT/target/release/rsmodbus-gateway}
 MBUSD=
 if [ -f ../shared/anchors/mbusd/CMakeLists.txt ]; then
     command -v cmake >/dev/null || apt-get install -y -qq cmake >/dev/null
@@ -84,7 +85,7 @@ setup() {
     wait_for "$OUT/device-$which.log" READY
     PORT=$(free_port)
     if [ "$which" = ours ]; then
-        bg "$OUT/gw-$which.log" "$GATEWAY" -d -L - -v 1 \
+        bg "$OUT/gw-$which.log" env LD_LIBRARY_PATH="$ROOT/target/release" "$GATEWAY_BIN" -d -L - -v 1 \
             -p "$OUT/G" -s 115200 -P "$PORT" -R 1 -W 300 -N 1 "$@"
     else
         bg "$OUT/gw-$which.log" "$MBUSD" -d -L - -v 1 -p "$OUT/G" -s 115200 -P "$PORT" -R 1 -W 300 -N 1 "$@"
@@ -172,7 +173,7 @@ DIRECT=$(printf '%s\n' "${direct_rates[@]}" | median)
 C=$OUT/certs
 c-tests/tls/make-certs.sh "$C" >/dev/null 2>&1
 TLS_PORT=$(free_port)
-printf 'tls_port = %s\ntls_cert = %s\ntls_key = %s\ntls_ca = %s\ntls_role.Operator = rw 1-247\n' \
+printf 'tls_port = %s\ntls_cert = %s\ntls_key = %s\ntls_ca = %s\ntls_role.Operator = rw 1-247\nallow_plain = yes\n' \
     "$TLS_PORT" "$C/server.pem" "$C/server.key" "$C/ca.pem" >"$OUT/tls.conf"
 setup ours paced -R 0 -c "$OUT/tls.conf"
 tls_rates=() plain_rates=()

@@ -30,7 +30,7 @@ cd "$(dirname "$0")/.."
 ROOT=$PWD
 FUZZ=$ROOT/fuzz
 TRIPLE=$(rustc -vV | sed -n 's/^host: //p')
-TARGETS=(server_rtu server_tcp server_ascii client_rtu client_tcp client_ascii ffi_server ffi_client ffi_async security authorization gateway_config)
+TARGETS=(server_rtu server_tcp server_ascii client_rtu client_tcp client_ascii ffi_server ffi_client ffi_async security authorization gateway_config gateway_master)
 SANCOV="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
 -Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
 -Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing"

@@ -7,6 +7,8 @@
 #   unit 6: with a wrong CRC, every time
 #   unit 8: with garbage (bytes that are no frame)
 #   any other unit: not at all
+# and FC 0x64 (user-defined) of unit 1 with the PDU 64 followed by 250 bytes (byte i:
+# 7 * i + 3, modulo 256; no shorter prefix of the frame has a right CRC).
 # Prints READY, then one line per request it saw; counts on SIGTERM.
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -37,6 +39,9 @@ def main():
         seen["requests"] += 1
         unit, fc = req[0], req[1]
         print("unit %d fc %d" % (unit, fc), flush=True)
+        if fc == 0x64 and unit == 1:
+            os.write(fd, frame(bytes([1, 0x64]) + bytes((i * 7 + 3) & 0xFF for i in range(250))))
+            continue
         if fc != 3 or unit not in (1, 6, 8):
             continue
         addr = (req[2] << 8) | req[3]

@@ -15,6 +15,7 @@
 //! | `server_ascii`, `client_ascii` | the same paths with Modbus ASCII: characters -> `ascii::Decoder` -> LRC -> ... |
 //! | `security`   | Modbus/TCP Security: TLS record boundaries of a server's reads, the role of a certificate, what a request asks the authorization callback |
 //! | `gateway_config` | the gateway's configuration file and command line -> `rsmodbus_gateway::config::load` (`gateway_config.rs`) |
+//! | `gateway_master` | masters' Modbus/TCP bytes -> the gateway's core (`rsmodbus_gateway::core`) -> two simulated lines (`gateway_master.rs`) |
 //!
 //! The FFI targets choose TCP, RTU or ASCII contexts from their first byte.
 //!
@@ -33,9 +34,11 @@ use modbus::proto::{Diag, ascii};
 
 pub mod ffi;
 mod gateway_config;
+mod gateway_master;
 
 pub use ffi::{authorization, ffi_async, ffi_client, ffi_server};
 pub use gateway_config::gateway_config;
+pub use gateway_master::gateway_master;
 
 /// A debug sink that really formats every message (so formatting code runs too) and
 /// keeps memory bounded.
@@ -919,7 +922,7 @@ pub fn security(data: &[u8]) {
 pub type Target = fn(&[u8]);
 
 /// Every target by name, for the replay tool.
-pub const TARGETS: [(&str, Target); 12] = [
+pub const TARGETS: [(&str, Target); 13] = [
     ("server_rtu", server_rtu),
     ("server_tcp", server_tcp),
     ("server_ascii", server_ascii),
@@ -932,6 +935,7 @@ pub const TARGETS: [(&str, Target); 12] = [
     ("security", security),
     ("authorization", authorization),
     ("gateway_config", gateway_config),
+    ("gateway_master", gateway_master),
 ];
 
 pub fn target(name: &str) -> Option<Target> {

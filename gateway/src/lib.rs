@@ -3,3 +3,8 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod core;
+pub mod log;
+pub mod privs;
+pub mod run;
+pub mod status;

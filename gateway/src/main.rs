@@ -1,6 +1,7 @@
+//! rsmodbus-gateway(8): see `rsmodbus_gateway::run`.
 #![forbid(unsafe_code)]
 
 fn main() {
-    eprintln!("rsmodbus-gateway: under construction (issue 40)");
-    std::process::exit(1);
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    std::process::exit(rsmodbus_gateway::run::main(&args));
 }
