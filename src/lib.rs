@@ -10,6 +10,8 @@
 //! - [`handle`]: a handle's lifetime (make, call, wait unlocked, callbacks unlocked,
 //!   close, free), with its lock ([`lock`], whose word names its owner) and what
 //!   stopping a waiting call needs without it (`stop`, crate-private).
+//! - [`api`]: the safe Rust API (a context, the event-driven client's raw requests,
+//!   a server that runs itself with a handler), which [`ffi`] wraps.
 //! - [`ffi`]: the exported C ABI, thin shims that check arguments and map errors to
 //!   `-1`/`NULL` plus `errno` in one place.
 //!

@@ -1,9 +1,12 @@
 //! The Rust API's event-driven client (`api::Modbus::send_raw`, `poll_fd`,
 //! `process`, `next_completion`) against an `api::Server` on loopback.
 
-use std::time::{Duration, Instant};
+mod common;
+use common::wait_completion;
 
-use modbus::api::{Completion, Error, Handler, Modbus, PollFd, Reply, RequestInfo, Server, poll};
+use std::time::Duration;
+
+use modbus::api::{Completion, Error, Handler, Modbus, Reply, RequestInfo, Server};
 
 /// Answers a read of holding registers (03) with its addresses as values; an
 /// exception 02 for anything else.
@@ -37,22 +40,6 @@ fn serve(h: impl Handler + Send + 'static) -> u16 {
     port
 }
 
-/// Polls and processes `m` until a completion comes (5 s at most).
-fn wait_completion(m: &mut Modbus) -> Completion {
-    let end = Instant::now() + Duration::from_secs(5);
-    loop {
-        if let Some(c) = m.next_completion() {
-            return c;
-        }
-        assert!(Instant::now() < end, "no completion");
-        let (fd, until) = m.poll_fd().unwrap();
-        let mut fds = [PollFd { fd, events: libc::POLLIN, revents: 0 }];
-        let wait = until.unwrap_or(Duration::from_millis(100)).min(Duration::from_millis(100));
-        poll(&mut fds, Some(wait)).unwrap();
-        m.process().unwrap();
-    }
-}
-
 #[test]
 fn raw_requests_complete_with_their_answers_pdu() {
     let port = serve(Registers);
@@ -62,12 +49,12 @@ fn raw_requests_complete_with_their_answers_pdu() {
     assert_eq!(m.checksum_length(), 0);
     let id = m.send_raw(&[1, 0x03, 0x00, 0x10, 0x00, 0x02]).unwrap();
     assert_eq!(m.pending(), 1);
-    let c = wait_completion(&mut m);
+    let c = wait_completion(&mut m, || {});
     assert_eq!(c, Completion { id, result: Ok(vec![0x03, 4, 0x00, 0x10, 0x00, 0x11]) });
     assert_eq!(m.pending(), 0);
     // An exception answer is an answer: its PDU.
     let id = m.send_raw(&[1, 0x2B, 0x0E, 0x01, 0x00]).unwrap();
-    assert_eq!(wait_completion(&mut m), Completion { id, result: Ok(vec![0xAB, 0x02]) });
+    assert_eq!(wait_completion(&mut m, || {}), Completion { id, result: Ok(vec![0xAB, 0x02]) });
     assert!(m.is_connected());
     assert_eq!(m.send_raw(&[1]), Err(Error::INVALID));
 }
@@ -80,8 +67,29 @@ fn a_request_nobody_answers_times_out() {
     let mut m = Modbus::new_tcp(Some("127.0.0.1"), &port.to_string()).unwrap();
     m.set_response_timeout(Duration::from_millis(200)).unwrap();
     let id = m.send_raw(&[1, 0x03, 0x00, 0x00, 0x00, 0x01]).unwrap();
-    let c = wait_completion(&mut m);
+    let c = wait_completion(&mut m, || {});
     assert_eq!(c, Completion { id, result: Err(Error::TIMED_OUT) });
     assert_eq!(Error::TIMED_OUT.to_string(), "Connection timed out");
     assert_eq!(Error::BAD_CRC.to_string(), "Invalid CRC");
+}
+
+#[test]
+fn contexts_and_servers_move_between_threads() {
+    fn send<T: Send>() {}
+    send::<Modbus>();
+    send::<Server>();
+}
+
+#[test]
+fn pipelined_raw_requests_complete_each_with_its_answer() {
+    let port = serve(Registers);
+    let mut m = Modbus::new_tcp(Some("127.0.0.1"), &port.to_string()).unwrap();
+    m.set_max_in_flight(4).unwrap();
+    let ids: Vec<i32> = (0..4u8).map(|i| m.send_raw(&[1, 0x03, 0x00, i, 0x00, 0x01]).unwrap()).collect();
+    assert_eq!(m.pending(), 4);
+    for (i, id) in ids.into_iter().enumerate() {
+        let c = wait_completion(&mut m, || {});
+        assert_eq!(c, Completion { id, result: Ok(vec![0x03, 2, 0x00, i as u8]) });
+    }
+    assert_eq!(m.set_max_in_flight(0), Err(Error::INVALID));
 }

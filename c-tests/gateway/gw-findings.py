@@ -356,7 +356,7 @@ def longfc(port):
 def queue(port, unit, n):
     s = connect(port)
     s.sendall(b"".join(mbap(i + 1, unit, struct.pack(">BHH", 6, 100 + i, i)) for i in range(n)))
-    time.sleep(0.3)
+    time.sleep(0.05)
     s.close()
     note("%d writes for unit %d sent, the master left" % (n, unit))
 

@@ -114,7 +114,6 @@ impl Modbus {
     }
 
     /// The handle, for C (`modbus_new_*`); [`Modbus::from_raw`] takes it back.
-    #[allow(dead_code)]
     pub(crate) fn into_raw(self) -> *mut Handle<Context> {
         let ptr = self.handle.as_ptr();
         std::mem::forget(self);
@@ -126,15 +125,16 @@ impl Modbus {
     /// # Safety
     /// `ptr` was returned by [`Modbus::into_raw`], is live, and is not used through
     /// the C API afterwards (it belongs to the value returned).
-    #[allow(dead_code)]
     pub(crate) unsafe fn from_raw(ptr: *mut Handle<Context>) -> Option<Modbus> {
         NonNull::new(ptr).map(|handle| Modbus { handle })
     }
 
-    /// The raw handle (it stays this value's).
-    #[allow(dead_code)]
-    pub(crate) fn as_ptr(&self) -> *mut Handle<Context> {
-        self.handle.as_ptr()
+    /// Frees the context without closing its line first (`modbus_free`, as
+    /// libmodbus: unless a call is inside it, see `handle::free`).
+    pub(crate) fn free(self) {
+        let ptr = self.into_raw();
+        // SAFETY: the handle was this value's, live, and is not used after the free.
+        unsafe { handle::free(ptr) }
     }
 
     /// Runs `f` on the locked context, as a C call does (`handle::call`).
@@ -353,11 +353,8 @@ impl Modbus {
     /// ([`Modbus::next_completion`]) with this id. EINVAL: `raw` not 2 to 254
     /// bytes; EAGAIN: the queue is full.
     pub fn send_raw(&mut self, raw: &[u8]) -> Result<i32> {
-        if !(2..=crate::proto::limits::MAX_PDU_LENGTH + 1).contains(&raw.len()) {
-            return Err(Error::INVALID);
-        }
         let payload = Payload { callback: None, user_data: std::ptr::null_mut(), deliver: Deliver::Pdu };
-        self.call(|g| event::submit(g, &Request::Raw { unit: raw[0], pdu: &raw[1..] }, payload))
+        self.call(|g| submit_raw(g, raw, payload))
     }
 
     /// What to wait for (`modbus_get_pollfd`): the context's wake descriptor
@@ -373,12 +370,25 @@ impl Modbus {
     /// (`modbus_process`); the completed requests wait for
     /// [`Modbus::next_completion`].
     pub fn process(&mut self) -> Result<()> {
+        self.process_events(libc::POLLIN)
+    }
+
+    /// [`Modbus::process`] given what the wait reported of the wake descriptor
+    /// (`revents`; 0, a wait that timed out, saves asking it what is ready).
+    pub fn process_events(&mut self, revents: i16) -> Result<()> {
         self.call(|g| {
-            event::process(g, libc::POLLIN, true)?;
+            event::process(g, revents, true)?;
             event::closed(g);
             event::watch(g);
             Ok(())
         })
+    }
+
+    /// How many requests may be on the wire at once on a TCP context (pipelining,
+    /// `modbus_set_max_in_flight`): 1 to 256, default 1; a serial line has one.
+    pub fn set_max_in_flight(&mut self, n: usize) -> Result<()> {
+        let n = i32::try_from(n).map_err(|_| Error::INVALID)?;
+        self.call(|g| event::set_max_in_flight(g, n))
     }
 
     /// The requests given and not completed (`modbus_pending`).
@@ -395,6 +405,22 @@ impl Modbus {
         };
         Some(Completion { id: done.id, result })
     }
+}
+
+/// Whether a raw request (the unit, then the PDU) of `len` bytes may be sent: 2 to
+/// 254.
+pub(crate) fn raw_length_ok(len: usize) -> bool {
+    (2..=crate::proto::limits::MAX_PDU_LENGTH + 1).contains(&len)
+}
+
+/// Queues the raw request `raw` (the unit, then the PDU) on the event-driven
+/// client of `g`, its answer to go as `payload` says (`send_raw`, and
+/// `modbus_send_raw_request_async`): the request's id. EINVAL: not 2 to 254 bytes.
+pub(crate) fn submit_raw(g: &mut Guard<'_>, raw: &[u8], payload: Payload) -> Result<i32> {
+    if !raw_length_ok(raw.len()) {
+        return Err(Error::INVALID);
+    }
+    event::submit(g, &Request::Raw { unit: raw[0], pdu: &raw[1..] }, payload)
 }
 
 impl Drop for Modbus {

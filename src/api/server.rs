@@ -6,12 +6,14 @@
 use std::ffi::CString;
 use std::net::SocketAddr;
 use std::os::fd::RawFd;
+use std::ptr::NonNull;
 use std::sync::Arc;
 use std::time::Duration;
 
 use super::{Error, Later, Modbus, Result};
 use crate::context::Context;
 use crate::engine::Guard;
+use crate::handle::{self, Handle};
 use crate::proto::error::exception;
 use crate::proto::frame::Framing;
 use crate::proto::reply::{Data, Refusal, Request};
@@ -75,7 +77,29 @@ pub struct Server {
     runner: Runner,
     stopper: Arc<Stopper>,
     answers: Arc<Answers>,
-    ctx: Modbus,
+    ctx: Served,
+}
+
+/// The context a server serves: its own (the Rust API's), or the C application's,
+/// which outlives the server (`modbus_server_new`'s contract).
+enum Served {
+    Owned(Modbus),
+    Lent(NonNull<Handle<Context>>),
+}
+
+// SAFETY: a context behind its own lock (`handle::call` serialises every use); a
+// lent one is the C application's, which may hand its server to another thread.
+unsafe impl Send for Served {}
+
+impl Served {
+    fn call<R>(&self, f: impl FnOnce(&mut Guard<'_>) -> Result<R>) -> Result<R> {
+        match self {
+            Served::Owned(m) => m.call(f),
+            // SAFETY: the C application's context outlives its server (the
+            // contract of `Server::over_handle`).
+            Served::Lent(ptr) => unsafe { handle::call(ptr.as_ptr(), f) },
+        }
+    }
 }
 
 impl Server {
@@ -86,8 +110,41 @@ impl Server {
         if max_clients < 1 {
             return Err(Error::INVALID);
         }
+        Server::over(Served::Owned(ctx), max_clients)
+    }
+
+    fn over(ctx: Served, max_clients: usize) -> Result<Server> {
         let runner = ctx.call(|g| Runner::new(g, max_clients))?;
         Ok(Server { stopper: runner.stopper(), answers: runner.answers(), runner, ctx })
+    }
+
+    /// A server over the C application's context `ptr` (`modbus_server_new`);
+    /// EINVAL: NULL, or `max_clients` 0.
+    ///
+    /// # Safety
+    /// `ptr` is NULL or a live context that outlives the server.
+    pub(crate) unsafe fn over_handle(ptr: *mut Handle<Context>, max_clients: usize) -> Result<Server> {
+        let ptr = NonNull::new(ptr).ok_or(Error::INVALID)?;
+        if max_clients < 1 {
+            return Err(Error::INVALID);
+        }
+        Server::over(Served::Lent(ptr), max_clients)
+    }
+
+    /// The idle timeout as C gives it (zero: none).
+    pub(crate) fn set_idle(&mut self, t: crate::proto::session::Timeout) {
+        self.runner.set_idle_timeout(t);
+    }
+
+    /// The stop, reachable without the server (`modbus_server_stop`).
+    pub(crate) fn stopper(&self) -> Arc<Stopper> {
+        Arc::clone(&self.stopper)
+    }
+
+    /// The answers given later, reachable without the server
+    /// (`modbus_server_answer`).
+    pub(crate) fn answers(&self) -> Arc<Answers> {
+        Arc::clone(&self.answers)
     }
 
     /// A client from which no whole request came for this long is closed (`None`:
@@ -100,7 +157,7 @@ impl Server {
             Context::checked_timeout(sec, usec)
         });
         if let Ok(t) = t {
-            self.runner.set_idle_timeout(t);
+            self.set_idle(t);
         }
     }
 
@@ -133,6 +190,12 @@ impl Server {
     /// (`None`: until [`Server::stop`]; zero: what is ready now). Returns the
     /// requests answered.
     pub fn run(&mut self, timeout: Option<Duration>, h: &mut dyn Handler) -> Result<usize> {
+        self.run_answering(timeout, &mut Adapter { h, arrived: None })
+    }
+
+    /// [`Server::run`] with the runner's own answerer (the C layer's callbacks or
+    /// mapping).
+    pub(crate) fn run_answering(&mut self, timeout: Option<Duration>, answer: &mut dyn Answer) -> Result<usize> {
         let ctx = &self.ctx;
         let on_server = |f: &mut dyn FnMut(&mut Guard<'_>)| {
             ctx.call(|g| {
@@ -140,8 +203,7 @@ impl Server {
                 Ok(())
             })
         };
-        let mut adapter = Adapter { h, arrived: None };
-        self.runner.run(timeout, &on_server, &mut adapter)
+        self.runner.run(timeout, &on_server, answer)
     }
 
     /// The answer to request `id` of a [`Reply::Later`] (`modbus_server_answer`):
@@ -154,11 +216,6 @@ impl Server {
     /// Ends the run under way (or the next) once the request being answered is.
     pub fn stop(&self) {
         self.stopper.stop();
-    }
-
-    /// The context served.
-    pub fn context(&self) -> &Modbus {
-        &self.ctx
     }
 }
 

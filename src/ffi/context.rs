@@ -21,7 +21,9 @@ pub unsafe extern "C" fn modbus_free(ctx: *mut Modbus) {
     // what the event-driven client has pending completes (EIDRM) first.
     unsafe {
         crate::ffi::event::cancel_pending(ctx);
-        handle::free(ctx)
+        if let Some(m) = crate::api::Modbus::from_raw(ctx) {
+            m.free();
+        }
     }
 }
 

@@ -440,16 +440,15 @@ pub unsafe extern "C" fn modbus_send_raw_request_async(
     cb: Callback,
     user_data: *mut c_void,
 ) -> c_int {
-    let max = crate::proto::limits::MAX_PDU_LENGTH as c_int + 1;
-    if raw_req.is_null() || rsp.is_null() || !(2..=max).contains(&raw_req_length) {
+    let length_ok = usize::try_from(raw_req_length).is_ok_and(crate::api::raw_length_ok);
+    if raw_req.is_null() || rsp.is_null() || !length_ok {
         return fail(Error::INVALID);
     }
     // SAFETY: the caller's request, `raw_req_length` bytes (copied by the queue).
     let raw = unsafe { slice::from_raw_parts(raw_req, raw_req_length as usize) };
+    let c = completion(cb, user_data, Deliver::Raw { dest: rsp });
     // SAFETY: forwarded caller contract.
-    unsafe {
-        submit(ctx, cb, user_data, Deliver::Raw { dest: rsp }, |_| Ok(Request::Raw { unit: raw[0], pdu: &raw[1..] }))
-    }
+    unsafe { with_ctx(ctx, |g| crate::api::submit_raw(g, raw, c)) }
 }
 
 /// What to wait for: `pfd->fd` is the context's wake descriptor (an epoll set made

@@ -65,10 +65,11 @@ impl Closable for Context {
     }
 }
 
-/// Boxes a new context for C; NULL with errno on failure.
+/// A new context for C: the Rust API's (`api::Modbus`), its handle handed out (taken
+/// back by `modbus_free`); NULL with errno on failure.
 pub fn into_handle(ctx: Result<Context>) -> *mut Modbus {
-    match ctx {
-        Ok(ctx) => Handle::new(ctx),
+    match crate::api::Modbus::from_context(ctx) {
+        Ok(m) => m.into_raw(),
         Err(e) => {
             fail(e);
             std::ptr::null_mut()

@@ -17,9 +17,8 @@ use crate::context::Context;
 use crate::engine::Guard;
 use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail};
-use crate::handle;
 use crate::proto::reply::MappingData;
-use crate::runner::{Answer, Answers, Later, Runner, Stopper};
+use crate::runner::{Answer, Answers, Later, Stopper};
 
 /// What the requests are answered from.
 enum Source {
@@ -81,8 +80,7 @@ pub struct ServerRunner {
 }
 
 struct Inner {
-    runner: Runner,
-    ctx: *mut Modbus,
+    server: crate::api::Server,
     source: Source,
 }
 
@@ -121,19 +119,16 @@ unsafe fn inner<'a>(s: *mut ServerRunner) -> Result<&'a mut Inner> {
 /// `ctx` must be NULL or a live context.
 #[unsafe(no_mangle)]
 pub unsafe extern "C" fn modbus_server_new(ctx: *mut Modbus, max_clients: c_int) -> *mut ServerRunner {
-    if ctx.is_null() || max_clients < 1 {
-        fail(Error::INVALID);
-        return ptr::null_mut();
-    }
-    // SAFETY: forwarded caller contract.
-    let made = unsafe { handle::call(ctx, |g| Runner::new(g, max_clients as usize)) };
+    let max_clients = usize::try_from(max_clients).unwrap_or(0);
+    // SAFETY: forwarded caller contract (the context outlives the server).
+    let made = unsafe { crate::api::Server::over_handle(ctx, max_clients) };
     match made {
-        Ok(runner) => Box::into_raw(Box::new(ServerRunner {
-            stopper: runner.stopper(),
-            answers: runner.answers(),
+        Ok(server) => Box::into_raw(Box::new(ServerRunner {
+            stopper: server.stopper(),
+            answers: server.answers(),
             running: AtomicBool::new(false),
             doomed: AtomicBool::new(false),
-            inner: UnsafeCell::new(Inner { runner, ctx, source: Source::Nothing }),
+            inner: UnsafeCell::new(Inner { server, source: Source::Nothing }),
         })),
         Err(e) => {
             fail(e);
@@ -211,7 +206,7 @@ pub unsafe extern "C" fn modbus_server_set_idle_timeout(s: *mut ServerRunner, se
     };
     match Context::checked_timeout(sec, usec) {
         Ok(t) => {
-            inner.runner.set_idle_timeout(t);
+            inner.server.set_idle(t);
             0
         }
         Err(e) => fail(e),
@@ -231,7 +226,7 @@ pub unsafe extern "C" fn modbus_server_get_fd(s: *mut ServerRunner) -> c_int {
     match unsafe { s.as_ref() } {
         // SAFETY: the descriptor never changes: read through the cell without a
         // reference to the rest.
-        Some(server) => unsafe { (*server.inner.get()).runner.fd() },
+        Some(server) => unsafe { (*server.inner.get()).server.fd() },
         None => fail(Error::INVALID),
     }
 }
@@ -261,18 +256,8 @@ pub unsafe extern "C" fn modbus_server_run(s: *mut ServerRunner, timeout_ms: c_i
     // SAFETY: `inner` succeeded: `s` is live.
     let server = unsafe { &*s };
     server.running.store(true, Ordering::SeqCst);
-    let ctx = inner.ctx;
-    let on_server = |f: &mut dyn FnMut(&mut Guard<'_>)| {
-        // SAFETY: the context outlives the server (its documented contract).
-        unsafe {
-            handle::call(ctx, |g| {
-                f(g);
-                Ok(())
-            })
-        }
-    };
     let timeout = (timeout_ms >= 0).then(|| Duration::from_millis(timeout_ms as u64));
-    let r = inner.runner.run(timeout, &on_server, &mut inner.source);
+    let r = inner.server.run_answering(timeout, &mut inner.source);
     server.running.store(false, Ordering::SeqCst);
     if server.doomed.load(Ordering::SeqCst) {
         // Freed by a callback meanwhile.
