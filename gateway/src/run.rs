@@ -521,7 +521,7 @@ impl Gateway {
             }
             let base = base + self.fronts.len();
             for i in 0..self.lines.len() {
-                self.service_line(i, fds[base + i].revents != 0);
+                self.service_line(i, fds[base + i].revents);
             }
             self.core.tick(Instant::now());
             if let Some(rx) = &self.trx_errors {
@@ -548,14 +548,12 @@ impl Gateway {
     }
 
     /// Line `i`: what its context did, the answers, the next request.
-    fn service_line(&mut self, i: usize, woken: bool) {
+    fn service_line(&mut self, i: usize, revents: i16) {
         let l = &mut self.lines[i];
         let Some(ctx) = l.ctx.as_mut() else { return };
-        // Only when its wake descriptor says so, or what it said was due is: the
-        // library takes the call as "the line may be readable", and a serial line
-        // read with nothing there reads as the end of the line (ECONNRESET).
-        if woken || l.due.is_some_and(|d| Instant::now() >= d) {
-            if let Err(e) = ctx.process() {
+        // When its wake descriptor is readable, or what its context said was due is.
+        if revents != 0 || l.due.is_some_and(|d| Instant::now() >= d) {
+            if let Err(e) = ctx.process_events(revents) {
                 let name = self.core.lines()[i].name().to_owned();
                 logf!(&mut self.core.log, 1, "line {name}: {e}");
             }
