@@ -130,6 +130,8 @@ struct LineIo {
     /// Whether the context was connected when the request went (a network line: a
     /// timeout of a connect is "unreachable", of an answer "no answer").
     connected_at_send: bool,
+    /// When the context said it has something due (a timeout, a pause).
+    due: Option<Instant>,
     net: Option<NetLine>,
 }
 
@@ -283,7 +285,7 @@ impl Gateway {
                 let bits = 1 + u32::from(mode.data) + u32::from(p != Parity::None) + u32::from(mode.stop);
                 let gap = Duration::from_secs_f64(3.5 * f64::from(bits) / f64::from((*speed).max(1)));
                 let spec = LineSpec { name: name.to_owned(), gap, serial: true };
-                Ok((spec, LineIo { ctx: Some(ctx), in_flight: None, connected_at_send: true, net: None }))
+                Ok((spec, LineIo { ctx: Some(ctx), in_flight: None, connected_at_send: true, due: None, net: None }))
             }
             LineKind::Tcp { host, port } | LineKind::RtuTcp { host, port } => {
                 let rtu = matches!(kind, LineKind::RtuTcp { .. });
@@ -308,7 +310,7 @@ impl Gateway {
                 net.resolving = false;
                 // RTU over TCP: RTU framing, the serial broadcast rules.
                 let spec = LineSpec { name: name.to_owned(), gap: Duration::ZERO, serial: rtu };
-                Ok((spec, LineIo { ctx, in_flight: None, connected_at_send: false, net: Some(net) }))
+                Ok((spec, LineIo { ctx, in_flight: None, connected_at_send: false, due: None, net: Some(net) }))
             }
         }
     }
@@ -469,10 +471,12 @@ impl Gateway {
             }
             for (i, l) in self.lines.iter_mut().enumerate() {
                 let mut fd: RawFd = -1;
+                l.due = None;
                 if let Some(ctx) = l.ctx.as_mut() {
                     if let Ok((wake, until)) = ctx.poll_fd() {
                         fd = wake;
                         if let Some(t) = until {
+                            l.due = Some(now + t);
                             soonest(now + t);
                         }
                     }
@@ -517,7 +521,7 @@ impl Gateway {
             }
             let base = base + self.fronts.len();
             for i in 0..self.lines.len() {
-                self.service_line(i, fds[base + i].revents != 0);
+                self.service_line(i, fds[base + i].revents);
             }
             self.core.tick(Instant::now());
             if let Some(rx) = &self.trx_errors {
@@ -544,14 +548,12 @@ impl Gateway {
     }
 
     /// Line `i`: what its context did, the answers, the next request.
-    fn service_line(&mut self, i: usize, woken: bool) {
+    fn service_line(&mut self, i: usize, revents: i16) {
         let l = &mut self.lines[i];
         let Some(ctx) = l.ctx.as_mut() else { return };
-        // Only when its wake descriptor says so: the library takes the call as
-        // "the line may be readable", and a serial line read with nothing there
-        // reads as the end of the line (ECONNRESET).
-        if woken {
-            if let Err(e) = ctx.process() {
+        // When its wake descriptor is readable, or what its context said was due is.
+        if revents != 0 || l.due.is_some_and(|d| Instant::now() >= d) {
+            if let Err(e) = ctx.process_events(revents) {
                 let name = self.core.lines()[i].name().to_owned();
                 logf!(&mut self.core.log, 1, "line {name}: {e}");
             }
