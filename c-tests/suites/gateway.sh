@@ -23,7 +23,8 @@
 # cargo build --release; it runs with LD_LIBRARY_PATH=target/release, which a program
 # linking the library statically ignores). GATEWAY_BIN=/tmp/c-gateway runs the same
 # checks against another build, e.g. the C gateway of before issue 40:
-#   gcc -Iinclude -Wall gateway/rsmodbus-gateway.c -o /tmp/c-gateway -Ltarget/release -lmodbus
+#   git show 41bf819:gateway/rsmodbus-gateway.c >/tmp/c-gateway.c
+#   gcc -Iinclude -Wall /tmp/c-gateway.c -o /tmp/c-gateway -Ltarget/release -lmodbus
 #
 # SPDX-License-Identifier: MIT OR Apache-2.0
 #
