@@ -805,8 +805,9 @@ stop f4e-gw
 # The manual page's example: roles, and no plain front reaching their units (port = 0
 # or plain_units; not allow_plain); the gateway starts with it (the test's line,
 # certificates and ports put in).
-sed -n '/^## EXAMPLE/,/^## FILES/p' "$ROOT/man/src/rsmodbus-gateway.md" | sed -n '/^```/,/^```/p' | sed '/^```/d' \
-    >"$F/f4-example.conf"
+# (The section's first code block: the section ends at the next heading.)
+awk '/^## /{in_ex = ($0 ~ /^## EXAMPLE/)} in_ex && /^```/{n++; next} in_ex && n == 1' \
+    "$ROOT/man/src/rsmodbus-gateway.md" >"$F/f4-example.conf"
 begin "finding 4: the manual page's EXAMPLE configuration is safe"
 grep -q '^tls_role\.' "$F/f4-example.conf" || err "it has no tls_role.* line"
 grep -qE '^allow_plain *= *(yes|true|on|1)' "$F/f4-example.conf" && err "it sets allow_plain"
