@@ -160,3 +160,34 @@ fn a_tls_authorization_closure_decides_by_role() {
     );
     assert_eq!(*seen.lock().unwrap(), [(op, 0x06), (rd, 0x03)], "the refused write never reached the handler");
 }
+
+/// `process()` called when nothing came (it says "readable" without a wait): a
+/// serial line read empty is nothing yet, not a line that ended; the answer that
+/// comes next is its request's.
+#[test]
+fn process_without_a_wait_on_a_quiet_serial_line_loses_nothing() {
+    let (master, slave) = pty();
+    let mut m = Modbus::new_rtu(&slave, 115200, Parity::None, 8, 1).unwrap();
+    m.connect().unwrap();
+    m.set_response_timeout(Duration::from_secs(2)).unwrap();
+    for value in [0x11u8, 0x22] {
+        let id = m.send_raw(&[5, 0x03, 0x00, 0x01, 0x00, 0x01]).unwrap();
+        for _ in 0..5 {
+            m.process().unwrap();
+            assert_eq!(m.next_completion(), None, "nothing came: no completion");
+        }
+        let mut asked = Vec::new();
+        let c = wait_completion(&mut m, || {
+            asked.extend(read_fd(master));
+            if asked.len() == 8 {
+                let answer = with_crc(vec![5, 0x03, 2, value, value]);
+                // SAFETY: writes the live answer's bytes.
+                unsafe { libc::write(master, answer.as_ptr().cast(), answer.len()) };
+                asked.push(0);
+            }
+        });
+        assert_eq!(c, Completion { id, result: Ok(vec![0x03, 2, value, value]) });
+    }
+    // SAFETY: the master descriptor, closed once.
+    unsafe { libc::close(master) };
+}

@@ -732,7 +732,13 @@ impl Line {
                 ReadHow::Queued => super::recv(fd, room, libc::MSG_DONTWAIT),
                 ReadHow::Within(timeout) => read_within(fd, &mut self.held.client, room, timeout, debug),
             },
-            Kind::Serial => super::read(fd, room),
+            // A serial line read when a readiness driver only thought it readable
+            // (a hint given without a wait): a terminal read empty is nothing there
+            // yet (VMIN 0), not a line that ended, as a socket's EAGAIN.
+            Kind::Serial => match super::read(fd, room) {
+                Ok(0) if matches!(how, ReadHow::Queued) => Err(Error(libc::EAGAIN)),
+                r => r,
+            },
             Kind::Tls => tls_read(fd, &mut self.held, room, how),
             Kind::Datagram => datagram_read(fd, &mut self.held, room, how),
         }
