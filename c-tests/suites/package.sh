@@ -79,6 +79,15 @@ else
 fi
 
 # --- control fields ------------------------------------------------------------------
+# Linux only (epoll, eventfd, timerfd, ppoll, futex): every package of debian/control
+# says linux-any (the README's "Platforms").
+archs=$(sed -n 's/^Architecture: *//p' debian/control | sort | uniq -c | sed 's/^ *//')
+npkgs=$(grep -c '^Package:' debian/control)
+if [ "$archs" = "$npkgs linux-any" ]; then
+    ok "debian/control: Architecture: linux-any for all $npkgs packages"
+else
+    bad "debian/control: Architecture: linux-any for every package" "got (count, value):" "$archs"
+fi
 crate_version=$(sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -n 1)
 api=$(sed -n 's/^Version: *//p' $BUILT/libmodbus.pc)
 version="$api+rs$crate_version"
