@@ -10,7 +10,8 @@
 #     wrong slave id (it must time out); then against server-callbacks (three units
 #     through callbacks), units 17 and 18, and unit 20 (not served: a timeout);
 #   - tcp-client linked statically with libmodbus.a (pkg-config --static), and
-#     fully static (gcc -static).
+#     fully static (gcc -static); the README's sizes of the first, stripped, and of
+#     the stripped archive.
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
 # Usage: c-tests/suites/examples.sh   (builds with `cargo build --release` first)
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -221,6 +222,30 @@ if [ -x "$WORK/tcp-client-static" ]; then
         ok "static tcp-client does not need libmodbus.so.5"
     fi
     tcp_pair static "$WORK/tcp-server" "$WORK/tcp-client-static"
+fi
+
+# The README's sizes ("`examples/tcp-client`: about N MB stripped; the installed, stripped
+# archive is about M MB"), each within 25% of what this build gives: the static
+# tcp-client stripped, and libmodbus.a stripped as scripts/install.sh strips it.
+readme_size() { # phrase-before-the-number
+    grep -o "$1 [0-9.]* MB" README.md | head -n 1 | grep -o '[0-9.]* MB' | cut -d' ' -f1
+}
+size_near() { # what readme-MB file
+    local what=$1 mb=$2 file=$3 got
+    got=$(stat -c %s "$file" 2>/dev/null) || { bad "README's size of $what" "no $file"; return; }
+    if [ -n "$mb" ] && awk -v g="$got" -v m="$mb" 'BEGIN { r = g / (m * 1e6); exit !(r > 0.75 && r < 1.25) }'; then
+        ok "README's size of $what (about $mb MB): $got bytes"
+    else
+        bad "README's size of $what" "README.md: about ${mb:-(no figure found)} MB" "this build:  $got bytes"
+    fi
+}
+if [ -x "$WORK/tcp-client-static" ] && strip -o "$WORK/tcp-client-static.stripped" "$WORK/tcp-client-static"; then
+    size_near "the static tcp-client, stripped" "$(readme_size '`examples/tcp-client`: about')" \
+        "$WORK/tcp-client-static.stripped"
+fi
+if strip --strip-debug --remove-section=.llvmbc --remove-section=.llvmcmd --remove-section=.comment \
+    -o "$WORK/libmodbus.a" "$LIB/libmodbus.a"; then
+    size_near "the installed libmodbus.a" "$(readme_size 'stripped archive is about')" "$WORK/libmodbus.a"
 fi
 
 # A fully static executable (gcc -static): libc too comes from its archive.

@@ -18,6 +18,8 @@
 #   cxx-alone   each header compiles on its own as C++98, C++11 and C++17, same flags
 #   linux-only  the comment of every epoll-based call in modbus.h (modbus_multi_*,
 #               modbus_server_*, modbus_get_pollfd) says "Linux only (epoll)."
+#   readme      the headers README.md names (`modbus*.h`) are the files of include/ and
+#               this script's list, no more and no fewer
 #   cxx-linkage a C++ file using the API references the functions unmangled
 #               (extern "C" guards work) and links against the built library
 #   examples    Debian's libmodbus example programs (unit tests, random tests,
@@ -245,6 +247,17 @@ while read -r name marked; do
 done <"$TMP/linux-only"
 [[ $nlinux -gt 0 ]] || err "no modbus_multi_*, modbus_server_* or modbus_get_pollfd declaration found in include/modbus.h"
 end "$nlinux epoll-based calls, each marked \"Linux only (epoll).\""
+
+# --- readme: the header list README.md gives is the one in include/ -------------------
+begin readme
+in_readme=$(grep -o '`modbus[-a-z]*\.h`' README.md | tr -d '`' | sort -u)
+in_include=$(cd include && ls -- *.h | sort)
+in_script=$(printf '%s\n' "${HEADERS[@]}" | sort)
+[[ $in_readme == "$in_include" ]] ||
+    err "README.md names:" $in_readme "include/ has:" $in_include
+[[ $in_script == "$in_include" ]] ||
+    err "HEADERS in this script:" $in_script "include/ has:" $in_include
+end "$(wc -w <<<"$in_include") headers, each named in README.md"
 
 # --- cxx-linkage: extern "C" guards ------------------------------------------------
 begin cxx-linkage
