@@ -252,6 +252,7 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
     let mut events = [libc::epoll_event { events: 0, u64: 0 }; 512];
     let mut completed = 0;
     let mut processed = HashSet::new();
+    let mut seen = HashSet::new(); // every key a batch reported
     let mut wait = wait;
     let mut woken = false;
     loop {
@@ -263,6 +264,7 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
         // by the callbacks below) is asked before the next.
         m.members.set.unwatch();
         woken |= woke;
+        let mut fresh = 0;
         for ev in &events[..n] {
             if matches!({ ev.u64 }, epoll::KEY_WAKE | epoll::KEY_TIMER) {
                 continue;
@@ -270,6 +272,9 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
             let key = ev.u64 as usize;
             // (`ev` is a copy: the packed field is read by value.)
             let revents = { ev.events } as u16 as i16;
+            if seen.insert(key) {
+                fresh += 1;
+            }
             if processed.contains(&key) {
                 continue;
             }
@@ -282,8 +287,12 @@ pub unsafe extern "C" fn modbus_multi_perform(m: *mut Multi, timeout_ms: c_int) 
                 completed += unsafe { crate::ffi::event::process_member(key as *mut Modbus, revents) }.max(0);
             }
         }
-        // A full batch: more may be ready now; take them without waiting.
-        if n < events.len() {
+        // A full batch: more may be ready now; take them without waiting. A batch of
+        // keys reported already ends it: level-triggered, a descriptor processed
+        // stays ready until the next `sync` registers what it waits for now (a
+        // connected socket still registered for POLLOUT), and with more of them than
+        // `events` holds the batches would never get shorter.
+        if n < events.len() || fresh == 0 {
             break;
         }
         wait = 0;
