@@ -24,3 +24,5 @@ for _ in $(seq 50); do grep -q serving "$out/server.log" 2>/dev/null && break; s
 wait "$server"
 trap - EXIT
 echo "== server: $(tail -n 1 "$out/server.log")"
+python3 man/gen-man.py --out target/man >/dev/null
+echo "== the manual: man -M target/man modbus_new_tcp_tls   (or: export MANPATH=$PWD/target/man:)"
