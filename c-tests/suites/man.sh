@@ -12,6 +12,10 @@
 #   - every C block of every EXAMPLE section compiles against include/ with
 #     -Wall -Wextra -Werror (a fragment is compiled as the body of a function that
 #     receives `modbus_t *ctx`), and the complete programs link with the library;
+#   - reachable: `man -M DIR PAGE` (the README's step after gen-man.py --out DIR) shows
+#     modbus_new_tcp_tls(3), libmodbus(7) and rsmodbus-gateway(8), "rsmodbus Manual" in
+#     the header and "rsmodbus VERSION" in the footer (Debian's say libmodbus); the
+#     extensions' pages are not among Debian's libmodbus-dev pages (when installed);
 #   - clean room: no page shares a run of 8 words of running text with libmodbus'
 #     own page of the same name (from Debian's libmodbus-dev, when installed).
 # Ends with "N passed, M failed".
@@ -50,6 +54,31 @@ cat "$WORK/pages.log"
 passed=$((passed + $(grep -c '^ok   - ' "$WORK/pages.log")))
 failed=$((failed + $(grep -c '^FAIL - ' "$WORK/pages.log")))
 grep -q -e '^ok   - ' -e '^FAIL - ' "$WORK/pages.log" || bad "man/check-pages.py ran" "$(tail -n 5 "$WORK/pages.log")"
+
+# Reachable the README's way, and told from Debian's (same names, other header/footer).
+version=$(sed -n 's/^version = "\(.*\)"/\1/p' Cargo.toml | head -n 1)
+for page in "3 modbus_new_tcp_tls" "3 modbus_read_registers" "7 libmodbus" "8 rsmodbus-gateway"; do
+    read -r sec name <<<"$page"
+    out=$(MANWIDTH=80 man -M "$WORK/man" -P cat "$sec" "$name" 2>&1)
+    head_line=$(head -n 1 <<<"$out") foot_line=$(tail -n 1 <<<"$out")
+    if [[ $head_line == *"rsmodbus Manual"* && $foot_line == *"rsmodbus $version"* ]]; then
+        ok "man -M DIR $sec $name: our page (\"rsmodbus Manual\", \"rsmodbus $version\")"
+    else
+        bad "man -M DIR $sec $name: our page" "header: $head_line" "footer: $foot_line" "${out:0:300}"
+    fi
+done
+if [ -e /usr/share/man/man3/modbus_read_registers.3.gz ]; then
+    ours_only=(modbus_new_tcp_tls modbus_server_new modbus_multi_perform rsmodbus_version modbus_new_ascii)
+    found=()
+    for name in "${ours_only[@]}"; do
+        [ ! -e "/usr/share/man/man3/$name.3.gz" ] || found+=("$name")
+    done
+    [ ${#found[@]} -eq 0 ] && ok "the extensions' pages exist only in ours (${#ours_only[@]} checked against Debian's libmodbus-dev)" ||
+        bad "the extensions' pages exist only in ours" "Debian has: ${found[*]}"
+    deb_head=$(MANWIDTH=80 man -P cat 3 modbus_read_registers 2>/dev/null | head -n 1)
+    [[ $deb_head != *rsmodbus* ]] && ok "Debian's modbus_read_registers(3) does not say rsmodbus ($deb_head)" ||
+        bad "Debian's page tells itself apart" "$deb_head"
+fi
 
 # Rendering: no warning from man-db or groff, a NAME line lexgrog can read.
 pages=("$WORK"/man/man*/*)
