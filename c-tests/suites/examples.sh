@@ -5,13 +5,26 @@
 #   - tcp-client against tcp-server on loopback, then three clients at once against
 #     one server (its poll() loop), then a client built on Debian's libmodbus 3.1.6
 #     against our server and ours against a server built on Debian's;
-#   - poll-many (12 devices from one thread, 3 cycles) against tcp-server;
+#   - poll-many (12 devices from one thread, 3 cycles) against tcp-server, and at 100
+#     and 1,000 devices against runner-server (the README's pair: every read right);
+#   - `make -C examples` (examples/Makefile) builds every example, and every example
+#     has a build line in its header;
 #   - rtu-client against rtu-server over a pty pair (socat), and a client asking the
 #     wrong slave id (it must time out); then against server-callbacks (three units
 #     through callbacks), units 17 and 18, and unit 20 (not served: a timeout);
 #   - tcp-client linked statically with libmodbus.a (pkg-config --static), and
 #     fully static (gcc -static); the README's sizes of the first, stripped, and of
-#     the stripped archive.
+#     the stripped archive;
+#   - scripts/install.sh into a scratch --prefix (and --destdir, --gateway): every file a
+#     package installs, the manifest lists exactly the files installed, the installed
+#     libmodbus.pc builds a program, `man -M` finds our pages there; --uninstall leaves
+#     the file list exactly as before; --check-shadow on /usr/local/lib warns when the
+#     loader's path puts it before an installed libmodbus.so.5;
+#   - README.md's fenced blocks, each run as written by the shell its fence names (sh:
+#     dash, bash: bash), in the checkout or in a scratch directory, with their output
+#     checked; the ones that cannot run here (root, /usr, a serial device, a .deb, the
+#     whole test run) are listed as skipped with the reason; a block the suite does not
+#     know fails (a new block needs a row in readme_block).
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
 # Usage: c-tests/suites/examples.sh   (builds with `cargo build --release` first)
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -131,6 +144,47 @@ else
     bad "poll-many: server starts" "$(cat "$WORK/many-server.log")"
     stop many-server
 fi
+
+# The README's pair: runner-server (modbus_server_new) and poll-many at 100 and 1,000
+# devices, 3 cycles each; every read right.
+for prog in runner-server; do
+    # shellcheck disable=SC2046
+    check "compile $prog against the build tree" \
+        "$CC" "${CFLAGS_W[@]}" "examples/$prog.c" -o "$WORK/$prog" \
+        $(pkg-config --cflags --libs "$PC") -Wl,-rpath,"$LIB"
+done
+port=$(free_port)
+start runner "$WORK/runner-server" "$port"
+if wait_ready runner "serving on 127.0.0.1:$port" 10; then
+    for n in 100 1000; do
+        start "poll-many-$n" "$WORK/poll-many" 127.0.0.1 "$port" "$n" 3
+        wait_exit "poll-many-$n" 120
+        [ "$rc" -eq 0 ] && ok "poll-many, $n devices against runner-server: exits 0" ||
+            bad "poll-many, $n devices against runner-server: exits 0" "exit $rc" "$(tail -n 5 "$WORK/poll-many-$n.log")"
+        expect_line "poll-many, $n devices x 3 cycles against runner-server: every read right" \
+            "$WORK/poll-many-$n.log" "$((n * 3)) reads: $((n * 3)) ok, 0 failed"
+    done
+    stop runner
+    expect_line "runner-server stops on SIGTERM" "$WORK/runner.log" "server stopped"
+else
+    bad "runner-server starts" "$(cat "$WORK/runner.log")"
+    stop runner
+fi
+
+# examples/Makefile builds every example; every example has its build line.
+if make -s -C examples clean >/dev/null && make -s -C examples CFLAGS="${CFLAGS_W[*]}" >"$WORK/make.log" 2>&1; then
+    ok "make -C examples builds every example ($(make -s -C examples -p 2>/dev/null | sed -n 's/^PROGRAMS = //p' | wc -w) programs, -Werror)"
+else
+    bad "make -C examples builds every example" "$(tail -n 20 "$WORK/make.log")"
+fi
+missing=()
+for f in examples/*.c; do
+    prog=$(basename "$f" .c)
+    grep -qF "gcc $prog.c -o $prog \$(pkg-config --cflags --libs libmodbus)" "$f" || missing+=("$f: no build line")
+    [ -x "examples/$prog" ] || missing+=("examples/$prog: not built by make -C examples")
+done
+[ ${#missing[@]} -eq 0 ] && ok "every example has a build line and a make target" ||
+    bad "every example has a build line and a make target" "${missing[@]}"
 
 if [ "$have_debian" = 1 ]; then
     tcp_pair debian-client "$WORK/tcp-server" "$WORK/tcp-client-debian"
@@ -260,5 +314,226 @@ if [ -x "$WORK/tcp-client-full-static" ]; then
     fi
     tcp_pair full-static "$WORK/tcp-server" "$WORK/tcp-client-full-static"
 fi
+
+
+# --- scripts/install.sh and --uninstall ------------------------------------------
+# Into a scratch root (--destdir, --prefix=/usr/local, --gateway), then a scratch prefix
+# without --destdir (what a user's --prefix=$HOME/.local is): every file the packages
+# install, the manifest, and after --uninstall the file list exactly as it was.
+list_tree() { (cd "$1" && find . -printf '%y %m %p\n' | sort); }
+IR=$WORK/install-root
+mkdir -p "$IR/usr/local/lib" "$IR/etc"
+echo keep >"$IR/usr/local/lib/unrelated.so"
+list_tree "$IR" >"$WORK/install-before.txt"
+if scripts/install.sh --no-build --destdir="$IR" --prefix=/usr/local --gateway >"$WORK/install.log" 2>&1; then
+    ok "install.sh --destdir --prefix=/usr/local --gateway"
+    begin "install.sh installs what the packages install"
+    for f in lib/libmodbus.so.5.1.0 lib/libmodbus.so.5 lib/libmodbus.so lib/libmodbus.a lib/pkgconfig/libmodbus.pc \
+        include/modbus/modbus.h include/modbus/modbus-rtu.h include/modbus/modbus-tcp.h include/modbus/modbus-tls.h \
+        include/modbus/modbus-version.h share/man/man3/modbus_new_tcp_tls.3 share/man/man3/modbus_read_registers.3 \
+        share/man/man7/libmodbus.7 share/man/man7/rsmodbus.7 share/man/man8/rsmodbus-gateway.8 bin/rsmodbus-gateway \
+        lib/systemd/system/rsmodbus-gateway@.service share/rsmodbus/install-manifest.txt; do
+        [ -e "$IR/usr/local/$f" ] || err "missing: /usr/local/$f"
+    done
+    npages=$(ls target/man/man3 | wc -l)
+    [ "$(ls "$IR/usr/local/share/man/man3" | wc -l)" = "$npages" ] || err "not the $npages section-3 pages"
+    grep -q '^ExecStart=/usr/local/bin/rsmodbus-gateway' "$IR/usr/local/lib/systemd/system/rsmodbus-gateway@.service" ||
+        err "the unit's ExecStart does not name /usr/local/bin"
+    end "$(grep -vc -e '^#' -e '/$' "$IR/usr/local/share/rsmodbus/install-manifest.txt") files"
+    # The manifest lists exactly what appeared (files and links; directories as DIR/).
+    (cd "$IR" && find . ! -type d -printf '/%P\n' | sort) | grep -vx -e /usr/local/lib/unrelated.so \
+        -e /usr/local/share/rsmodbus/install-manifest.txt >"$WORK/installed.txt"
+    grep -v -e '^#' -e '/$' "$IR/usr/local/share/rsmodbus/install-manifest.txt" | sort >"$WORK/manifest-files.txt"
+    if diff -u "$WORK/installed.txt" "$WORK/manifest-files.txt" >"$WORK/manifest.diff"; then
+        ok "the manifest lists every file installed, and nothing else"
+    else
+        bad "the manifest lists every file installed, and nothing else" "$(head -n 20 "$WORK/manifest.diff")"
+    fi
+    scripts/install.sh --uninstall --destdir="$IR" --prefix=/usr/local >"$WORK/uninstall.log" 2>&1
+    list_tree "$IR" >"$WORK/install-after.txt"
+    if diff -u "$WORK/install-before.txt" "$WORK/install-after.txt" >"$WORK/uninstall.diff"; then
+        ok "install.sh --uninstall leaves the tree exactly as before ($(cat "$WORK/uninstall.log"))"
+    else
+        bad "install.sh --uninstall leaves the tree exactly as before" "$(head -n 30 "$WORK/uninstall.diff")"
+    fi
+else
+    bad "install.sh --destdir --prefix=/usr/local --gateway" "$(tail -n 20 "$WORK/install.log")"
+fi
+
+# A user's prefix (no --destdir): the installed .pc builds a program, man -M finds our
+# pages there; installed twice (one manifest), then removed: the scratch dir as before.
+UP=$WORK/prefix
+mkdir -p "$UP"
+list_tree "$UP" >"$WORK/prefix-before.txt"
+if scripts/install.sh --no-build --prefix="$UP" >"$WORK/install-prefix.log" 2>&1 &&
+    scripts/install.sh --no-build --prefix="$UP" >>"$WORK/install-prefix.log" 2>&1; then
+    ok "install.sh --prefix=DIR, twice"
+    # shellcheck disable=SC2046
+    if PKG_CONFIG_PATH=$UP/lib/pkgconfig "$CC" "${CFLAGS_W[@]}" examples/tcp-client.c -o "$WORK/tcp-client-installed" \
+        $(PKG_CONFIG_PATH=$UP/lib/pkgconfig pkg-config --cflags --libs libmodbus) -Wl,-rpath,"$UP/lib" 2>"$WORK/installed-cc.log" &&
+        [ "$(ldd "$WORK/tcp-client-installed" | awk '/libmodbus\.so\.5/ {print $3}')" = "$UP/lib/libmodbus.so.5" ]; then
+        ok "the installed libmodbus.pc builds tcp-client, which loads PREFIX/lib/libmodbus.so.5"
+    else
+        bad "the installed libmodbus.pc builds tcp-client" "$(cat "$WORK/installed-cc.log")"
+    fi
+    out=$(MANWIDTH=80 man -M "$UP/share/man" -P cat modbus_new_tcp_tls 2>&1)
+    if grep -q 'modbus_new_tcp_tls' <<<"$out" && grep -q 'rsmodbus' <<<"$(head -n 1 <<<"$out")$(tail -n 1 <<<"$out")"; then
+        ok "man -M PREFIX/share/man modbus_new_tcp_tls: our page, \"rsmodbus\" in its header and footer"
+    else
+        bad "man -M PREFIX/share/man modbus_new_tcp_tls" "${out:0:600}"
+    fi
+    scripts/install.sh --uninstall --prefix="$UP" >"$WORK/uninstall-prefix.log" 2>&1
+    list_tree "$UP" >"$WORK/prefix-after.txt"
+    if diff -u "$WORK/prefix-before.txt" "$WORK/prefix-after.txt" >"$WORK/uninstall-prefix.diff"; then
+        ok "install.sh --uninstall --prefix=DIR: as before ($(cat "$WORK/uninstall-prefix.log"))"
+    else
+        bad "install.sh --uninstall --prefix=DIR: as before" "$(head -n 30 "$WORK/uninstall-prefix.diff")"
+    fi
+else
+    bad "install.sh --prefix=DIR" "$(tail -n 20 "$WORK/install-prefix.log")"
+fi
+
+# The shadowing warning: /usr/local/lib before the directory of an installed
+# libmodbus.so.5 in the loader's search path (Debian's libmodbus5, the tests' oracle).
+shadow_out=$(scripts/install.sh --check-shadow --libdir=/usr/local/lib 2>&1)
+shadow_rc=$?
+sys_so5=$(ldconfig -p 2>/dev/null | awk '$1 == "libmodbus.so.5" && $NF !~ /^\/usr\/local\// { print $NF; exit }')
+local_first=$(ldconfig -v -N -X 2>/dev/null | sed -n 's/^\([^[:space:]][^:]*\):.*/\1/p' | grep -nx /usr/local/lib | cut -d: -f1)
+if [ -n "$sys_so5" ] && [ -n "$local_first" ]; then
+    if [ "$shadow_rc" -ne 0 ] && grep -q "takes over from the system's $sys_so5" <<<"$shadow_out"; then
+        ok "install.sh --check-shadow: /usr/local/lib would take over from $sys_so5 (warned)"
+    else
+        bad "install.sh --check-shadow warns about $sys_so5" "exit $shadow_rc" "$shadow_out"
+    fi
+else
+    ok "install.sh --check-shadow: nothing to shadow here (exit $shadow_rc)"
+fi
+if [ "$(scripts/install.sh --check-shadow --prefix="$UP" 2>&1 >/dev/null)" = "" ]; then
+    ok "install.sh --check-shadow: a prefix outside the loader's path shadows nothing"
+else
+    bad "install.sh --check-shadow: a prefix outside the loader's path shadows nothing"
+fi
+
+# --- README.md's commands ----------------------------------------------------------
+# Each fenced block of README.md, as written, by the shell its fence names, in the
+# checkout (ROOT) or in a scratch directory; what cannot run here is skipped, saying why.
+# readme_block FIRST-LINE: sets how (root, scratch, skip) and why / what to check.
+readme_block() {
+    how=skip why='' want=''
+    case $1 in
+    scripts/demo.sh) how=root want='== server: server done after 5 requests' ;;
+    scripts/test-all.sh) why='the whole test run (it runs this suite)' ;;
+    'openssl genpkey'*) how=scratch want='' ;;
+    'cargo build --release       # target/release/rsmodbus-gateway'*)
+        why='needs a serial line at /dev/ttyUSB0 (the gateway suite runs the gateway on ptys)' ;;
+    scripts/install-deps.sh*) why='as root: apt installs packages into /usr (test-all runs it)' ;;
+    scripts/build-pgo.sh*) why='the profile-guided build (the pgo-build suite) and an install into /usr/local' ;;
+    'dpkg -x target/debian'*) why='needs the .deb scripts/build-deb.sh makes (the package suite); your-program is a placeholder' ;;
+    'gcc app.c -o app $(pkg-config --cflags --libs libmodbus)') how=installed ;;
+    'gcc app.c -o app $(pkg-config --cflags libmodbus) -Wl,--gc-sections'*) how=installed ;;
+    'cargo build --release && make -C examples') how=root want=$'[1]: \t1000' ;;
+    'python3 man/gen-man.py --out target/man') how=root want='modbus_new_tcp_tls' ;;
+    'make -C examples') how=root want='3000 reads: 3000 ok, 0 failed' ;;
+    'socat pty,raw'*) how=root want='client done' ;;
+    'cargo build --release')
+        if grep -q '^export PKG_CONFIG_PATH=' "$2"; then
+            how=scratch-root want=''
+        else
+            why='installs into /usr/local for the whole system (checked above in a scratch root and prefix)'
+        fi ;;
+    *) how=unknown ;;
+    esac
+}
+RB=$WORK/readme
+mkdir -p "$RB"
+python3 - "$RB" <<'PYEOF'
+import re, sys, os
+out = sys.argv[1]
+lines = open("README.md", encoding="utf-8").read().split("\n")
+n, i = 0, 0
+while i < len(lines):
+    m = re.match(r"^```(\S*)\s*$", lines[i])
+    if m and m.group(1):
+        j = i + 1
+        while not lines[j].startswith("```"):
+            j += 1
+        n += 1
+        with open(os.path.join(out, "%02d.%s" % (n, m.group(1))), "w") as f:
+            f.write("\n".join(lines[i + 1:j]) + "\n")
+        with open(os.path.join(out, "%02d.line" % n), "w") as f:
+            f.write("%d\n" % (i + 1))
+        i = j
+    i += 1
+PYEOF
+# app.c: what the README's compile lines build (tcp-client, the paired example).
+cp examples/tcp-client.c "$RB/app.c"
+# The installed prefix the "installed" blocks compile against (pkg-config libmodbus).
+RP=$WORK/readme-prefix
+scripts/install.sh --no-build --no-manifest --prefix="$RP" >"$RB/install.log" 2>&1 || bad "install.sh --prefix for the README's blocks"
+# The README's servers listen on 127.0.0.1:1502: wait while another program has it.
+for ((i = 0; i < 300; i++)); do
+    ss -Hltn 'sport = :1502' 2>/dev/null | grep -q . || break
+    sleep 0.2
+done
+# block_pids SID: what a block left running (stopped by PID after it).
+block_pids() { ps -eo pid=,sid= | awk -v s="$1" '$2 == s { print $1 }'; }
+for block in "$RB"/[0-9][0-9].*; do
+    case $block in *.line | *.out) continue ;; esac
+    lang=${block##*.}
+    base=$(basename "$block" ".$lang")
+    line=$(cat "$RB/$base.line")
+    first=$(head -n 1 "$block")
+    readme_block "$first" "$block"
+    name="README.md:$line ($lang): ${first:0:60}"
+    case $lang in sh) shell=sh ;; bash) shell=bash ;; c) shell='' ;; *) how=unknown ;; esac
+    if [ "$how" = unknown ]; then
+        bad "$name: a block the suite knows (add it to readme_block)" "$(cat "$block")"
+        continue
+    fi
+    if [ "$how" = skip ]; then
+        echo "skip - $name: $why"
+        continue
+    fi
+    dir=$ROOT env=()
+    case $how in
+    scratch) dir=$RB/run-$base ;;
+    installed) dir=$RB/run-$base; env=(PKG_CONFIG_PATH="$RP/lib/pkgconfig") ;;
+    scratch-root)
+        # The build tree's lines ($PWD/target/release) from the checkout, app.c put there
+        # for the block and removed after it.
+        cp "$RB/app.c" "$ROOT/app.c" ;;
+    esac
+    mkdir -p "$dir"
+    [ "$how" != scratch ] && [ "$how" != installed ] || cp "$RB/app.c" "$dir/"
+    out=$RB/$base.out
+    # Its own session: what the block leaves running is found by the session id.
+    (cd "$dir" && exec env "${env[@]}" setsid "$shell" "$block" >"$out" 2>&1) &
+    bpid=$!
+    start_s=$SECONDS
+    while kill -0 "$bpid" 2>/dev/null && [ $((SECONDS - start_s)) -lt 600 ]; do sleep 0.2; done
+    if kill -0 "$bpid" 2>/dev/null; then
+        echo "(timed out after 600 s)" >>"$out"
+    fi
+    # setsid made the block's shell (bpid) a session leader: the session's id is its PID.
+    left=$(block_pids "$bpid" | grep -vx "$bpid" | tr '\n' ' ')
+    kill "$bpid" 2>/dev/null
+    wait "$bpid"
+    brc=$?
+    for p in $left; do kill "$p" 2>/dev/null; done
+    if [ "$how" = scratch-root ]; then rm -f "$ROOT/app.c" "$ROOT/app"; fi
+    if [ "$brc" -eq 0 ] && { [ -z "$want" ] || grep -qF -- "$want" "$out"; }; then
+        ok "$name: runs as written (${how/scratch-root/checkout}${want:+; prints \"$want\"})"
+    else
+        bad "$name: runs as written" "exit $brc${left:+; left running: $left}" "$(tail -n 15 "$out")"
+    fi
+    case $first in
+    'openssl genpkey'*)
+        for f in ca.pem server.pem client.pem; do
+            [ -s "$dir/$f" ] || bad "$name: makes $f"
+        done ;;
+    'gcc app.c'*)
+        [ -x "$dir/app" ] && ldd "$dir/app" >/dev/null 2>&1 || bad "$name: makes ./app" ;;
+    esac
+done
 
 summary
