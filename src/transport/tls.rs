@@ -25,16 +25,18 @@
 
 use std::collections::HashMap;
 use std::ffi::{CStr, CString};
-use std::io::{self, Read, Write};
+use std::io;
 use std::sync::Arc;
 use std::time::Duration;
 
+use rustls::client::UnbufferedClientConnection;
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, ServerName};
-use rustls::server::WebPkiClientVerifier;
+use rustls::server::{UnbufferedServerConnection, WebPkiClientVerifier};
+use rustls::unbuffered::{ConnectionState, EncodeError, EncryptError, UnbufferedStatus};
 use rustls::{
-    AlertDescription, CertificateError, ClientConfig, ClientConnection, Connection, PeerIncompatible, RootCertStore,
-    ServerConfig, ServerConnection, SupportedProtocolVersion,
+    AlertDescription, CertificateError, ClientConfig, PeerIncompatible, RootCertStore, ServerConfig,
+    SupportedProtocolVersion,
 };
 
 use super::{Ready, now, to_timespec, wait_or_wake};
@@ -327,48 +329,302 @@ impl TlsSettings {
 
     /// A client connection to `host` (the address or node connected to, unless a
     /// server name was set).
-    pub fn connect(&mut self, host: &str) -> Result<Connection> {
+    pub fn connect(&mut self, host: &str) -> Result<Conn> {
         let config = self.client_config()?;
         let name = self.server_name.as_deref().unwrap_or(host);
         let name = ServerName::try_from(name.to_owned()).map_err(|_| Error(EMBTLSNAME))?;
-        ClientConnection::new(config, name).map(Connection::from).map_err(|e| error_of(&e))
+        let conn = UnbufferedClientConnection::new(config, name).map_err(|e| error_of(&e))?;
+        Ok(Conn::new(Peer::Client(Box::new(conn))))
     }
 
     /// A server connection.
-    pub fn accept(&mut self) -> Result<Connection> {
+    pub fn accept(&mut self) -> Result<Conn> {
         let config = self.server_config()?;
-        ServerConnection::new(config).map(Connection::from).map_err(|e| error_of(&e))
+        let conn = UnbufferedServerConnection::new(config).map_err(|e| error_of(&e))?;
+        Ok(Conn::new(Peer::Server(Box::new(conn))))
     }
 }
 
-/// A socket as rustls reads and writes it: one `recv`/`send` per call, with `flags`.
-/// With a [`RecordCut`], a read never goes past the end of the TLS record it is in.
-struct Fd<'a> {
-    fd: i32,
-    flags: i32,
-    cut: Option<&'a mut RecordCut>,
+/// Bytes a record adds to its plaintext, at most: the header (5), TLS 1.2's explicit
+/// nonce (8), TLS 1.3's inner content type (1), the tag (16); rounded up.
+const RECORD_OVERHEAD: usize = 64;
+/// The most plaintext one record carries.
+const MAX_FRAGMENT: usize = 16384;
+/// The room a connection starts with for the records it receives; it grows to the
+/// largest record that arrives (a handshake's certificates), up to a record's most.
+const INITIAL_INPUT: usize = 2048;
+const MAX_RECORD: usize = 5 + 0xFFFF;
+
+/// rustls' unbuffered connection of either side (the two have no common type).
+enum Peer {
+    Client(Box<UnbufferedClientConnection>),
+    Server(Box<UnbufferedServerConnection>),
 }
 
-impl Read for Fd<'_> {
-    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let room = match &self.cut {
-            Some(cut) => buf.len().min(cut.limit()),
-            None => buf.len(),
-        };
-        let n = super::recv(self.fd, &mut buf[..room], self.flags).map_err(|e| io::Error::from_raw_os_error(e.0))?;
-        if let Some(cut) = self.cut.as_deref_mut() {
-            cut.advance(&buf[..n]);
+/// What [`Conn::advance`] stopped at.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Stop {
+    /// The handshake is done: application data may be sent (and was, if given).
+    Traffic,
+    /// The handshake needs more records from the peer.
+    Blocked,
+    /// Both ends sent close_notify.
+    Closed,
+    /// Application data was read, and no other record is held (whatever rustls has
+    /// to say still, a key update's answer, goes out before the next record sent).
+    Read,
+}
+
+/// The buffers of a connection: records received and not processed yet
+/// (`input[..have]`, decrypted in place there by rustls), records to send
+/// (`output[sent..end]`, encrypted in place there), and plaintext received and not
+/// taken yet (`plain[start..]`). They grow to what the connection needs and are then
+/// reused: a transaction allocates nothing of ours.
+struct Buffers {
+    input: Vec<u8>,
+    have: usize,
+    output: Vec<u8>,
+    sent: usize,
+    end: usize,
+    plain: Vec<u8>,
+    start: usize,
+    /// The peer sent close_notify.
+    peer_closed: bool,
+}
+
+impl Buffers {
+    /// Drops the first `n` bytes of input (records rustls processed).
+    fn consume(&mut self, n: usize) {
+        if n > 0 {
+            self.input.copy_within(n..self.have, 0);
+            self.have -= n;
         }
+    }
+
+    /// The room a read of records may fill: after what is held, growing when a
+    /// record held in part does not fit.
+    fn input_room(&mut self) -> &mut [u8] {
+        if self.have == self.input.len() {
+            let need = if self.have >= 5 {
+                5 + u16::from_be_bytes([self.input[3], self.input[4]]) as usize
+            } else {
+                INITIAL_INPUT
+            };
+            let size = need.max(self.have + 1).clamp(INITIAL_INPUT, MAX_RECORD);
+            self.input.resize(size, 0);
+        }
+        &mut self.input[self.have..]
+    }
+}
+
+/// Room for `at_least` more bytes of output after `end`.
+fn output_room(output: &mut Vec<u8>, end: usize, at_least: usize) -> &mut [u8] {
+    if output.len() < end + at_least {
+        output.resize(end + at_least, 0);
+    }
+    &mut output[end..]
+}
+
+/// The part of rustls' unbuffered API [`Conn`] drives, on either side.
+trait Unbuffered {
+    type Data;
+    fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data>;
+}
+
+impl Unbuffered for UnbufferedClientConnection {
+    type Data = rustls::client::ClientConnectionData;
+    fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data> {
+        self.process_tls_records(input)
+    }
+}
+
+impl Unbuffered for UnbufferedServerConnection {
+    type Data = rustls::server::ServerConnectionData;
+    fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data> {
+        self.process_tls_records(input)
+    }
+}
+
+/// Processes the records `b` holds until rustls needs more of them or the handshake
+/// is done (then `app`, if any, is encrypted into the output): application data goes
+/// to the plaintext, what rustls has to send to the output.
+fn advance<C: Unbuffered>(
+    conn: &mut C,
+    b: &mut Buffers,
+    app: Option<&[u8]>,
+) -> core::result::Result<Stop, rustls::Error> {
+    loop {
+        let status = conn.process(&mut b.input[..b.have]);
+        let discard = status.discard;
+        let step = match status.state {
+            Err(e) => Err(e),
+            Ok(ConnectionState::ReadTraffic(mut traffic)) => {
+                let mut got = Ok(None);
+                while let Some(record) = traffic.next_record() {
+                    match record {
+                        Ok(record) => {
+                            if b.start == b.plain.len() {
+                                b.plain.clear();
+                                b.start = 0;
+                            }
+                            b.plain.extend_from_slice(record.payload);
+                        }
+                        Err(e) => {
+                            got = Err(e);
+                            break;
+                        }
+                    }
+                }
+                match got {
+                    // The last record held: no need to ask rustls again.
+                    Ok(None) if app.is_none() && b.have == discard => Ok(Some(Stop::Read)),
+                    got => got,
+                }
+            }
+            Ok(ConnectionState::EncodeTlsData(mut data)) => {
+                let mut room = 0;
+                loop {
+                    match data.encode(output_room(&mut b.output, b.end, room)) {
+                        Ok(n) => {
+                            b.end += n;
+                            break;
+                        }
+                        Err(EncodeError::InsufficientSize(s)) => room = s.required_size,
+                        Err(EncodeError::AlreadyEncoded) => break,
+                    }
+                }
+                Ok(None)
+            }
+            // The output is sent by the caller before it reads again.
+            Ok(ConnectionState::TransmitTlsData(data)) => {
+                data.done();
+                Ok(None)
+            }
+            Ok(ConnectionState::PeerClosed) => {
+                b.peer_closed = true;
+                Ok(None)
+            }
+            Ok(ConnectionState::Closed) => {
+                b.peer_closed = true;
+                Ok(Some(Stop::Closed))
+            }
+            Ok(ConnectionState::WriteTraffic(mut traffic)) => match app {
+                Some(data) => {
+                    let mut room = data.len() + RECORD_OVERHEAD * (1 + data.len() / MAX_FRAGMENT);
+                    loop {
+                        match traffic.encrypt(data, output_room(&mut b.output, b.end, room)) {
+                            Ok(n) => {
+                                b.end += n;
+                                break Ok(Some(Stop::Traffic));
+                            }
+                            Err(EncryptError::InsufficientSize(s)) => room = s.required_size,
+                            Err(_) => break Err(rustls::Error::EncryptError),
+                        }
+                    }
+                }
+                None => Ok(Some(Stop::Traffic)),
+            },
+            Ok(_) => Ok(Some(Stop::Blocked)),
+        };
+        b.consume(discard);
+        match step {
+            Ok(None) => {}
+            Ok(Some(stop)) => return Ok(stop),
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// One TLS connection's state and buffers, on rustls' unbuffered API: records are
+/// decrypted in place in the input buffer one `recv` filled, and encrypted into the
+/// output buffer one `send` empties.
+pub struct Conn {
+    peer: Peer,
+    b: Buffers,
+}
+
+impl Conn {
+    fn new(peer: Peer) -> Self {
+        let b = Buffers {
+            input: Vec::new(),
+            have: 0,
+            output: Vec::new(),
+            sent: 0,
+            end: 0,
+            plain: Vec::new(),
+            start: 0,
+            peer_closed: false,
+        };
+        Conn { peer, b }
+    }
+
+    /// rustls' state common to both sides (certificates, version, suite).
+    fn common(&self) -> &rustls::CommonState {
+        match &self.peer {
+            Peer::Client(c) => c,
+            Peer::Server(s) => s,
+        }
+    }
+
+    fn advance(&mut self, app: Option<&[u8]>) -> core::result::Result<Stop, rustls::Error> {
+        match &mut self.peer {
+            Peer::Client(c) => advance(&mut **c, &mut self.b, app),
+            Peer::Server(s) => advance(&mut **s, &mut self.b, app),
+        }
+    }
+
+    /// Output waits to go out.
+    fn wants_write(&self) -> bool {
+        self.b.sent < self.b.end
+    }
+
+    /// Sends the output as far as the socket takes it without waiting: true when all
+    /// is out.
+    fn flush(&mut self, fd: i32) -> Result<bool> {
+        while self.b.sent < self.b.end {
+            match super::send(fd, &self.b.output[self.b.sent..self.b.end], libc::MSG_DONTWAIT) {
+                Ok(n) => self.b.sent += n,
+                Err(e) if e.0 == libc::EAGAIN => return Ok(false),
+                Err(e) if e.0 == libc::EINTR => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.b.sent = 0;
+        self.b.end = 0;
+        Ok(true)
+    }
+
+    /// Sends the output, waiting for room until `deadline`.
+    fn flush_within(&mut self, fd: i32, deadline: Option<Duration>, stopping: &dyn Fn() -> bool) -> Result<()> {
+        while !self.flush(fd)? {
+            wait_until(fd, libc::POLLOUT, deadline, stopping)?;
+        }
+        Ok(())
+    }
+
+    /// One `recv` of records (with `flags`; a server's handshake stops at the end of
+    /// the record with `cut`): the bytes read, 0 at the end of the stream.
+    fn read(&mut self, fd: i32, flags: i32, cut: Option<&mut RecordCut>) -> Result<usize> {
+        let room = self.b.input_room();
+        let room = match &cut {
+            Some(cut) => {
+                let limit = cut.limit().min(room.len());
+                &mut room[..limit]
+            }
+            None => room,
+        };
+        let n = super::recv(fd, room, flags)?;
+        if let Some(cut) = cut {
+            cut.advance(&room[..n]);
+        }
+        self.b.have += n;
         Ok(n)
     }
-}
 
-impl Write for Fd<'_> {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        super::send(self.fd, buf, self.flags).map_err(|e| io::Error::from_raw_os_error(e.0))
-    }
-    fn flush(&mut self) -> io::Result<()> {
-        Ok(())
+    /// After a failure: the alert rustls queued goes out if it can without waiting.
+    fn send_alert(&mut self, fd: i32) {
+        let _ = self.advance(None);
+        let _ = self.flush(fd);
     }
 }
 
@@ -390,30 +646,11 @@ fn wait_until(fd: i32, events: libc::c_short, deadline: Option<Duration>, stoppi
     }
 }
 
-/// Writes what rustls has to send, waiting for room until `deadline`.
-fn write_pending(
-    fd: i32,
-    conn: &mut Connection,
-    deadline: Option<Duration>,
-    stopping: &dyn Fn() -> bool,
-) -> Result<()> {
-    while conn.wants_write() {
-        match conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
-            Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock || e.kind() == io::ErrorKind::Interrupted => {
-                wait_until(fd, libc::POLLOUT, deadline, stopping)?
-            }
-            Err(e) => return Err(io_error(e)),
-        }
-    }
-    Ok(())
-}
-
 /// The handshake of `conn` on `fd`, until `deadline`. A refusal sends its alert
 /// before it is reported.
 pub fn handshake(
     fd: i32,
-    conn: &mut Connection,
+    conn: &mut Conn,
     cut: Option<&mut RecordCut>,
     deadline: Option<Duration>,
     stopping: &dyn Fn() -> bool,
@@ -425,7 +662,7 @@ pub fn handshake(
 
 fn handshake_steps(
     fd: i32,
-    conn: &mut Connection,
+    conn: &mut Conn,
     cut: Option<&mut RecordCut>,
     deadline: Option<Duration>,
     stopping: &dyn Fn() -> bool,
@@ -451,35 +688,30 @@ pub enum Progress {
 /// to send is sent, what has arrived is read. A refusal sends its alert before it is
 /// reported. The blocking handshake ([`handshake`]) waits between these steps; the
 /// event-driven client returns to the application's loop.
-pub fn handshake_step(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut>) -> Result<Progress> {
+pub fn handshake_step(fd: i32, conn: &mut Conn, cut: Option<&mut RecordCut>) -> Result<Progress> {
     let mut cut = cut;
     loop {
-        while conn.wants_write() {
-            match conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
+        match conn.flush(fd) {
+            Ok(true) => {}
+            Ok(false) => return Ok(Progress::Wants(libc::POLLOUT)),
+            Err(e) => return Err(refusal_after_failed_write(fd, conn, cut.as_deref_mut(), e)),
+        }
+        match conn.advance(None) {
+            Ok(Stop::Traffic) if !conn.wants_write() => return Ok(Progress::Done),
+            Ok(Stop::Traffic | Stop::Read) => {}
+            Ok(Stop::Closed) => return Err(Error::CONN_RESET),
+            Ok(Stop::Blocked) if conn.wants_write() => {}
+            Ok(Stop::Blocked) => match conn.read(fd, libc::MSG_DONTWAIT, cut.as_deref_mut()) {
+                Ok(0) => return Err(Error::CONN_RESET),
                 Ok(_) => {}
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(Progress::Wants(libc::POLLOUT)),
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(refusal_after_failed_write(fd, conn, cut.as_deref_mut(), io_error(e))),
+                Err(e) if e.0 == libc::EAGAIN => return Ok(Progress::Wants(libc::POLLIN)),
+                Err(e) if e.0 == libc::EINTR => {}
+                Err(e) => return Err(e),
+            },
+            Err(e) => {
+                conn.send_alert(fd);
+                return Err(error_of(&e));
             }
-        }
-        if !conn.is_handshaking() {
-            return Ok(Progress::Done);
-        }
-        match conn.read_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: cut.as_deref_mut() }) {
-            Ok(0) => return Err(Error::CONN_RESET),
-            Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(Progress::Wants(libc::POLLIN)),
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(io_error(e)),
-        }
-        if let Err(e) = conn.process_new_packets() {
-            // The alert goes out if it can without waiting.
-            while conn.wants_write() {
-                if conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }).is_err() {
-                    break;
-                }
-            }
-            return Err(error_of(&e));
         }
     }
 }
@@ -495,16 +727,19 @@ const MAX_RECORDS_AFTER_FAILED_WRITE: usize = 16;
 /// queue. What the peer sent is read without waiting (a bounded number of reads)
 /// and given to rustls: an alert among it is the error (EMBTLSUNKNOWNCA for a
 /// refused certificate); without one, `failed`.
-fn refusal_after_failed_write(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut>, failed: Error) -> Error {
+fn refusal_after_failed_write(fd: i32, conn: &mut Conn, cut: Option<&mut RecordCut>, failed: Error) -> Error {
     let mut cut = cut;
+    // What was to go out will not.
+    conn.b.sent = 0;
+    conn.b.end = 0;
     for _ in 0..MAX_RECORDS_AFTER_FAILED_WRITE {
-        match conn.read_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: cut.as_deref_mut() }) {
+        match conn.read(fd, libc::MSG_DONTWAIT, cut.as_deref_mut()) {
             Ok(0) => break,
             Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) if e.0 == libc::EINTR => continue,
             Err(_) => break,
         }
-        match conn.process_new_packets() {
+        match conn.advance(None) {
             Err(e @ rustls::Error::AlertReceived(_)) => return error_of(&e),
             Err(_) => break,
             Ok(_) => {}
@@ -514,7 +749,8 @@ fn refusal_after_failed_write(fd: i32, conn: &mut Connection, cut: Option<&mut R
 }
 
 /// What a handshake agreed on, for the debug trace.
-pub fn describe_session(conn: &Connection) -> String {
+pub fn describe_session(conn: &Conn) -> String {
+    let conn = conn.common();
     let version = conn.protocol_version().map_or_else(|| "?".to_owned(), |v| format!("{v:?}"));
     let suite = conn.negotiated_cipher_suite().map_or_else(|| "?".to_owned(), |s| format!("{:?}", s.suite()));
     let resumed = matches!(conn.handshake_kind(), Some(rustls::HandshakeKind::Resumed));
@@ -523,34 +759,32 @@ pub fn describe_session(conn: &Connection) -> String {
 
 /// One TLS connection on a socket.
 pub struct Session {
-    conn: Connection,
-    /// Plaintext received and not taken yet (`plain[start..]`).
-    plain: Vec<u8>,
-    start: usize,
+    conn: Conn,
     /// The peer closed: close_notify (a clean end) or the socket's end of stream.
     ended: bool,
     /// A record that failed (decryption, a fatal alert): reported by the next read.
     failed: Option<Error>,
     role: Option<CString>,
-    /// A server's reads stop at record boundaries (see [`RecordCut`]).
-    cut: Option<RecordCut>,
     /// The socket's cookie (see `transport::socket_cookie`).
     cookie: u64,
 }
 
 impl Session {
-    /// A connection whose handshake completed on the socket of `cookie`; `cut`: the
-    /// record boundary of a server's reads.
-    pub fn new(mut conn: Connection, cut: Option<RecordCut>, cookie: u64) -> Self {
+    /// A connection whose handshake completed on the socket of `cookie`. From now on
+    /// a read takes whatever has arrived (several records, when they have): the
+    /// plaintext of every whole record among it is kept ([`Session::pending`]).
+    pub fn new(conn: Conn, fd: i32) -> Self {
+        let cookie = super::socket_cookie(fd);
         let role = conn
+            .common()
             .peer_certificates()
             .and_then(|chain| chain.first())
             .and_then(|c| security::role(c))
             .and_then(|r| CString::new(r).ok());
-        // Application data that came with the end of the handshake.
-        let mut plain = Vec::new();
-        let _ = conn.reader().read_to_end(&mut plain);
-        Session { conn, plain, start: 0, ended: false, failed: None, role, cut, cookie }
+        let mut session = Session { conn, ended: false, failed: None, role, cookie };
+        // Records that came with the end of the handshake.
+        session.process(fd);
+        session
     }
 
     /// The cookie of the socket the session runs on.
@@ -564,53 +798,59 @@ impl Session {
     }
 
     /// Plaintext is there to take, or the end or a failure to report.
+    #[inline]
     pub fn readable(&self) -> bool {
-        self.start < self.plain.len() || self.ended || self.failed.is_some()
+        self.conn.b.start < self.conn.b.plain.len() || self.ended || self.failed.is_some()
+    }
+
+    /// The records held, decrypted into the plaintext; what rustls answers (a key
+    /// update) goes out if it can without waiting.
+    fn process(&mut self, fd: i32) {
+        if self.conn.b.have == 0 {
+            return;
+        }
+        match self.conn.advance(None) {
+            Ok(Stop::Closed) => self.ended = true,
+            Ok(_) => {}
+            Err(e) => {
+                self.conn.send_alert(fd);
+                self.failed = Some(error_of(&e));
+            }
+        }
+        if self.conn.b.peer_closed {
+            self.ended = true;
+        }
+        if self.conn.wants_write() {
+            // What rustls answered (a key update): sent before the next record, else.
+            let _ = self.conn.flush(fd);
+        }
     }
 
     /// One `recv` of records (with `flags`), decrypted into the plaintext buffer.
     /// `Err` only for EAGAIN (nothing came) and EINTR; a failed socket or record is
     /// kept for the read to report.
     pub fn fill(&mut self, fd: i32, flags: i32) -> Result<()> {
-        let n = match self.conn.read_tls(&mut Fd { fd, flags, cut: self.cut.as_mut() }) {
-            Ok(n) => n,
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Err(Error(libc::EAGAIN)),
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => return Err(Error(libc::EINTR)),
-            Err(e) => {
-                // A reset or another failure of the socket: reported by the read.
-                self.failed = Some(io_error(e));
+        match self.conn.read(fd, flags, None) {
+            Ok(0) => {
+                self.ended = true;
                 return Ok(());
             }
-        };
-        match self.conn.process_new_packets() {
-            Ok(state) => {
-                let pending = state.plaintext_bytes_to_read();
-                if pending > 0 {
-                    if self.start == self.plain.len() {
-                        self.plain.clear();
-                        self.start = 0;
-                    }
-                    let at = self.plain.len();
-                    self.plain.resize(at + pending, 0);
-                    if self.conn.reader().read_exact(&mut self.plain[at..]).is_err() {
-                        self.plain.truncate(at);
-                    }
-                }
-                if n == 0 || state.peer_has_closed() {
-                    self.ended = true;
-                }
-            }
+            Ok(_) => {}
+            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => return Err(e),
             Err(e) => {
-                let _ = self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None });
-                self.failed = Some(error_of(&e));
+                // A reset or another failure of the socket: reported by the read.
+                self.failed = Some(e);
+                return Ok(());
             }
         }
+        self.process(fd);
         Ok(())
     }
 
     /// Copies plaintext into `room` without taking it.
+    #[inline]
     pub fn peek(&self, room: &mut [u8]) -> usize {
-        let avail = &self.plain[self.start..];
+        let avail = &self.conn.b.plain[self.conn.b.start..];
         let n = avail.len().min(room.len());
         room[..n].copy_from_slice(&avail[..n]);
         n
@@ -618,10 +858,11 @@ impl Session {
 
     /// Takes plaintext into `room`: `Ok(0)` at the peer's end, `Err` for a failed
     /// record, EAGAIN when nothing is there.
+    #[inline]
     pub fn take(&mut self, room: &mut [u8]) -> Result<usize> {
         let n = self.peek(room);
         if n > 0 {
-            self.start += n;
+            self.conn.b.start += n;
             return Ok(n);
         }
         if let Some(e) = self.failed {
@@ -631,9 +872,9 @@ impl Session {
     }
 
     /// Plaintext received and not taken yet: the rest of a TLS record that carried
-    /// more than the request or response read from it.
+    /// more than the request or response read from it, and the records read with it.
     pub fn pending(&self) -> usize {
-        self.plain.len() - self.start
+        self.conn.b.plain.len() - self.conn.b.start
     }
 
     /// The peer ended the session, or a record failed.
@@ -643,9 +884,9 @@ impl Session {
 
     /// Drops the plaintext not taken (a flush); returns its length.
     pub fn discard(&mut self) -> usize {
-        let n = self.plain.len() - self.start;
-        self.plain.clear();
-        self.start = 0;
+        let n = self.pending();
+        self.conn.b.plain.clear();
+        self.conn.b.start = 0;
         n
     }
 
@@ -657,10 +898,13 @@ impl Session {
         deadline: Option<Duration>,
         stopping: &dyn Fn() -> bool,
     ) -> Result<usize> {
-        if self.conn.writer().write_all(data).is_err() {
+        if self.conn.wants_write() {
+            self.conn.flush_within(fd, deadline, stopping)?;
+        }
+        if self.conn.advance(Some(data)) != Ok(Stop::Traffic) {
             return Err(Error(libc::EPIPE));
         }
-        write_pending(fd, &mut self.conn, deadline, stopping)?;
+        self.conn.flush_within(fd, deadline, stopping)?;
         Ok(data.len())
     }
 
@@ -672,35 +916,36 @@ impl Session {
     /// Sends `plain` (taken from the vector) as application data, as far as the
     /// socket takes it without waiting: true when all is out.
     pub fn send_without_waiting(&mut self, fd: i32, plain: &mut Vec<u8>) -> Result<bool> {
-        loop {
-            if !plain.is_empty() {
-                match self.conn.writer().write(plain) {
-                    Ok(n) => {
-                        plain.drain(..n);
-                    }
-                    Err(_) => return Err(Error(libc::EPIPE)),
-                }
+        if !plain.is_empty() {
+            if self.conn.advance(Some(plain)) != Ok(Stop::Traffic) {
+                return Err(Error(libc::EPIPE));
             }
-            if !self.conn.wants_write() {
-                if plain.is_empty() {
-                    return Ok(true);
-                }
-                continue;
-            }
-            match self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
-                Ok(_) => {}
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(false),
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(io_error(e)),
-            }
+            plain.clear();
         }
+        self.conn.flush(fd)
     }
 
     /// Sends close_notify, without waiting.
     pub fn close(&mut self, fd: i32) {
-        self.conn.send_close_notify();
-        let _ = self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None });
+        if let Ok(true) = self.conn.flush(fd) {
+            let b = &mut self.conn.b;
+            let peer = &mut self.conn.peer;
+            let _ = match peer {
+                Peer::Client(c) => close_notify(&mut **c, b),
+                Peer::Server(s) => close_notify(&mut **s, b),
+            };
+            let _ = self.conn.flush(fd);
+        }
     }
+}
+
+/// Queues close_notify into the output, once the handshake is done.
+fn close_notify<C: Unbuffered>(conn: &mut C, b: &mut Buffers) -> Option<()> {
+    let status = conn.process(&mut b.input[..0]);
+    let ConnectionState::WriteTraffic(mut traffic) = status.state.ok()? else { return None };
+    let n = traffic.queue_close_notify(output_room(&mut b.output, b.end, RECORD_OVERHEAD)).ok()?;
+    b.end += n;
+    Some(())
 }
 
 /// The application's authorization callback (`modbus_set_tls_authorization`), as the
