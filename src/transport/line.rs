@@ -544,10 +544,12 @@ impl Line {
     /// closed.
     fn end_handshake(&mut self, done: Result<Handshake>, debug: bool, diag: &mut dyn Diag) -> Result<()> {
         let fd = self.fd;
+        let done = done.and_then(|Handshake { conn, .. }| {
+            let described = debug.then(|| tls::describe_session(&conn));
+            Ok((Box::new(Session::new(conn, fd)?), described))
+        });
         match done {
-            Ok(Handshake { conn, .. }) => {
-                let described = debug.then(|| tls::describe_session(&conn));
-                let session = Box::new(Session::new(conn, fd));
+            Ok((session, described)) => {
                 if let Some(described) = described {
                     let role = session.role().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
                     diag.out(format_args!("TLS handshake done: {described}, peer role {role}\n"));

@@ -29,16 +29,18 @@ use std::io;
 use std::sync::Arc;
 use std::time::Duration;
 
-use rustls::client::UnbufferedClientConnection;
+use rustls::client::{ClientConnectionData, UnbufferedClientConnection};
+use rustls::kernel::KernelConnection;
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, ServerName};
-use rustls::server::{UnbufferedServerConnection, WebPkiClientVerifier};
-use rustls::unbuffered::{ConnectionState, EncodeError, EncryptError, UnbufferedStatus};
+use rustls::server::{ServerConnectionData, UnbufferedServerConnection, WebPkiClientVerifier};
+use rustls::unbuffered::{ConnectionState, EncodeError, UnbufferedStatus};
 use rustls::{
-    AlertDescription, CertificateError, ClientConfig, PeerIncompatible, RootCertStore, ServerConfig,
-    SupportedProtocolVersion,
+    AlertDescription, CertificateError, ClientConfig, ConnectionTrafficSecrets, PeerIncompatible, RootCertStore,
+    ServerConfig, SupportedProtocolVersion,
 };
 
+use super::record::{self, MAX_FRAGMENT};
 use super::{Ready, now, to_timespec, wait_or_wake};
 use crate::error::{
     EMBTLS, EMBTLSCACERT, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSPASSWORD, EMBTLSUNKNOWNCA,
@@ -300,6 +302,9 @@ impl TlsSettings {
             }
             None => builder.with_no_client_auth(),
         };
+        // The records are protected by `record` once the handshake is done.
+        let mut config = config;
+        config.enable_secret_extraction = true;
         let config = Arc::new(config);
         self.client = Some(Arc::clone(&config));
         Ok(config)
@@ -322,6 +327,8 @@ impl TlsSettings {
             .with_single_cert(self.chain.clone(), key.clone_key())
             .map_err(|_| Error(EMBTLSCONFIG))?;
         config.ticketer = rustls::crypto::ring::Ticketer::new().map_err(|_| Error(EMBTLSCONFIG))?;
+        // The records are protected by `record` once the handshake is done.
+        config.enable_secret_extraction = true;
         let config = Arc::new(config);
         self.server = Some(Arc::clone(&config));
         Ok(config)
@@ -345,11 +352,6 @@ impl TlsSettings {
     }
 }
 
-/// Bytes a record adds to its plaintext, at most: the header (5), TLS 1.2's explicit
-/// nonce (8), TLS 1.3's inner content type (1), the tag (16); rounded up.
-const RECORD_OVERHEAD: usize = 64;
-/// The most plaintext one record carries.
-const MAX_FRAGMENT: usize = 16384;
 /// The room a connection starts with for the records it receives; it grows to the
 /// largest record that arrives (a handshake's certificates), up to a record's most.
 const INITIAL_INPUT: usize = 2048;
@@ -364,7 +366,7 @@ enum Peer {
 /// What [`Conn::advance`] stopped at.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Stop {
-    /// The handshake is done: application data may be sent (and was, if given).
+    /// The handshake is done: application data may be sent.
     Traffic,
     /// The handshake needs more records from the peer.
     Blocked,
@@ -383,9 +385,7 @@ enum Stop {
 struct Buffers {
     input: Vec<u8>,
     have: usize,
-    output: Vec<u8>,
-    sent: usize,
-    end: usize,
+    output: Out,
     plain: Vec<u8>,
     start: usize,
     /// The peer sent close_notify.
@@ -417,12 +417,51 @@ impl Buffers {
     }
 }
 
-/// Room for `at_least` more bytes of output after `end`.
-fn output_room(output: &mut Vec<u8>, end: usize, at_least: usize) -> &mut [u8] {
-    if output.len() < end + at_least {
-        output.resize(end + at_least, 0);
+/// Records to send: `buf[sent..end]`.
+#[derive(Default)]
+struct Out {
+    buf: Vec<u8>,
+    sent: usize,
+    end: usize,
+}
+
+impl Out {
+    /// Room for `at_least` more bytes after `end`.
+    fn room(&mut self, at_least: usize) -> &mut [u8] {
+        if self.buf.len() < self.end + at_least {
+            self.buf.resize(self.end + at_least, 0);
+        }
+        &mut self.buf[self.end..]
     }
-    &mut output[end..]
+
+    /// Records wait to go out.
+    fn waiting(&self) -> bool {
+        self.sent < self.end
+    }
+
+    /// Sends the records as far as the socket takes them without waiting: true when
+    /// all are out.
+    fn flush(&mut self, fd: i32) -> Result<bool> {
+        while self.sent < self.end {
+            match super::send(fd, &self.buf[self.sent..self.end], libc::MSG_DONTWAIT) {
+                Ok(n) => self.sent += n,
+                Err(e) if e.0 == libc::EAGAIN => return Ok(false),
+                Err(e) if e.0 == libc::EINTR => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.sent = 0;
+        self.end = 0;
+        Ok(true)
+    }
+
+    /// Sends the records, waiting for room until `deadline`.
+    fn flush_within(&mut self, fd: i32, deadline: Option<Duration>, stopping: &dyn Fn() -> bool) -> Result<()> {
+        while !self.flush(fd)? {
+            wait_until(fd, libc::POLLOUT, deadline, stopping)?;
+        }
+        Ok(())
+    }
 }
 
 /// The part of rustls' unbuffered API [`Conn`] drives, on either side.
@@ -432,27 +471,23 @@ trait Unbuffered {
 }
 
 impl Unbuffered for UnbufferedClientConnection {
-    type Data = rustls::client::ClientConnectionData;
+    type Data = ClientConnectionData;
     fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data> {
         self.process_tls_records(input)
     }
 }
 
 impl Unbuffered for UnbufferedServerConnection {
-    type Data = rustls::server::ServerConnectionData;
+    type Data = ServerConnectionData;
     fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data> {
         self.process_tls_records(input)
     }
 }
 
 /// Processes the records `b` holds until rustls needs more of them or the handshake
-/// is done (then `app`, if any, is encrypted into the output): application data goes
-/// to the plaintext, what rustls has to send to the output.
-fn advance<C: Unbuffered>(
-    conn: &mut C,
-    b: &mut Buffers,
-    app: Option<&[u8]>,
-) -> core::result::Result<Stop, rustls::Error> {
+/// is done: application data goes to the plaintext, what rustls has to send to the
+/// output.
+fn advance<C: Unbuffered>(conn: &mut C, b: &mut Buffers) -> core::result::Result<Stop, rustls::Error> {
     loop {
         let status = conn.process(&mut b.input[..b.have]);
         let discard = status.discard;
@@ -477,16 +512,16 @@ fn advance<C: Unbuffered>(
                 }
                 match got {
                     // The last record held: no need to ask rustls again.
-                    Ok(None) if app.is_none() && b.have == discard => Ok(Some(Stop::Read)),
+                    Ok(None) if b.have == discard => Ok(Some(Stop::Read)),
                     got => got,
                 }
             }
             Ok(ConnectionState::EncodeTlsData(mut data)) => {
                 let mut room = 0;
                 loop {
-                    match data.encode(output_room(&mut b.output, b.end, room)) {
+                    match data.encode(b.output.room(room)) {
                         Ok(n) => {
-                            b.end += n;
+                            b.output.end += n;
                             break;
                         }
                         Err(EncodeError::InsufficientSize(s)) => room = s.required_size,
@@ -508,22 +543,7 @@ fn advance<C: Unbuffered>(
                 b.peer_closed = true;
                 Ok(Some(Stop::Closed))
             }
-            Ok(ConnectionState::WriteTraffic(mut traffic)) => match app {
-                Some(data) => {
-                    let mut room = data.len() + RECORD_OVERHEAD * (1 + data.len() / MAX_FRAGMENT);
-                    loop {
-                        match traffic.encrypt(data, output_room(&mut b.output, b.end, room)) {
-                            Ok(n) => {
-                                b.end += n;
-                                break Ok(Some(Stop::Traffic));
-                            }
-                            Err(EncryptError::InsufficientSize(s)) => room = s.required_size,
-                            Err(_) => break Err(rustls::Error::EncryptError),
-                        }
-                    }
-                }
-                None => Ok(Some(Stop::Traffic)),
-            },
+            Ok(ConnectionState::WriteTraffic(_)) => Ok(Some(Stop::Traffic)),
             Ok(_) => Ok(Some(Stop::Blocked)),
         };
         b.consume(discard);
@@ -548,9 +568,7 @@ impl Conn {
         let b = Buffers {
             input: Vec::new(),
             have: 0,
-            output: Vec::new(),
-            sent: 0,
-            end: 0,
+            output: Out::default(),
             plain: Vec::new(),
             start: 0,
             peer_closed: false,
@@ -566,40 +584,22 @@ impl Conn {
         }
     }
 
-    fn advance(&mut self, app: Option<&[u8]>) -> core::result::Result<Stop, rustls::Error> {
+    fn advance(&mut self) -> core::result::Result<Stop, rustls::Error> {
         match &mut self.peer {
-            Peer::Client(c) => advance(&mut **c, &mut self.b, app),
-            Peer::Server(s) => advance(&mut **s, &mut self.b, app),
+            Peer::Client(c) => advance(&mut **c, &mut self.b),
+            Peer::Server(s) => advance(&mut **s, &mut self.b),
         }
     }
 
     /// Output waits to go out.
     fn wants_write(&self) -> bool {
-        self.b.sent < self.b.end
+        self.b.output.waiting()
     }
 
     /// Sends the output as far as the socket takes it without waiting: true when all
     /// is out.
     fn flush(&mut self, fd: i32) -> Result<bool> {
-        while self.b.sent < self.b.end {
-            match super::send(fd, &self.b.output[self.b.sent..self.b.end], libc::MSG_DONTWAIT) {
-                Ok(n) => self.b.sent += n,
-                Err(e) if e.0 == libc::EAGAIN => return Ok(false),
-                Err(e) if e.0 == libc::EINTR => {}
-                Err(e) => return Err(e),
-            }
-        }
-        self.b.sent = 0;
-        self.b.end = 0;
-        Ok(true)
-    }
-
-    /// Sends the output, waiting for room until `deadline`.
-    fn flush_within(&mut self, fd: i32, deadline: Option<Duration>, stopping: &dyn Fn() -> bool) -> Result<()> {
-        while !self.flush(fd)? {
-            wait_until(fd, libc::POLLOUT, deadline, stopping)?;
-        }
-        Ok(())
+        self.b.output.flush(fd)
     }
 
     /// One `recv` of records (with `flags`; a server's handshake stops at the end of
@@ -623,7 +623,7 @@ impl Conn {
 
     /// After a failure: the alert rustls queued goes out if it can without waiting.
     fn send_alert(&mut self, fd: i32) {
-        let _ = self.advance(None);
+        let _ = self.advance();
         let _ = self.flush(fd);
     }
 }
@@ -696,7 +696,7 @@ pub fn handshake_step(fd: i32, conn: &mut Conn, cut: Option<&mut RecordCut>) -> 
             Ok(false) => return Ok(Progress::Wants(libc::POLLOUT)),
             Err(e) => return Err(refusal_after_failed_write(fd, conn, cut.as_deref_mut(), e)),
         }
-        match conn.advance(None) {
+        match conn.advance() {
             Ok(Stop::Traffic) if !conn.wants_write() => return Ok(Progress::Done),
             Ok(Stop::Traffic | Stop::Read) => {}
             Ok(Stop::Closed) => return Err(Error::CONN_RESET),
@@ -730,8 +730,7 @@ const MAX_RECORDS_AFTER_FAILED_WRITE: usize = 16;
 fn refusal_after_failed_write(fd: i32, conn: &mut Conn, cut: Option<&mut RecordCut>, failed: Error) -> Error {
     let mut cut = cut;
     // What was to go out will not.
-    conn.b.sent = 0;
-    conn.b.end = 0;
+    conn.b.output = Out::default();
     for _ in 0..MAX_RECORDS_AFTER_FAILED_WRITE {
         match conn.read(fd, libc::MSG_DONTWAIT, cut.as_deref_mut()) {
             Ok(0) => break,
@@ -739,7 +738,7 @@ fn refusal_after_failed_write(fd: i32, conn: &mut Conn, cut: Option<&mut RecordC
             Err(e) if e.0 == libc::EINTR => continue,
             Err(_) => break,
         }
-        match conn.advance(None) {
+        match conn.advance() {
             Err(e @ rustls::Error::AlertReceived(_)) => return error_of(&e),
             Err(_) => break,
             Ok(_) => {}
@@ -757,9 +756,59 @@ pub fn describe_session(conn: &Conn) -> String {
     format!("{version}, {suite}{}", if resumed { ", resumed" } else { "" })
 }
 
-/// One TLS connection on a socket.
+/// rustls' connection once the handshake is done, as far as it still has a part:
+/// TLS 1.3 key updates, and a server's session tickets for a client's resumption.
+enum Kernel {
+    Client(KernelConnection<ClientConnectionData>),
+    Server(KernelConnection<ServerConnectionData>),
+}
+
+impl Kernel {
+    /// The next traffic secret of one direction (TLS 1.3 key update).
+    fn update(&mut self, transmit: bool) -> core::result::Result<(u64, ConnectionTrafficSecrets), rustls::Error> {
+        match (self, transmit) {
+            (Kernel::Client(k), true) => k.update_tx_secret(),
+            (Kernel::Client(k), false) => k.update_rx_secret(),
+            (Kernel::Server(k), true) => k.update_tx_secret(),
+            (Kernel::Server(k), false) => k.update_rx_secret(),
+        }
+    }
+}
+
+/// Records sent under one key before a TLS 1.3 key update (AES-GCM's limit is some
+/// 2^24.5 records; rustls updates before it too). A TLS 1.2 session that reaches it
+/// ends (TLS 1.2 has no key update; rustls closes it there as well).
+const KEY_UPDATE_AT: u64 = 1 << 23;
+/// The most body a record received may have: 2^14 bytes of plaintext plus the most
+/// a suite adds (TLS 1.3: 256; TLS 1.2: 2048).
+const MAX_BODY_TLS13: usize = MAX_FRAGMENT + 256;
+const MAX_BODY_TLS12: usize = MAX_FRAGMENT + 2048;
+
+/// Alert descriptions sent.
+const CLOSE_NOTIFY: u8 = 0;
+const UNEXPECTED_MESSAGE: u8 = 10;
+const BAD_RECORD_MAC: u8 = 20;
+const RECORD_OVERFLOW: u8 = 22;
+const DECODE_ERROR: u8 = 50;
+
+/// One TLS connection on a socket, its handshake done: the records are protected
+/// here ([`record::Direction`]) with the keys rustls agreed on, in the session's own
+/// buffers. One `recv` fills the input, every whole record in it is opened in place,
+/// and the plaintext of its application data stays where it is (moved down only to
+/// join what is not taken yet); a send seals its records into the output buffer.
 pub struct Session {
-    conn: Conn,
+    kernel: Kernel,
+    tls13: bool,
+    tx: record::Direction,
+    rx: record::Direction,
+    /// `input[start..pend]`: plaintext not taken yet; `input[raw..have]`: records
+    /// not opened yet (the start of one, in part); `pend <= raw`.
+    input: Vec<u8>,
+    start: usize,
+    pend: usize,
+    raw: usize,
+    have: usize,
+    output: Out,
     /// The peer closed: close_notify (a clean end) or the socket's end of stream.
     ended: bool,
     /// A record that failed (decryption, a fatal alert): reported by the next read.
@@ -770,21 +819,55 @@ pub struct Session {
 }
 
 impl Session {
-    /// A connection whose handshake completed on the socket of `cookie`. From now on
-    /// a read takes whatever has arrived (several records, when they have): the
-    /// plaintext of every whole record among it is kept ([`Session::pending`]).
-    pub fn new(conn: Conn, fd: i32) -> Self {
-        let cookie = super::socket_cookie(fd);
+    /// The session of a connection whose handshake completed on `fd`: rustls hands
+    /// its traffic keys over (EMBTLS if it cannot: not expected), after it processed
+    /// the records that came with the end of the handshake (session tickets,
+    /// application data).
+    pub fn new(conn: Conn, fd: i32) -> Result<Self> {
+        let mut conn = conn;
         let role = conn
             .common()
             .peer_certificates()
             .and_then(|chain| chain.first())
             .and_then(|c| security::role(c))
             .and_then(|r| CString::new(r).ok());
-        let mut session = Session { conn, ended: false, failed: None, role, cookie };
-        // Records that came with the end of the handshake.
-        session.process(fd);
-        session
+        if conn.b.have > 0
+            && let Err(e) = conn.advance()
+        {
+            conn.send_alert(fd);
+            return Err(error_of(&e));
+        }
+        let tls13 = conn.common().protocol_version() == Some(rustls::ProtocolVersion::TLSv1_3);
+        let Conn { peer, b } = conn;
+        let (secrets, kernel) = match peer {
+            Peer::Client(c) => c.dangerous_into_kernel_connection().map(|(s, k)| (s, Kernel::Client(k))),
+            Peer::Server(s) => s.dangerous_into_kernel_connection().map(|(s, k)| (s, Kernel::Server(k))),
+        }
+        .map_err(|e| error_of(&e))?;
+        let tx = record::Direction::new(secrets.tx.1, secrets.tx.0, tls13).ok_or(Error(EMBTLS))?;
+        let rx = record::Direction::new(secrets.rx.1, secrets.rx.0, tls13).ok_or(Error(EMBTLS))?;
+        // What rustls decrypted goes before the records held (once per session).
+        let Buffers { mut input, have, output, plain, start, peer_closed } = b;
+        let kept = plain.len() - start;
+        if kept > 0 {
+            input.splice(0..0, plain[start..].iter().copied());
+        }
+        Ok(Session {
+            kernel,
+            tls13,
+            tx,
+            rx,
+            input,
+            start: 0,
+            pend: kept,
+            raw: kept,
+            have: kept + have,
+            output,
+            ended: peer_closed,
+            failed: None,
+            role,
+            cookie: super::socket_cookie(fd),
+        })
     }
 
     /// The cookie of the socket the session runs on.
@@ -800,57 +883,190 @@ impl Session {
     /// Plaintext is there to take, or the end or a failure to report.
     #[inline]
     pub fn readable(&self) -> bool {
-        self.conn.b.start < self.conn.b.plain.len() || self.ended || self.failed.is_some()
+        self.start < self.pend || self.ended || self.failed.is_some()
     }
 
-    /// The records held, decrypted into the plaintext; what rustls answers (a key
-    /// update) goes out if it can without waiting.
-    fn process(&mut self, fd: i32) {
-        if self.conn.b.have == 0 {
+    /// The room a `recv` may fill: after the records held, the plaintext not taken
+    /// and the records held moved down first when the end is reached, and the buffer
+    /// grown when a record held in part still does not fit.
+    fn input_room(&mut self) -> &mut [u8] {
+        if self.start == self.pend && self.raw == self.have {
+            (self.start, self.pend, self.raw, self.have) = (0, 0, 0, 0);
+        }
+        if self.have == self.input.len() {
+            let kept = self.pend - self.start;
+            self.input.copy_within(self.start..self.pend, 0);
+            self.input.copy_within(self.raw..self.have, kept);
+            self.have = kept + self.have - self.raw;
+            (self.start, self.pend, self.raw) = (0, kept, kept);
+            if self.have == self.input.len() {
+                let record = record::record_len(&self.input[self.raw..self.have]).unwrap_or(0);
+                let size = (self.raw + record).max(self.have + 1).max(INITIAL_INPUT);
+                self.input.resize(size, 0);
+            }
+        }
+        &mut self.input[self.have..]
+    }
+
+    /// One `recv` of records (with `flags`), opened into the plaintext. `Err` only
+    /// for EAGAIN (nothing came) and EINTR; a failed socket or record is kept for the
+    /// read to report.
+    pub fn fill(&mut self, fd: i32, flags: i32) -> Result<()> {
+        match super::recv(fd, self.input_room(), flags) {
+            Ok(0) => self.ended = true,
+            Ok(n) => {
+                self.have += n;
+                self.open_records(fd);
+            }
+            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => return Err(e),
+            // A reset or another failure of the socket: reported by the read.
+            Err(e) => self.failed = Some(e),
+        }
+        Ok(())
+    }
+
+    /// Opens every whole record held, in order, until the peer's end or a failure.
+    fn open_records(&mut self, fd: i32) {
+        while !self.readable_end() {
+            let Some(len) = record::record_len(&self.input[self.raw..self.have]) else { return };
+            if len - 5 > if self.tls13 { MAX_BODY_TLS13 } else { MAX_BODY_TLS12 } {
+                return self.fatal(fd, RECORD_OVERFLOW, rustls::Error::PeerSentOversizedRecord);
+            }
+            if self.raw + len > self.have {
+                return;
+            }
+            let at = self.raw;
+            self.raw += len;
+            let (typ, range) = match self.rx.open(&mut self.input[at..at + len]) {
+                Ok(opened) => opened,
+                Err(record::BadRecord) => return self.fatal(fd, BAD_RECORD_MAC, rustls::Error::DecryptError),
+            };
+            let (from, to) = (at + range.start, at + range.end);
+            match typ {
+                record::APPLICATION_DATA => self.keep(from, to),
+                record::ALERT => self.alert(from, to),
+                record::HANDSHAKE => self.post_handshake(fd, from, to),
+                _ => self.unexpected(fd),
+            }
+        }
+    }
+
+    /// The plaintext at `input[from..to]` joins what is not taken yet.
+    fn keep(&mut self, from: usize, to: usize) {
+        if self.start == self.pend {
+            (self.start, self.pend) = (from, to);
+        } else {
+            self.input.copy_within(from..to, self.pend);
+            self.pend += to - from;
+        }
+    }
+
+    /// An alert from the peer: close_notify ends the session; a warning (TLS 1.2) or
+    /// user_canceled is passed over; anything else is the peer's refusal.
+    fn alert(&mut self, from: usize, to: usize) {
+        let [level, description] = self.input[from..to] else {
+            self.failed = Some(Error(EMBTLS));
+            return;
+        };
+        match description {
+            CLOSE_NOTIFY => self.ended = true,
+            90 => {}
+            _ if level == 1 && !self.tls13 => {}
+            _ => self.failed = Some(error_of(&rustls::Error::AlertReceived(AlertDescription::from(description)))),
+        }
+    }
+
+    /// Handshake messages after the handshake (TLS 1.3): session tickets (a client
+    /// gives them to rustls for resumption) and key updates. Each must be whole in
+    /// its record (rustls and OpenSSL send them so).
+    fn post_handshake(&mut self, fd: i32, from: usize, to: usize) {
+        if !self.tls13 {
+            // A TLS 1.2 HelloRequest: renegotiation is not supported, the request is
+            // passed over (as rustls does); anything else is unexpected.
+            if self.input[from..to] != [0, 0, 0, 0] {
+                self.unexpected(fd);
+            }
             return;
         }
-        match self.conn.advance(None) {
-            Ok(Stop::Closed) => self.ended = true,
-            Ok(_) => {}
-            Err(e) => {
-                self.conn.send_alert(fd);
-                self.failed = Some(error_of(&e));
+        let mut at = from;
+        while at < to {
+            let Some(&[typ, a, b, c]) = self.input.get(at..at + 4) else {
+                return self.fatal(fd, DECODE_ERROR, rustls::Error::DecryptError);
+            };
+            let len = u32::from_be_bytes([0, a, b, c]) as usize;
+            let body = at + 4..at + 4 + len;
+            if body.end > to {
+                return self.fatal(fd, DECODE_ERROR, rustls::Error::DecryptError);
             }
-        }
-        if self.conn.b.peer_closed {
-            self.ended = true;
-        }
-        if self.conn.wants_write() {
-            // What rustls answered (a key update): sent before the next record, else.
-            let _ = self.conn.flush(fd);
+            at = body.end;
+            let done = match (typ, &mut self.kernel) {
+                (4, Kernel::Client(k)) => k.handle_new_session_ticket(&self.input[body]),
+                (24, _) if len == 1 => self.key_update(self.input[body.start] == 1),
+                _ => return self.unexpected(fd),
+            };
+            if let Err(e) = done {
+                return self.fatal(fd, DECODE_ERROR, e);
+            }
         }
     }
 
-    /// One `recv` of records (with `flags`), decrypted into the plaintext buffer.
-    /// `Err` only for EAGAIN (nothing came) and EINTR; a failed socket or record is
-    /// kept for the read to report.
-    pub fn fill(&mut self, fd: i32, flags: i32) -> Result<()> {
-        match self.conn.read(fd, flags, None) {
-            Ok(0) => {
-                self.ended = true;
-                return Ok(());
-            }
-            Ok(_) => {}
-            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => return Err(e),
-            Err(e) => {
-                // A reset or another failure of the socket: reported by the read.
-                self.failed = Some(e);
-                return Ok(());
-            }
+    /// The peer's key update: its next records come under the next key; when it asks,
+    /// ours go under our next key too, after a key update of ours.
+    fn key_update(&mut self, requested: bool) -> core::result::Result<(), rustls::Error> {
+        let (seq, secrets) = self.kernel.update(false)?;
+        self.rx = record::Direction::new(secrets, seq, true).ok_or(rustls::Error::EncryptError)?;
+        if requested { self.update_keys() } else { Ok(()) }
+    }
+
+    /// Our key update: the message under the current key, then the next key.
+    fn update_keys(&mut self) -> core::result::Result<(), rustls::Error> {
+        self.seal(record::HANDSHAKE, &[24, 0, 0, 1, 0]);
+        let (seq, secrets) = self.kernel.update(true)?;
+        self.tx = record::Direction::new(secrets, seq, true).ok_or(rustls::Error::EncryptError)?;
+        Ok(())
+    }
+
+    fn unexpected(&mut self, fd: i32) {
+        self.fatal(fd, UNEXPECTED_MESSAGE, rustls::Error::General("unexpected message".into()))
+    }
+
+    /// A failure of the peer's records: our alert goes out if it can without
+    /// waiting, the error is kept for the read.
+    #[cold]
+    fn fatal(&mut self, fd: i32, description: u8, error: rustls::Error) {
+        self.seal(record::ALERT, &[2, description]);
+        let _ = self.output.flush(fd);
+        self.failed = Some(error_of(&error));
+    }
+
+    /// Seals `data` of type `typ` into records in the output.
+    fn seal(&mut self, typ: u8, data: &[u8]) {
+        let overhead = self.tx.overhead();
+        let room = self.output.room(data.len() + overhead * (1 + data.len() / MAX_FRAGMENT));
+        let mut at = 0;
+        for chunk in data.chunks(MAX_FRAGMENT) {
+            at += self.tx.seal(typ, chunk, &mut room[at..]);
         }
-        self.process(fd);
+        self.output.end += at;
+    }
+
+    /// Seals application data, after a key update when the key has protected enough
+    /// records (EMBTLS on TLS 1.2 then: the session ends).
+    fn seal_data(&mut self, data: &[u8]) -> Result<()> {
+        if self.tx.seq() >= KEY_UPDATE_AT {
+            if !self.tls13 {
+                return Err(Error(EMBTLS));
+            }
+            self.update_keys().map_err(|e| error_of(&e))?;
+        }
+        self.seal(record::APPLICATION_DATA, data);
         Ok(())
     }
 
     /// Copies plaintext into `room` without taking it.
     #[inline]
     pub fn peek(&self, room: &mut [u8]) -> usize {
-        let avail = &self.conn.b.plain[self.conn.b.start..];
+        let avail = &self.input[self.start..self.pend];
         let n = avail.len().min(room.len());
         room[..n].copy_from_slice(&avail[..n]);
         n
@@ -862,7 +1078,7 @@ impl Session {
     pub fn take(&mut self, room: &mut [u8]) -> Result<usize> {
         let n = self.peek(room);
         if n > 0 {
-            self.conn.b.start += n;
+            self.start += n;
             return Ok(n);
         }
         if let Some(e) = self.failed {
@@ -874,7 +1090,7 @@ impl Session {
     /// Plaintext received and not taken yet: the rest of a TLS record that carried
     /// more than the request or response read from it, and the records read with it.
     pub fn pending(&self) -> usize {
-        self.conn.b.plain.len() - self.conn.b.start
+        self.pend - self.start
     }
 
     /// The peer ended the session, or a record failed.
@@ -885,8 +1101,7 @@ impl Session {
     /// Drops the plaintext not taken (a flush); returns its length.
     pub fn discard(&mut self) -> usize {
         let n = self.pending();
-        self.conn.b.plain.clear();
-        self.conn.b.start = 0;
+        self.start = self.pend;
         n
     }
 
@@ -898,54 +1113,36 @@ impl Session {
         deadline: Option<Duration>,
         stopping: &dyn Fn() -> bool,
     ) -> Result<usize> {
-        if self.conn.wants_write() {
-            self.conn.flush_within(fd, deadline, stopping)?;
+        if self.output.waiting() {
+            self.output.flush_within(fd, deadline, stopping)?;
         }
-        if self.conn.advance(Some(data)) != Ok(Stop::Traffic) {
-            return Err(Error(libc::EPIPE));
-        }
-        self.conn.flush_within(fd, deadline, stopping)?;
+        self.seal_data(data)?;
+        self.output.flush_within(fd, deadline, stopping)?;
         Ok(data.len())
     }
 
     /// TLS data waits to go out.
     pub fn wants_write(&self) -> bool {
-        self.conn.wants_write()
+        self.output.waiting()
     }
 
     /// Sends `plain` (taken from the vector) as application data, as far as the
     /// socket takes it without waiting: true when all is out.
     pub fn send_without_waiting(&mut self, fd: i32, plain: &mut Vec<u8>) -> Result<bool> {
         if !plain.is_empty() {
-            if self.conn.advance(Some(plain)) != Ok(Stop::Traffic) {
-                return Err(Error(libc::EPIPE));
-            }
+            self.seal_data(plain)?;
             plain.clear();
         }
-        self.conn.flush(fd)
+        self.output.flush(fd)
     }
 
     /// Sends close_notify, without waiting.
     pub fn close(&mut self, fd: i32) {
-        if let Ok(true) = self.conn.flush(fd) {
-            let b = &mut self.conn.b;
-            let peer = &mut self.conn.peer;
-            let _ = match peer {
-                Peer::Client(c) => close_notify(&mut **c, b),
-                Peer::Server(s) => close_notify(&mut **s, b),
-            };
-            let _ = self.conn.flush(fd);
+        if let Ok(true) = self.output.flush(fd) {
+            self.seal(record::ALERT, &[1, CLOSE_NOTIFY]);
+            let _ = self.output.flush(fd);
         }
     }
-}
-
-/// Queues close_notify into the output, once the handshake is done.
-fn close_notify<C: Unbuffered>(conn: &mut C, b: &mut Buffers) -> Option<()> {
-    let status = conn.process(&mut b.input[..0]);
-    let ConnectionState::WriteTraffic(mut traffic) = status.state.ok()? else { return None };
-    let n = traffic.queue_close_notify(output_room(&mut b.output, b.end, RECORD_OVERHEAD)).ok()?;
-    b.end += n;
-    Some(())
 }
 
 /// The application's authorization callback (`modbus_set_tls_authorization`), as the
