@@ -34,7 +34,9 @@
 #
 # Prints Markdown tables (also written to target/bench/results.md): transactions/s
 # of every case over TCP loopback and an RTU pty pair, for our client, our server and
-# both against Debian's, the bare floor, and system calls, instructions and heap
+# both against Debian's, the bare floor, Modbus/TCP Security against our plain TCP and
+# against stunnel in front of Debian's libmodbus (BENCH_STUNNEL=0: without it), and
+# system calls, instructions and heap
 # allocations per transaction. Knobs: BENCH_CASES, BENCH_TRANSPORTS, BENCH_SLICE,
 # BENCH_SECONDS, BENCH_METRIC_CASES, BENCH_METRICS, BENCH_THROUGHPUT, BENCH_PIN,
 # BENCH_FLOOR_PARTS, BENCH_RESULTS (see benches/README.md). c-tests/suites/bench-smoke.sh is the short run
@@ -78,6 +80,8 @@ scripts/install-deps.sh >/dev/null
 for tool in strace socat valgrind python3 gcc openssl; do
     command -v "$tool" >/dev/null || { apt-get install -y -qq "$tool" >/dev/null; }
 done
+# Modbus/TCP Security's comparison: Debian's libmodbus behind stunnel (package stunnel4).
+command -v stunnel >/dev/null || apt-get install -y -qq stunnel4 >/dev/null || true
 if [ "${BENCH_PGO:-1}" = 0 ]; then
     cargo build --release -q
     built=target/release

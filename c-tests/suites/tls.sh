@@ -20,6 +20,8 @@
 #     a refusal (and reset) while the client still writes its flight: the alert,
 #     not the failed write, is reported (c-tests/tls/alert_server.py);
 #   - interoperability with pymodbus, both directions, IPv4 and IPv6;
+#   - every cipher suite of TLS 1.2 and 1.3 against OpenSSL, both directions, with a
+#     key update asked by the peer (c-tests/tls/suites.sh, c-tests/tls/suite_server.py);
 #   - AddressSanitizer (with its leak checker) on the C programs: the test client's
 #     scenarios and the example server, built with -fsanitize=address.
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
@@ -408,4 +410,32 @@ if "$PY" -c 'import pymodbus' 2>/dev/null; then
 else
     bad "pymodbus for the interoperability checks" "$(tail -n 5 "$WORK/venv.log")"
 fi
+
+# Every cipher suite of TLS 1.2 and 1.3 against OpenSSL, both ways: our server under
+# openssl s_client (over TLS 1.3 with a key update asked between two requests), our
+# client (examples/tls-client.c: reads registers 0-4, writes one) against a server of
+# Python's ssl (over TLS 1.3 OpenSSL sends its session tickets after the handshake).
+start_server suites server && {
+    c-tests/tls/suites.sh "$C" "$PORT" >"$WORK/suites-server.out" 2>&1
+    count_lines "$WORK/suites-server.out" "our server, openssl s_client"
+    stop_server
+}
+for suite in "1.2 ECDHE-ECDSA-AES128-GCM-SHA256" "1.2 ECDHE-ECDSA-AES256-GCM-SHA384" \
+    "1.2 ECDHE-ECDSA-CHACHA20-POLY1305" "1.3"; do
+    read -r version cipher <<<"$suite"
+    out=$WORK/suites-client-${cipher:-1.3}
+    python3 c-tests/tls/suite_server.py "$C" "$version" ${cipher:+"$cipher"} >"$out.server" 2>&1 &
+    suite_pid=$!
+    for _ in $(seq 100); do [ -s "$out.server" ] && break; sleep 0.05; done
+    timeout 20 "$BIN/tls-client" "$C/ca.pem" "$C/operator.pem" "$C/operator.key" 127.0.0.1 "$(head -n 1 "$out.server")" \
+        >"$out" 2>&1
+    wait "$suite_pid"
+    name="our client, TLS $version ${cipher:-(the suite OpenSSL picks)} against the ssl module of Python"
+    if grep -q "registers 0-4: 0 1 2 3 4" "$out" && grep -q "write allowed" "$out" &&
+        grep -q "served TLSv$version .*: 2 requests" "$out.server"; then
+        ok "$name: read and write answered ($(tail -n 1 "$out.server"))"
+    else
+        bad "$name: read and write answered" "$(cat "$out" "$out.server" | tail -n 4)"
+    fi
+done
 summary

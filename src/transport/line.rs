@@ -91,7 +91,7 @@ struct Held {
 
 /// A TLS handshake: the connection, and a server's record cut.
 struct Handshake {
-    conn: rustls::Connection,
+    conn: tls::Conn,
     cut: Option<tls::RecordCut>,
 }
 
@@ -544,10 +544,12 @@ impl Line {
     /// closed.
     fn end_handshake(&mut self, done: Result<Handshake>, debug: bool, diag: &mut dyn Diag) -> Result<()> {
         let fd = self.fd;
+        let done = done.and_then(|Handshake { conn, .. }| {
+            let described = debug.then(|| tls::describe_session(&conn));
+            Ok((Box::new(Session::new(conn, fd)?), described))
+        });
         match done {
-            Ok(Handshake { conn, cut }) => {
-                let described = debug.then(|| tls::describe_session(&conn));
-                let session = Box::new(Session::new(conn, cut, super::socket_cookie(fd)));
+            Ok((session, described)) => {
                 if let Some(described) = described {
                     let role = session.role().map_or_else(|| "none".to_owned(), |r| format!("{r:?}"));
                     diag.out(format_args!("TLS handshake done: {described}, peer role {role}\n"));

@@ -7,6 +7,7 @@ pub mod epoll;
 pub mod line;
 pub mod link;
 pub mod listen;
+mod record;
 pub mod rtu;
 pub mod tcp;
 pub mod tls;

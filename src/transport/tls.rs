@@ -25,18 +25,22 @@
 
 use std::collections::HashMap;
 use std::ffi::{CStr, CString};
-use std::io::{self, Read, Write};
+use std::io;
 use std::sync::Arc;
 use std::time::Duration;
 
+use rustls::client::{ClientConnectionData, UnbufferedClientConnection};
+use rustls::kernel::KernelConnection;
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer, ServerName};
-use rustls::server::WebPkiClientVerifier;
+use rustls::server::{ServerConnectionData, UnbufferedServerConnection, WebPkiClientVerifier};
+use rustls::unbuffered::{ConnectionState, EncodeError, UnbufferedStatus};
 use rustls::{
-    AlertDescription, CertificateError, ClientConfig, ClientConnection, Connection, PeerIncompatible, RootCertStore,
-    ServerConfig, ServerConnection, SupportedProtocolVersion,
+    AlertDescription, CertificateError, ClientConfig, ConnectionTrafficSecrets, PeerIncompatible, RootCertStore,
+    ServerConfig, SupportedProtocolVersion,
 };
 
+use super::record::{self, MAX_FRAGMENT};
 use super::{Ready, now, to_timespec, wait_or_wake};
 use crate::error::{
     EMBTLS, EMBTLSCACERT, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSPASSWORD, EMBTLSUNKNOWNCA,
@@ -298,6 +302,9 @@ impl TlsSettings {
             }
             None => builder.with_no_client_auth(),
         };
+        // The records are protected by `record` once the handshake is done.
+        let mut config = config;
+        config.enable_secret_extraction = true;
         let config = Arc::new(config);
         self.client = Some(Arc::clone(&config));
         Ok(config)
@@ -320,6 +327,12 @@ impl TlsSettings {
             .with_single_cert(self.chain.clone(), key.clone_key())
             .map_err(|_| Error(EMBTLSCONFIG))?;
         config.ticketer = rustls::crypto::ring::Ticketer::new().map_err(|_| Error(EMBTLSCONFIG))?;
+        // One TLS 1.3 ticket per connection (rustls sends 2): a context has one
+        // connection at a time, and each resumption takes one ticket and brings a new
+        // one; the second cost both sides a key derivation and a record each handshake.
+        config.send_tls13_tickets = 1;
+        // The records are protected by `record` once the handshake is done.
+        config.enable_secret_extraction = true;
         let config = Arc::new(config);
         self.server = Some(Arc::clone(&config));
         Ok(config)
@@ -327,48 +340,295 @@ impl TlsSettings {
 
     /// A client connection to `host` (the address or node connected to, unless a
     /// server name was set).
-    pub fn connect(&mut self, host: &str) -> Result<Connection> {
+    pub fn connect(&mut self, host: &str) -> Result<Conn> {
         let config = self.client_config()?;
         let name = self.server_name.as_deref().unwrap_or(host);
         let name = ServerName::try_from(name.to_owned()).map_err(|_| Error(EMBTLSNAME))?;
-        ClientConnection::new(config, name).map(Connection::from).map_err(|e| error_of(&e))
+        let conn = UnbufferedClientConnection::new(config, name).map_err(|e| error_of(&e))?;
+        Ok(Conn::new(Peer::Client(Box::new(conn))))
     }
 
     /// A server connection.
-    pub fn accept(&mut self) -> Result<Connection> {
+    pub fn accept(&mut self) -> Result<Conn> {
         let config = self.server_config()?;
-        ServerConnection::new(config).map(Connection::from).map_err(|e| error_of(&e))
+        let conn = UnbufferedServerConnection::new(config).map_err(|e| error_of(&e))?;
+        Ok(Conn::new(Peer::Server(Box::new(conn))))
     }
 }
 
-/// A socket as rustls reads and writes it: one `recv`/`send` per call, with `flags`.
-/// With a [`RecordCut`], a read never goes past the end of the TLS record it is in.
-struct Fd<'a> {
-    fd: i32,
-    flags: i32,
-    cut: Option<&'a mut RecordCut>,
+/// The room a connection starts with for the records it receives; it grows to the
+/// largest record that arrives (a handshake's certificates), up to a record's most.
+const INITIAL_INPUT: usize = 2048;
+const MAX_RECORD: usize = 5 + 0xFFFF;
+
+/// rustls' unbuffered connection of either side (the two have no common type).
+enum Peer {
+    Client(Box<UnbufferedClientConnection>),
+    Server(Box<UnbufferedServerConnection>),
 }
 
-impl Read for Fd<'_> {
-    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let room = match &self.cut {
-            Some(cut) => buf.len().min(cut.limit()),
-            None => buf.len(),
-        };
-        let n = super::recv(self.fd, &mut buf[..room], self.flags).map_err(|e| io::Error::from_raw_os_error(e.0))?;
-        if let Some(cut) = self.cut.as_deref_mut() {
-            cut.advance(&buf[..n]);
+/// What [`Conn::advance`] stopped at.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Stop {
+    /// The handshake is done: application data may be sent.
+    Traffic,
+    /// The handshake needs more records from the peer.
+    Blocked,
+    /// Both ends sent close_notify.
+    Closed,
+    /// Application data was read, and no other record is held (whatever rustls has
+    /// to say still, a key update's answer, goes out before the next record sent).
+    Read,
+}
+
+/// The buffers of a connection: records received and not processed yet
+/// (`input[..have]`, decrypted in place there by rustls), records to send
+/// (`output[sent..end]`, encrypted in place there), and plaintext received and not
+/// taken yet (`plain[start..]`). They grow to what the connection needs and are then
+/// reused: a transaction allocates nothing of ours.
+struct Buffers {
+    input: Vec<u8>,
+    have: usize,
+    output: Out,
+    plain: Vec<u8>,
+    start: usize,
+    /// The peer sent close_notify.
+    peer_closed: bool,
+}
+
+impl Buffers {
+    /// Drops the first `n` bytes of input (records rustls processed).
+    fn consume(&mut self, n: usize) {
+        if n > 0 {
+            self.input.copy_within(n..self.have, 0);
+            self.have -= n;
         }
+    }
+
+    /// The room a read of records may fill: after what is held, growing when a
+    /// record held in part does not fit.
+    fn input_room(&mut self) -> &mut [u8] {
+        if self.have == self.input.len() {
+            let need = if self.have >= 5 {
+                5 + u16::from_be_bytes([self.input[3], self.input[4]]) as usize
+            } else {
+                INITIAL_INPUT
+            };
+            let size = need.max(self.have + 1).clamp(INITIAL_INPUT, MAX_RECORD);
+            self.input.resize(size, 0);
+        }
+        &mut self.input[self.have..]
+    }
+}
+
+/// Records to send: `buf[sent..end]`.
+#[derive(Default)]
+struct Out {
+    buf: Vec<u8>,
+    sent: usize,
+    end: usize,
+}
+
+impl Out {
+    /// Room for `at_least` more bytes after `end`.
+    fn room(&mut self, at_least: usize) -> &mut [u8] {
+        if self.buf.len() < self.end + at_least {
+            self.buf.resize(self.end + at_least, 0);
+        }
+        &mut self.buf[self.end..]
+    }
+
+    /// Records wait to go out.
+    fn waiting(&self) -> bool {
+        self.sent < self.end
+    }
+
+    /// Sends the records as far as the socket takes them without waiting: true when
+    /// all are out.
+    fn flush(&mut self, fd: i32) -> Result<bool> {
+        while self.sent < self.end {
+            match super::send(fd, &self.buf[self.sent..self.end], libc::MSG_DONTWAIT) {
+                Ok(n) => self.sent += n,
+                Err(e) if e.0 == libc::EAGAIN => return Ok(false),
+                Err(e) if e.0 == libc::EINTR => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.sent = 0;
+        self.end = 0;
+        Ok(true)
+    }
+
+    /// Sends the records, waiting for room until `deadline`.
+    fn flush_within(&mut self, fd: i32, deadline: Option<Duration>, stopping: &dyn Fn() -> bool) -> Result<()> {
+        while !self.flush(fd)? {
+            wait_until(fd, libc::POLLOUT, deadline, stopping)?;
+        }
+        Ok(())
+    }
+}
+
+/// The part of rustls' unbuffered API [`Conn`] drives, on either side.
+trait Unbuffered {
+    type Data;
+    fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data>;
+}
+
+impl Unbuffered for UnbufferedClientConnection {
+    type Data = ClientConnectionData;
+    fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data> {
+        self.process_tls_records(input)
+    }
+}
+
+impl Unbuffered for UnbufferedServerConnection {
+    type Data = ServerConnectionData;
+    fn process<'c, 'i>(&'c mut self, input: &'i mut [u8]) -> UnbufferedStatus<'c, 'i, Self::Data> {
+        self.process_tls_records(input)
+    }
+}
+
+/// Processes the records `b` holds until rustls needs more of them or the handshake
+/// is done: application data goes to the plaintext, what rustls has to send to the
+/// output.
+fn advance<C: Unbuffered>(conn: &mut C, b: &mut Buffers) -> core::result::Result<Stop, rustls::Error> {
+    loop {
+        let status = conn.process(&mut b.input[..b.have]);
+        let discard = status.discard;
+        let step = match status.state {
+            Err(e) => Err(e),
+            Ok(ConnectionState::ReadTraffic(mut traffic)) => {
+                let mut got = Ok(None);
+                while let Some(record) = traffic.next_record() {
+                    match record {
+                        Ok(record) => {
+                            if b.start == b.plain.len() {
+                                b.plain.clear();
+                                b.start = 0;
+                            }
+                            b.plain.extend_from_slice(record.payload);
+                        }
+                        Err(e) => {
+                            got = Err(e);
+                            break;
+                        }
+                    }
+                }
+                match got {
+                    // The last record held: no need to ask rustls again.
+                    Ok(None) if b.have == discard => Ok(Some(Stop::Read)),
+                    got => got,
+                }
+            }
+            Ok(ConnectionState::EncodeTlsData(mut data)) => {
+                let mut room = 0;
+                loop {
+                    match data.encode(b.output.room(room)) {
+                        Ok(n) => {
+                            b.output.end += n;
+                            break;
+                        }
+                        Err(EncodeError::InsufficientSize(s)) => room = s.required_size,
+                        Err(EncodeError::AlreadyEncoded) => break,
+                    }
+                }
+                Ok(None)
+            }
+            // The output is sent by the caller before it reads again.
+            Ok(ConnectionState::TransmitTlsData(data)) => {
+                data.done();
+                Ok(None)
+            }
+            Ok(ConnectionState::PeerClosed) => {
+                b.peer_closed = true;
+                Ok(None)
+            }
+            Ok(ConnectionState::Closed) => {
+                b.peer_closed = true;
+                Ok(Some(Stop::Closed))
+            }
+            Ok(ConnectionState::WriteTraffic(_)) => Ok(Some(Stop::Traffic)),
+            Ok(_) => Ok(Some(Stop::Blocked)),
+        };
+        b.consume(discard);
+        match step {
+            Ok(None) => {}
+            Ok(Some(stop)) => return Ok(stop),
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// One TLS connection's state and buffers, on rustls' unbuffered API: records are
+/// decrypted in place in the input buffer one `recv` filled, and encrypted into the
+/// output buffer one `send` empties.
+pub struct Conn {
+    peer: Peer,
+    b: Buffers,
+}
+
+impl Conn {
+    fn new(peer: Peer) -> Self {
+        let b = Buffers {
+            input: Vec::new(),
+            have: 0,
+            output: Out::default(),
+            plain: Vec::new(),
+            start: 0,
+            peer_closed: false,
+        };
+        Conn { peer, b }
+    }
+
+    /// rustls' state common to both sides (certificates, version, suite).
+    fn common(&self) -> &rustls::CommonState {
+        match &self.peer {
+            Peer::Client(c) => c,
+            Peer::Server(s) => s,
+        }
+    }
+
+    fn advance(&mut self) -> core::result::Result<Stop, rustls::Error> {
+        match &mut self.peer {
+            Peer::Client(c) => advance(&mut **c, &mut self.b),
+            Peer::Server(s) => advance(&mut **s, &mut self.b),
+        }
+    }
+
+    /// Output waits to go out.
+    fn wants_write(&self) -> bool {
+        self.b.output.waiting()
+    }
+
+    /// Sends the output as far as the socket takes it without waiting: true when all
+    /// is out.
+    fn flush(&mut self, fd: i32) -> Result<bool> {
+        self.b.output.flush(fd)
+    }
+
+    /// One `recv` of records (with `flags`; a server's handshake stops at the end of
+    /// the record with `cut`): the bytes read, 0 at the end of the stream.
+    fn read(&mut self, fd: i32, flags: i32, cut: Option<&mut RecordCut>) -> Result<usize> {
+        let room = self.b.input_room();
+        let room = match &cut {
+            Some(cut) => {
+                let limit = cut.limit().min(room.len());
+                &mut room[..limit]
+            }
+            None => room,
+        };
+        let n = super::recv(fd, room, flags)?;
+        if let Some(cut) = cut {
+            cut.advance(&room[..n]);
+        }
+        self.b.have += n;
         Ok(n)
     }
-}
 
-impl Write for Fd<'_> {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        super::send(self.fd, buf, self.flags).map_err(|e| io::Error::from_raw_os_error(e.0))
-    }
-    fn flush(&mut self) -> io::Result<()> {
-        Ok(())
+    /// After a failure: the alert rustls queued goes out if it can without waiting.
+    fn send_alert(&mut self, fd: i32) {
+        let _ = self.advance();
+        let _ = self.flush(fd);
     }
 }
 
@@ -390,30 +650,11 @@ fn wait_until(fd: i32, events: libc::c_short, deadline: Option<Duration>, stoppi
     }
 }
 
-/// Writes what rustls has to send, waiting for room until `deadline`.
-fn write_pending(
-    fd: i32,
-    conn: &mut Connection,
-    deadline: Option<Duration>,
-    stopping: &dyn Fn() -> bool,
-) -> Result<()> {
-    while conn.wants_write() {
-        match conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
-            Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock || e.kind() == io::ErrorKind::Interrupted => {
-                wait_until(fd, libc::POLLOUT, deadline, stopping)?
-            }
-            Err(e) => return Err(io_error(e)),
-        }
-    }
-    Ok(())
-}
-
 /// The handshake of `conn` on `fd`, until `deadline`. A refusal sends its alert
 /// before it is reported.
 pub fn handshake(
     fd: i32,
-    conn: &mut Connection,
+    conn: &mut Conn,
     cut: Option<&mut RecordCut>,
     deadline: Option<Duration>,
     stopping: &dyn Fn() -> bool,
@@ -425,7 +666,7 @@ pub fn handshake(
 
 fn handshake_steps(
     fd: i32,
-    conn: &mut Connection,
+    conn: &mut Conn,
     cut: Option<&mut RecordCut>,
     deadline: Option<Duration>,
     stopping: &dyn Fn() -> bool,
@@ -451,35 +692,30 @@ pub enum Progress {
 /// to send is sent, what has arrived is read. A refusal sends its alert before it is
 /// reported. The blocking handshake ([`handshake`]) waits between these steps; the
 /// event-driven client returns to the application's loop.
-pub fn handshake_step(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut>) -> Result<Progress> {
+pub fn handshake_step(fd: i32, conn: &mut Conn, cut: Option<&mut RecordCut>) -> Result<Progress> {
     let mut cut = cut;
     loop {
-        while conn.wants_write() {
-            match conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
+        match conn.flush(fd) {
+            Ok(true) => {}
+            Ok(false) => return Ok(Progress::Wants(libc::POLLOUT)),
+            Err(e) => return Err(refusal_after_failed_write(fd, conn, cut.as_deref_mut(), e)),
+        }
+        match conn.advance() {
+            Ok(Stop::Traffic) if !conn.wants_write() => return Ok(Progress::Done),
+            Ok(Stop::Traffic | Stop::Read) => {}
+            Ok(Stop::Closed) => return Err(Error::CONN_RESET),
+            Ok(Stop::Blocked) if conn.wants_write() => {}
+            Ok(Stop::Blocked) => match conn.read(fd, libc::MSG_DONTWAIT, cut.as_deref_mut()) {
+                Ok(0) => return Err(Error::CONN_RESET),
                 Ok(_) => {}
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(Progress::Wants(libc::POLLOUT)),
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(refusal_after_failed_write(fd, conn, cut.as_deref_mut(), io_error(e))),
+                Err(e) if e.0 == libc::EAGAIN => return Ok(Progress::Wants(libc::POLLIN)),
+                Err(e) if e.0 == libc::EINTR => {}
+                Err(e) => return Err(e),
+            },
+            Err(e) => {
+                conn.send_alert(fd);
+                return Err(error_of(&e));
             }
-        }
-        if !conn.is_handshaking() {
-            return Ok(Progress::Done);
-        }
-        match conn.read_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: cut.as_deref_mut() }) {
-            Ok(0) => return Err(Error::CONN_RESET),
-            Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(Progress::Wants(libc::POLLIN)),
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
-            Err(e) => return Err(io_error(e)),
-        }
-        if let Err(e) = conn.process_new_packets() {
-            // The alert goes out if it can without waiting.
-            while conn.wants_write() {
-                if conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }).is_err() {
-                    break;
-                }
-            }
-            return Err(error_of(&e));
         }
     }
 }
@@ -495,16 +731,18 @@ const MAX_RECORDS_AFTER_FAILED_WRITE: usize = 16;
 /// queue. What the peer sent is read without waiting (a bounded number of reads)
 /// and given to rustls: an alert among it is the error (EMBTLSUNKNOWNCA for a
 /// refused certificate); without one, `failed`.
-fn refusal_after_failed_write(fd: i32, conn: &mut Connection, cut: Option<&mut RecordCut>, failed: Error) -> Error {
+fn refusal_after_failed_write(fd: i32, conn: &mut Conn, cut: Option<&mut RecordCut>, failed: Error) -> Error {
     let mut cut = cut;
+    // What was to go out will not.
+    conn.b.output = Out::default();
     for _ in 0..MAX_RECORDS_AFTER_FAILED_WRITE {
-        match conn.read_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: cut.as_deref_mut() }) {
+        match conn.read(fd, libc::MSG_DONTWAIT, cut.as_deref_mut()) {
             Ok(0) => break,
             Ok(_) => {}
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) if e.0 == libc::EINTR => continue,
             Err(_) => break,
         }
-        match conn.process_new_packets() {
+        match conn.advance() {
             Err(e @ rustls::Error::AlertReceived(_)) => return error_of(&e),
             Err(_) => break,
             Ok(_) => {}
@@ -514,43 +752,126 @@ fn refusal_after_failed_write(fd: i32, conn: &mut Connection, cut: Option<&mut R
 }
 
 /// What a handshake agreed on, for the debug trace.
-pub fn describe_session(conn: &Connection) -> String {
+pub fn describe_session(conn: &Conn) -> String {
+    let conn = conn.common();
     let version = conn.protocol_version().map_or_else(|| "?".to_owned(), |v| format!("{v:?}"));
     let suite = conn.negotiated_cipher_suite().map_or_else(|| "?".to_owned(), |s| format!("{:?}", s.suite()));
     let resumed = matches!(conn.handshake_kind(), Some(rustls::HandshakeKind::Resumed));
     format!("{version}, {suite}{}", if resumed { ", resumed" } else { "" })
 }
 
-/// One TLS connection on a socket.
+/// rustls' connection once the handshake is done, as far as it still has a part:
+/// TLS 1.3 key updates, and a server's session tickets for a client's resumption.
+enum Kernel {
+    Client(KernelConnection<ClientConnectionData>),
+    Server(KernelConnection<ServerConnectionData>),
+}
+
+impl Kernel {
+    /// The next traffic secret of one direction (TLS 1.3 key update).
+    fn update(&mut self, transmit: bool) -> core::result::Result<(u64, ConnectionTrafficSecrets), rustls::Error> {
+        match (self, transmit) {
+            (Kernel::Client(k), true) => k.update_tx_secret(),
+            (Kernel::Client(k), false) => k.update_rx_secret(),
+            (Kernel::Server(k), true) => k.update_tx_secret(),
+            (Kernel::Server(k), false) => k.update_rx_secret(),
+        }
+    }
+}
+
+/// Records sent under one key before a TLS 1.3 key update (AES-GCM's limit is some
+/// 2^24.5 records; rustls updates before it too). A TLS 1.2 session that reaches it
+/// ends (TLS 1.2 has no key update; rustls closes it there as well).
+const KEY_UPDATE_AT: u64 = 1 << 23;
+/// The most body a record received may have: 2^14 bytes of plaintext plus the most
+/// a suite adds (TLS 1.3: 256; TLS 1.2: 2048).
+const MAX_BODY_TLS13: usize = MAX_FRAGMENT + 256;
+const MAX_BODY_TLS12: usize = MAX_FRAGMENT + 2048;
+
+/// Alert descriptions sent.
+const CLOSE_NOTIFY: u8 = 0;
+const UNEXPECTED_MESSAGE: u8 = 10;
+const BAD_RECORD_MAC: u8 = 20;
+const RECORD_OVERFLOW: u8 = 22;
+const DECODE_ERROR: u8 = 50;
+
+/// One TLS connection on a socket, its handshake done: the records are protected
+/// here ([`record::Direction`]) with the keys rustls agreed on, in the session's own
+/// buffers. One `recv` fills the input, every whole record in it is opened in place,
+/// and the plaintext of its application data stays where it is (moved down only to
+/// join what is not taken yet); a send seals its records into the output buffer.
 pub struct Session {
-    conn: Connection,
-    /// Plaintext received and not taken yet (`plain[start..]`).
-    plain: Vec<u8>,
+    kernel: Kernel,
+    tls13: bool,
+    tx: record::Direction,
+    rx: record::Direction,
+    /// `input[start..pend]`: plaintext not taken yet; `input[raw..have]`: records
+    /// not opened yet (the start of one, in part); `pend <= raw`.
+    input: Vec<u8>,
     start: usize,
+    pend: usize,
+    raw: usize,
+    have: usize,
+    output: Out,
     /// The peer closed: close_notify (a clean end) or the socket's end of stream.
     ended: bool,
     /// A record that failed (decryption, a fatal alert): reported by the next read.
     failed: Option<Error>,
     role: Option<CString>,
-    /// A server's reads stop at record boundaries (see [`RecordCut`]).
-    cut: Option<RecordCut>,
     /// The socket's cookie (see `transport::socket_cookie`).
     cookie: u64,
 }
 
 impl Session {
-    /// A connection whose handshake completed on the socket of `cookie`; `cut`: the
-    /// record boundary of a server's reads.
-    pub fn new(mut conn: Connection, cut: Option<RecordCut>, cookie: u64) -> Self {
+    /// The session of a connection whose handshake completed on `fd`: rustls hands
+    /// its traffic keys over (EMBTLS if it cannot: not expected), after it processed
+    /// the records that came with the end of the handshake (session tickets,
+    /// application data).
+    pub fn new(conn: Conn, fd: i32) -> Result<Self> {
+        let mut conn = conn;
         let role = conn
+            .common()
             .peer_certificates()
             .and_then(|chain| chain.first())
             .and_then(|c| security::role(c))
             .and_then(|r| CString::new(r).ok());
-        // Application data that came with the end of the handshake.
-        let mut plain = Vec::new();
-        let _ = conn.reader().read_to_end(&mut plain);
-        Session { conn, plain, start: 0, ended: false, failed: None, role, cut, cookie }
+        if conn.b.have > 0
+            && let Err(e) = conn.advance()
+        {
+            conn.send_alert(fd);
+            return Err(error_of(&e));
+        }
+        let tls13 = conn.common().protocol_version() == Some(rustls::ProtocolVersion::TLSv1_3);
+        let Conn { peer, b } = conn;
+        let (secrets, kernel) = match peer {
+            Peer::Client(c) => c.dangerous_into_kernel_connection().map(|(s, k)| (s, Kernel::Client(k))),
+            Peer::Server(s) => s.dangerous_into_kernel_connection().map(|(s, k)| (s, Kernel::Server(k))),
+        }
+        .map_err(|e| error_of(&e))?;
+        let tx = record::Direction::new(secrets.tx.1, secrets.tx.0, tls13).ok_or(Error(EMBTLS))?;
+        let rx = record::Direction::new(secrets.rx.1, secrets.rx.0, tls13).ok_or(Error(EMBTLS))?;
+        // What rustls decrypted goes before the records held (once per session).
+        let Buffers { mut input, have, output, plain, start, peer_closed } = b;
+        let kept = plain.len() - start;
+        if kept > 0 {
+            input.splice(0..0, plain[start..].iter().copied());
+        }
+        Ok(Session {
+            kernel,
+            tls13,
+            tx,
+            rx,
+            input,
+            start: 0,
+            pend: kept,
+            raw: kept,
+            have: kept + have,
+            output,
+            ended: peer_closed,
+            failed: None,
+            role,
+            cookie: super::socket_cookie(fd),
+        })
     }
 
     /// The cookie of the socket the session runs on.
@@ -564,53 +885,192 @@ impl Session {
     }
 
     /// Plaintext is there to take, or the end or a failure to report.
+    #[inline]
     pub fn readable(&self) -> bool {
-        self.start < self.plain.len() || self.ended || self.failed.is_some()
+        self.start < self.pend || self.ended || self.failed.is_some()
     }
 
-    /// One `recv` of records (with `flags`), decrypted into the plaintext buffer.
-    /// `Err` only for EAGAIN (nothing came) and EINTR; a failed socket or record is
-    /// kept for the read to report.
+    /// The room a `recv` may fill: after the records held, the plaintext not taken
+    /// and the records held moved down first when the end is reached, and the buffer
+    /// grown when a record held in part still does not fit.
+    fn input_room(&mut self) -> &mut [u8] {
+        if self.start == self.pend && self.raw == self.have {
+            (self.start, self.pend, self.raw, self.have) = (0, 0, 0, 0);
+        }
+        if self.have == self.input.len() {
+            let kept = self.pend - self.start;
+            self.input.copy_within(self.start..self.pend, 0);
+            self.input.copy_within(self.raw..self.have, kept);
+            self.have = kept + self.have - self.raw;
+            (self.start, self.pend, self.raw) = (0, kept, kept);
+            if self.have == self.input.len() {
+                let record = record::record_len(&self.input[self.raw..self.have]).unwrap_or(0);
+                let size = (self.raw + record).max(self.have + 1).max(INITIAL_INPUT);
+                self.input.resize(size, 0);
+            }
+        }
+        &mut self.input[self.have..]
+    }
+
+    /// One `recv` of records (with `flags`), opened into the plaintext. `Err` only
+    /// for EAGAIN (nothing came) and EINTR; a failed socket or record is kept for the
+    /// read to report.
     pub fn fill(&mut self, fd: i32, flags: i32) -> Result<()> {
-        let n = match self.conn.read_tls(&mut Fd { fd, flags, cut: self.cut.as_mut() }) {
-            Ok(n) => n,
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Err(Error(libc::EAGAIN)),
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => return Err(Error(libc::EINTR)),
-            Err(e) => {
-                // A reset or another failure of the socket: reported by the read.
-                self.failed = Some(io_error(e));
-                return Ok(());
+        match super::recv(fd, self.input_room(), flags) {
+            Ok(0) => self.ended = true,
+            Ok(n) => {
+                self.have += n;
+                self.open_records(fd);
             }
-        };
-        match self.conn.process_new_packets() {
-            Ok(state) => {
-                let pending = state.plaintext_bytes_to_read();
-                if pending > 0 {
-                    if self.start == self.plain.len() {
-                        self.plain.clear();
-                        self.start = 0;
-                    }
-                    let at = self.plain.len();
-                    self.plain.resize(at + pending, 0);
-                    if self.conn.reader().read_exact(&mut self.plain[at..]).is_err() {
-                        self.plain.truncate(at);
-                    }
-                }
-                if n == 0 || state.peer_has_closed() {
-                    self.ended = true;
-                }
-            }
-            Err(e) => {
-                let _ = self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None });
-                self.failed = Some(error_of(&e));
-            }
+            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => return Err(e),
+            // A reset or another failure of the socket: reported by the read.
+            Err(e) => self.failed = Some(e),
         }
         Ok(())
     }
 
+    /// Opens every whole record held, in order, until the peer's end or a failure.
+    fn open_records(&mut self, fd: i32) {
+        while !self.readable_end() {
+            let Some(len) = record::record_len(&self.input[self.raw..self.have]) else { return };
+            if len - 5 > if self.tls13 { MAX_BODY_TLS13 } else { MAX_BODY_TLS12 } {
+                return self.fatal(fd, RECORD_OVERFLOW, rustls::Error::PeerSentOversizedRecord);
+            }
+            if self.raw + len > self.have {
+                return;
+            }
+            let at = self.raw;
+            self.raw += len;
+            let (typ, range) = match self.rx.open(&mut self.input[at..at + len]) {
+                Ok(opened) => opened,
+                Err(record::BadRecord) => return self.fatal(fd, BAD_RECORD_MAC, rustls::Error::DecryptError),
+            };
+            let (from, to) = (at + range.start, at + range.end);
+            match typ {
+                record::APPLICATION_DATA => self.keep(from, to),
+                record::ALERT => self.alert(from, to),
+                record::HANDSHAKE => self.post_handshake(fd, from, to),
+                _ => self.unexpected(fd),
+            }
+        }
+    }
+
+    /// The plaintext at `input[from..to]` joins what is not taken yet.
+    fn keep(&mut self, from: usize, to: usize) {
+        if self.start == self.pend {
+            (self.start, self.pend) = (from, to);
+        } else {
+            self.input.copy_within(from..to, self.pend);
+            self.pend += to - from;
+        }
+    }
+
+    /// An alert from the peer: close_notify ends the session; a warning (TLS 1.2) or
+    /// user_canceled is passed over; anything else is the peer's refusal.
+    fn alert(&mut self, from: usize, to: usize) {
+        let [level, description] = self.input[from..to] else {
+            self.failed = Some(Error(EMBTLS));
+            return;
+        };
+        match description {
+            CLOSE_NOTIFY => self.ended = true,
+            90 => {}
+            _ if level == 1 && !self.tls13 => {}
+            _ => self.failed = Some(error_of(&rustls::Error::AlertReceived(AlertDescription::from(description)))),
+        }
+    }
+
+    /// Handshake messages after the handshake (TLS 1.3): session tickets (a client
+    /// gives them to rustls for resumption) and key updates. Each must be whole in
+    /// its record (rustls and OpenSSL send them so).
+    fn post_handshake(&mut self, fd: i32, from: usize, to: usize) {
+        if !self.tls13 {
+            // A TLS 1.2 HelloRequest: renegotiation is not supported, the request is
+            // passed over (as rustls does); anything else is unexpected.
+            if self.input[from..to] != [0, 0, 0, 0] {
+                self.unexpected(fd);
+            }
+            return;
+        }
+        let mut at = from;
+        while at < to {
+            let Some(&[typ, a, b, c]) = self.input.get(at..at + 4) else {
+                return self.fatal(fd, DECODE_ERROR, rustls::Error::DecryptError);
+            };
+            let len = u32::from_be_bytes([0, a, b, c]) as usize;
+            let body = at + 4..at + 4 + len;
+            if body.end > to {
+                return self.fatal(fd, DECODE_ERROR, rustls::Error::DecryptError);
+            }
+            at = body.end;
+            let done = match (typ, &mut self.kernel) {
+                (4, Kernel::Client(k)) => k.handle_new_session_ticket(&self.input[body]),
+                (24, _) if len == 1 => self.key_update(self.input[body.start] == 1),
+                _ => return self.unexpected(fd),
+            };
+            if let Err(e) = done {
+                return self.fatal(fd, DECODE_ERROR, e);
+            }
+        }
+    }
+
+    /// The peer's key update: its next records come under the next key; when it asks,
+    /// ours go under our next key too, after a key update of ours.
+    fn key_update(&mut self, requested: bool) -> core::result::Result<(), rustls::Error> {
+        let (seq, secrets) = self.kernel.update(false)?;
+        self.rx = record::Direction::new(secrets, seq, true).ok_or(rustls::Error::EncryptError)?;
+        if requested { self.update_keys() } else { Ok(()) }
+    }
+
+    /// Our key update: the message under the current key, then the next key.
+    fn update_keys(&mut self) -> core::result::Result<(), rustls::Error> {
+        self.seal(record::HANDSHAKE, &[24, 0, 0, 1, 0]);
+        let (seq, secrets) = self.kernel.update(true)?;
+        self.tx = record::Direction::new(secrets, seq, true).ok_or(rustls::Error::EncryptError)?;
+        Ok(())
+    }
+
+    fn unexpected(&mut self, fd: i32) {
+        self.fatal(fd, UNEXPECTED_MESSAGE, rustls::Error::General("unexpected message".into()))
+    }
+
+    /// A failure of the peer's records: our alert goes out if it can without
+    /// waiting, the error is kept for the read.
+    #[cold]
+    fn fatal(&mut self, fd: i32, description: u8, error: rustls::Error) {
+        self.seal(record::ALERT, &[2, description]);
+        let _ = self.output.flush(fd);
+        self.failed = Some(error_of(&error));
+    }
+
+    /// Seals `data` of type `typ` into records in the output.
+    fn seal(&mut self, typ: u8, data: &[u8]) {
+        let overhead = self.tx.overhead();
+        let room = self.output.room(data.len() + overhead * (1 + data.len() / MAX_FRAGMENT));
+        let mut at = 0;
+        for chunk in data.chunks(MAX_FRAGMENT) {
+            at += self.tx.seal(typ, chunk, &mut room[at..]);
+        }
+        self.output.end += at;
+    }
+
+    /// Seals application data, after a key update when the key has protected enough
+    /// records (EMBTLS on TLS 1.2 then: the session ends).
+    fn seal_data(&mut self, data: &[u8]) -> Result<()> {
+        if self.tx.seq() >= KEY_UPDATE_AT {
+            if !self.tls13 {
+                return Err(Error(EMBTLS));
+            }
+            self.update_keys().map_err(|e| error_of(&e))?;
+        }
+        self.seal(record::APPLICATION_DATA, data);
+        Ok(())
+    }
+
     /// Copies plaintext into `room` without taking it.
+    #[inline]
     pub fn peek(&self, room: &mut [u8]) -> usize {
-        let avail = &self.plain[self.start..];
+        let avail = &self.input[self.start..self.pend];
         let n = avail.len().min(room.len());
         room[..n].copy_from_slice(&avail[..n]);
         n
@@ -618,6 +1078,7 @@ impl Session {
 
     /// Takes plaintext into `room`: `Ok(0)` at the peer's end, `Err` for a failed
     /// record, EAGAIN when nothing is there.
+    #[inline]
     pub fn take(&mut self, room: &mut [u8]) -> Result<usize> {
         let n = self.peek(room);
         if n > 0 {
@@ -631,9 +1092,9 @@ impl Session {
     }
 
     /// Plaintext received and not taken yet: the rest of a TLS record that carried
-    /// more than the request or response read from it.
+    /// more than the request or response read from it, and the records read with it.
     pub fn pending(&self) -> usize {
-        self.plain.len() - self.start
+        self.pend - self.start
     }
 
     /// The peer ended the session, or a record failed.
@@ -643,9 +1104,8 @@ impl Session {
 
     /// Drops the plaintext not taken (a flush); returns its length.
     pub fn discard(&mut self) -> usize {
-        let n = self.plain.len() - self.start;
-        self.plain.clear();
-        self.start = 0;
+        let n = self.pending();
+        self.start = self.pend;
         n
     }
 
@@ -657,49 +1117,35 @@ impl Session {
         deadline: Option<Duration>,
         stopping: &dyn Fn() -> bool,
     ) -> Result<usize> {
-        if self.conn.writer().write_all(data).is_err() {
-            return Err(Error(libc::EPIPE));
+        if self.output.waiting() {
+            self.output.flush_within(fd, deadline, stopping)?;
         }
-        write_pending(fd, &mut self.conn, deadline, stopping)?;
+        self.seal_data(data)?;
+        self.output.flush_within(fd, deadline, stopping)?;
         Ok(data.len())
     }
 
     /// TLS data waits to go out.
     pub fn wants_write(&self) -> bool {
-        self.conn.wants_write()
+        self.output.waiting()
     }
 
     /// Sends `plain` (taken from the vector) as application data, as far as the
     /// socket takes it without waiting: true when all is out.
     pub fn send_without_waiting(&mut self, fd: i32, plain: &mut Vec<u8>) -> Result<bool> {
-        loop {
-            if !plain.is_empty() {
-                match self.conn.writer().write(plain) {
-                    Ok(n) => {
-                        plain.drain(..n);
-                    }
-                    Err(_) => return Err(Error(libc::EPIPE)),
-                }
-            }
-            if !self.conn.wants_write() {
-                if plain.is_empty() {
-                    return Ok(true);
-                }
-                continue;
-            }
-            match self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None }) {
-                Ok(_) => {}
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return Ok(false),
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(io_error(e)),
-            }
+        if !plain.is_empty() {
+            self.seal_data(plain)?;
+            plain.clear();
         }
+        self.output.flush(fd)
     }
 
     /// Sends close_notify, without waiting.
     pub fn close(&mut self, fd: i32) {
-        self.conn.send_close_notify();
-        let _ = self.conn.write_tls(&mut Fd { fd, flags: libc::MSG_DONTWAIT, cut: None });
+        if let Ok(true) = self.output.flush(fd) {
+            self.seal(record::ALERT, &[1, CLOSE_NOTIFY]);
+            let _ = self.output.flush(fd);
+        }
     }
 }
 
