@@ -535,7 +535,7 @@ impl Runner {
 
     /// Tells the answerer of the clients closed since it was last told.
     fn tell_closed(&mut self, answer: &mut dyn Answer) {
-        for id in std::mem::take(&mut self.closed) {
+        for id in self.closed.drain(..) {
             answer.closed(id);
         }
     }
