@@ -135,6 +135,13 @@ if grep -q "TLS handshake done: .*resumed" "$WORK/scenario-resume.out"; then
 else
     bad "resume: the second handshake resumed the session" "$(grep 'TLS handshake' "$WORK/scenario-resume.out")"
 fi
+# Our client offers AES-128-GCM first (the specification's recommended suites are
+# AES-128-GCM ones, R-36; TLS 1.3's mandatory one): ours against ours agree on it.
+if grep -q "TLS handshake done: TLSv1_3, TLS13_AES_128_GCM_SHA256" "$WORK/scenario-resume.out"; then
+    ok "suite: ours against ours agree on TLS13_AES_128_GCM_SHA256"
+else
+    bad "suite: ours against ours agree on TLS13_AES_128_GCM_SHA256" "$(grep 'TLS handshake' "$WORK/scenario-resume.out")"
+fi
 # The example client against the example server.
 out=$("$BIN/tls-client" "$C/ca.pem" "$C/operator.pem" "$C/operator.key" 127.0.0.1 "$PORT" 2>&1)
 if [[ $out == *"registers 0-4: 1000 1001 1002 1003 1004"* && $out == *"write allowed"* ]]; then

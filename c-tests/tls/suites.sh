@@ -3,7 +3,9 @@
 # holds 1000 + A) against openssl s_client in every cipher suite of TLS 1.2 and 1.3,
 # two requests in records of their own; over TLS 1.3 the client asks for a key update
 # between them (s_client's command K), so that the second request comes under its next
-# key and the answer under ours. Prints one PASS/FAIL line per suite.
+# key and the answer under ours. Prints one PASS/FAIL line per suite, and one for the
+# choice among suites: the server takes the client's order (s_client offering AES-256
+# first gets it, while our own client asks for AES-128 first).
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -uo pipefail
 C=$1 PORT=$2
@@ -32,3 +34,11 @@ done
 for suite in TLS_AES_128_GCM_SHA256 TLS_AES_256_GCM_SHA384 TLS_CHACHA20_POLY1305_SHA256; do
     run "TLS 1.3 $suite, a key update between the requests" 'K\n' -tls1_3 -ciphersuites "$suite"
 done
+order=$(echo | timeout 10 openssl s_client -connect "127.0.0.1:$PORT" -CAfile "$C/ca.pem" -cert "$C/operator.pem" \
+    -key "$C/operator.key" -tls1_3 -ciphersuites TLS_AES_256_GCM_SHA384:TLS_AES_128_GCM_SHA256 -brief 2>&1 |
+    sed -n 's/^Ciphersuite: //p')
+if [ "$order" = TLS_AES_256_GCM_SHA384 ]; then
+    echo "PASS the client's order: TLS_AES_256_GCM_SHA384 offered first is taken"
+else
+    echo "FAIL the client's order: TLS_AES_256_GCM_SHA384 offered first, '$order' taken"
+fi
