@@ -390,6 +390,10 @@ STOP_GRACE=3
 start_bg() {
     local o=$1 e=$2
     shift 2
+    # Emptied here, not by the background job's redirection: a wait_ready right after
+    # would otherwise find the previous run's READY in the file before the job opens it.
+    : >"$o"
+    : >"$e"
     # fd 9 is client.sh's lock: a process left behind must not hold it.
     if [ "$e" = "$o" ]; then
         "$@" >"$o" 2>&1 9>&- &
