@@ -813,6 +813,9 @@ pub struct Session {
     raw: usize,
     have: usize,
     output: Out,
+    /// The records sent under one key before our key update ([`KEY_UPDATE_AT`]; the
+    /// tests lower it to reach the update).
+    key_update_at: u64,
     /// The peer closed: close_notify (a clean end) or the socket's end of stream.
     ended: bool,
     /// A record that failed (decryption, a fatal alert): reported by the next read.
@@ -867,6 +870,7 @@ impl Session {
             raw: kept,
             have: kept + have,
             output,
+            key_update_at: KEY_UPDATE_AT,
             ended: peer_closed,
             failed: None,
             role,
@@ -1057,7 +1061,7 @@ impl Session {
     /// Seals application data, after a key update when the key has protected enough
     /// records (EMBTLS on TLS 1.2 then: the session ends).
     fn seal_data(&mut self, data: &[u8]) -> Result<()> {
-        if self.tx.seq() >= KEY_UPDATE_AT {
+        if self.tx.seq() >= self.key_update_at {
             if !self.tls13 {
                 return Err(Error(EMBTLS));
             }
@@ -1183,6 +1187,10 @@ impl Tls {
         self.parked.remove(&fd);
     }
 }
+
+#[cfg(test)]
+#[path = "tls_key_update_tests.rs"]
+mod key_update_tests;
 
 #[cfg(test)]
 mod tests {
