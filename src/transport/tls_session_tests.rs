@@ -1,7 +1,8 @@
-//! Our own key update at the session's limit (`Session::key_update_at`, lowered here
-//! from `KEY_UPDATE_AT` so that a few records reach it): TLS 1.3 between our two
-//! sides and against `openssl s_server`, and TLS 1.2's end of the session there.
-//! The certificates are c-tests/tls/make-certs.sh's, made with openssl.
+//! Sessions after the handshake, over loopback: our own key update at the session's
+//! limit (`Session::key_update_at`, lowered here from `KEY_UPDATE_AT` so that a few
+//! records reach it): TLS 1.3 between our two sides and against `openssl s_server`,
+//! and TLS 1.2's end of the session there; and the room an idle session keeps. The
+//! certificates are c-tests/tls/make-certs.sh's, made with openssl.
 
 use super::*;
 use std::io::{BufRead, BufReader};
@@ -21,7 +22,7 @@ fn certs() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
         let exe = std::env::current_exe().unwrap();
-        let dir = exe.parent().unwrap().join("tls-key-update-certs");
+        let dir = exe.parent().unwrap().join("tls-session-certs");
         // The last file make-certs.sh writes.
         if !dir.join("operator-legacy.key").exists() {
             let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("c-tests/tls/make-certs.sh");
@@ -64,25 +65,46 @@ fn deadline() -> Option<Duration> {
 
 /// A connection's handshake on `stream`, and the session after it.
 fn established(stream: &TcpStream, conn: Conn) -> Session {
+    handshaken(stream, conn).0
+}
+
+/// A connection's handshake on `stream`, the session after it, and the room its
+/// buffers had at the end of the handshake (records received, records sent).
+fn handshaken(stream: &TcpStream, conn: Conn) -> (Session, (usize, usize)) {
     let mut conn = conn;
     stream.set_read_timeout(Some(WAIT)).unwrap();
     let fd = stream.as_raw_fd();
     handshake(fd, &mut conn, None, deadline(), &|| false).unwrap();
-    Session::new(conn, fd).unwrap()
+    let room = (conn.b.input.capacity(), conn.b.output.buf.capacity());
+    (Session::new(conn, fd).unwrap(), room)
+}
+
+/// One side of a connection: its session, its socket, and its buffers' room at the
+/// end of the handshake.
+struct Side {
+    session: Session,
+    stream: TcpStream,
+    handshake_room: (usize, usize),
 }
 
 /// A session of each side over a loopback TCP connection: the client's, the server's.
-fn pair(client: TlsSettings, server: TlsSettings) -> ((Session, TcpStream), (Session, TcpStream)) {
+fn sides(client: TlsSettings, server: TlsSettings) -> (Side, Side) {
     let (mut client, mut server) = (client, server);
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let addr = listener.local_addr().unwrap();
     let serving = std::thread::spawn(move || {
         let (stream, _) = listener.accept().unwrap();
-        (established(&stream, server.accept().unwrap()), stream)
+        let (session, handshake_room) = handshaken(&stream, server.accept().unwrap());
+        Side { session, stream, handshake_room }
     });
     let stream = TcpStream::connect(addr).unwrap();
-    let ours = (established(&stream, client.connect("127.0.0.1").unwrap()), stream);
-    (ours, serving.join().unwrap())
+    let (session, handshake_room) = handshaken(&stream, client.connect("127.0.0.1").unwrap());
+    (Side { session, stream, handshake_room }, serving.join().unwrap())
+}
+
+fn pair(client: TlsSettings, server: TlsSettings) -> ((Session, TcpStream), (Session, TcpStream)) {
+    let (c, s) = sides(client, server);
+    ((c.session, c.stream), (s.session, s.stream))
 }
 
 /// Sends `data`, and tells whether our key was updated for it: the sequence number
@@ -259,4 +281,43 @@ fn tls12_session_ends_at_the_limit() {
         assert_eq!(receive(&mut server, sfd, message(i).len()).unwrap(), message(i));
     }
     assert_eq!(receive(&mut server, sfd, 1), Err(Error::CONN_RESET), "nothing after");
+}
+
+/// `who`'s settings with the CA's certificate sent `copies` times after its own (a
+/// longer chain: the handshake's records grow past what a transaction needs).
+fn padded(who: &str, copies: usize) -> TlsSettings {
+    let c = certs();
+    let pem = |name: &str| read_file(&c.join(name)).unwrap();
+    let mut chain = pem(&format!("{who}.pem"));
+    for _ in 0..copies {
+        chain.extend(pem("ca.pem"));
+    }
+    let mut s = settings(who, TLS_1_3);
+    s.set_certificate_pem(&chain, &pem(&format!("{who}.key")), None).unwrap();
+    s
+}
+
+/// After a handshake whose records are larger than a transaction's (longer chains of
+/// certificates each way), each side's session keeps no more room than its
+/// transactions use: records received, the first 2,048 bytes (`INITIAL_INPUT`);
+/// records sent, 512 (`OUTPUT_KEPT`). Messages still go both ways after it, and one
+/// larger than both (2 records) grows them again.
+#[test]
+fn an_idle_session_keeps_a_transactions_room_after_its_handshake() {
+    let (mut client, mut server) = sides(padded("operator", 8), padded("server", 8));
+    for (side, who) in [(&client, "client"), (&server, "server")] {
+        let (input, output) = side.handshake_room;
+        assert!(input > INITIAL_INPUT && output > OUTPUT_KEPT, "{who}: the handshake needed only {input} / {output}");
+        let (input, output) = (side.session.input.capacity(), side.session.output.buf.capacity());
+        assert!(input <= INITIAL_INPUT && output <= OUTPUT_KEPT, "{who} keeps {input} / {output} bytes of room");
+    }
+    let (cfd, sfd) = (client.stream.as_raw_fd(), server.stream.as_raw_fd());
+    let big: Vec<u8> = (0..20_000).map(|i| (i % 251) as u8).collect();
+    for data in [message(1), message(7), big.clone()] {
+        send(&mut client.session, cfd, &data).unwrap();
+        assert_eq!(receive(&mut server.session, sfd, data.len()).unwrap(), data);
+        send(&mut server.session, sfd, &data).unwrap();
+        assert_eq!(receive(&mut client.session, cfd, data.len()).unwrap(), data);
+    }
+    assert!(server.session.output.buf.capacity() > big.len(), "grown again for the larger message");
 }
