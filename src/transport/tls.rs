@@ -378,6 +378,10 @@ impl TlsSettings {
 /// largest record that arrives (a handshake's certificates), up to a record's most.
 const INITIAL_INPUT: usize = 2048;
 const MAX_RECORD: usize = 5 + 0xFFFF;
+/// The room for records to send a session keeps after its handshake (whose flight of
+/// certificates is larger): a Modbus ADU's record (260 bytes and a record's 29 at
+/// most) and a key update's; it grows again for more, once.
+const OUTPUT_KEPT: usize = 512;
 
 /// rustls' unbuffered connection of either side (the two have no common type).
 enum Peer {
@@ -459,6 +463,15 @@ impl Out {
     /// Records wait to go out.
     fn waiting(&self) -> bool {
         self.sent < self.end
+    }
+
+    /// Gives back the room beyond `keep` bytes when nothing waits to go out.
+    fn trim(&mut self, keep: usize) {
+        if !self.waiting() && self.buf.capacity() > keep {
+            (self.sent, self.end) = (0, 0);
+            self.buf.truncate(keep);
+            self.buf.shrink_to_fit();
+        }
     }
 
     /// Sends the records as far as the socket takes them without waiting: true when
@@ -831,6 +844,9 @@ pub struct Session {
     raw: usize,
     have: usize,
     output: Out,
+    /// The records sent under one key before our key update ([`KEY_UPDATE_AT`]; the
+    /// tests lower it to reach the update).
+    key_update_at: u64,
     /// The peer closed: close_notify (a clean end) or the socket's end of stream.
     ended: bool,
     /// A record that failed (decryption, a fatal alert): reported by the next read.
@@ -869,11 +885,20 @@ impl Session {
         let tx = record::Direction::new(secrets.tx.1, secrets.tx.0, tls13).ok_or(Error(EMBTLS))?;
         let rx = record::Direction::new(secrets.rx.1, secrets.rx.0, tls13).ok_or(Error(EMBTLS))?;
         // What rustls decrypted goes before the records held (once per session).
-        let Buffers { mut input, have, output, plain, start, peer_closed } = b;
+        let Buffers { mut input, have, mut output, plain, start, peer_closed } = b;
         let kept = plain.len() - start;
         if kept > 0 {
             input.splice(0..0, plain[start..].iter().copied());
         }
+        // The handshake's records (certificates) made the buffers larger than a
+        // transaction needs: an idle session keeps only what its transactions use
+        // (once per session; a transaction then allocates nothing).
+        let keep = INITIAL_INPUT.max(kept + have);
+        if input.capacity() > keep {
+            input.truncate(keep);
+            input.shrink_to_fit();
+        }
+        output.trim(OUTPUT_KEPT);
         Ok(Session {
             kernel,
             tls13,
@@ -885,6 +910,7 @@ impl Session {
             raw: kept,
             have: kept + have,
             output,
+            key_update_at: KEY_UPDATE_AT,
             ended: peer_closed,
             failed: None,
             role,
@@ -1075,7 +1101,7 @@ impl Session {
     /// Seals application data, after a key update when the key has protected enough
     /// records (EMBTLS on TLS 1.2 then: the session ends).
     fn seal_data(&mut self, data: &[u8]) -> Result<()> {
-        if self.tx.seq() >= KEY_UPDATE_AT {
+        if self.tx.seq() >= self.key_update_at {
             if !self.tls13 {
                 return Err(Error(EMBTLS));
             }
@@ -1201,6 +1227,10 @@ impl Tls {
         self.parked.remove(&fd);
     }
 }
+
+#[cfg(test)]
+#[path = "tls_session_tests.rs"]
+mod session_tests;
 
 #[cfg(test)]
 mod tests {
