@@ -3,9 +3,11 @@
 # build the Debian packages ship and the benchmark measures. Three steps:
 #   1. a release library instrumented for profiling (DIR/gen);
 #   2. a training run: benches/pgo-train.py runs the benchmark's server and client,
-#      both loading that library, through every benchmark case over TCP loopback (a
-#      fixed number of transactions: the same source gives the same profile, and the
-#      same library);
+#      both loading that library, through every benchmark case over TCP loopback and
+#      two (read 125 registers, read 1 register) over TLS (a fixed number of
+#      transactions; the TLS profile's counts rounded to a multiple of it, which
+#      leaves out its handshakes' varying few: the same source gives the same profile,
+#      and the same library);
 #   3. the release library again, optimised with the merged profile
 #      (DIR/rsmodbus-HASH.profdata): DIR/release/libmodbus.so, .so.5, .a, libmodbus.pc.
 # Why: measured with benches/ab.py, the optimised library is about 1.5% faster
@@ -17,7 +19,8 @@
 #        scripts/build-pgo.sh --find-profdata   (prints the llvm-profdata it would use;
 #                                               exit 1 without one: install-deps.sh)
 # Needs: llvm-profdata of the LLVM that rustc was built with ($LLVM_PROFDATA, rustup's
-# llvm-tools component, or Debian's llvm-N), gcc and python3.
+# llvm-tools component, or Debian's llvm-N), gcc, python3 and openssl (the TLS
+# training's certificates, c-tests/tls/make-certs.sh).
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -47,7 +50,7 @@ if [ "${1:-}" = --find-profdata ]; then
 fi
 
 out=$(realpath -m "${1:-target/pgo}")
-for tool in cargo gcc python3; do
+for tool in cargo gcc python3 openssl; do
     command -v "$tool" >/dev/null || die "$tool not found (scripts/install-deps.sh installs it)"
 done
 
@@ -71,8 +74,9 @@ rm -f "$out/inputs"
 # script, cbindgen and its own dependencies: those are neither instrumented (their runs
 # would add to the profile) nor rebuilt when the profile changes.
 raw=$out/profraw
+raw_tls=$out/profraw-tls
 gen=$out/gen/$host/release
-rm -rf "$raw" "$out"/rsmodbus*.profdata
+rm -rf "$raw" "$raw_tls" "$out"/tls*.proftext "$out"/rsmodbus*.profdata
 echo "build-pgo.sh: 1/3 instrumented library ($gen)"
 RUSTFLAGS="${RUSTFLAGS:-} -Cprofile-generate=$raw" \
     cargo build --release --locked --lib --quiet --target "$host" --target-dir "$out/gen"
@@ -81,8 +85,15 @@ echo "build-pgo.sh: 2/3 training run"
 # The programs are built against our own headers and linked with the instrumented
 # library, so that Debian's libmodbus-dev is not needed here.
 MB_CFLAGS="-I$PWD/include" MB_LDFLAGS="-L$gen" benches/build.sh "$out/bin"
-python3 benches/pgo-train.py "$out/bin" "$gen"
-"$profdata" merge -o "$out/rsmodbus.profdata" "$raw"
+python3 benches/pgo-train.py "$out/bin" "$gen" "$raw_tls"
+tls_profile=()
+if [ -d "$raw_tls" ]; then
+    # The TLS processes' profile, its counts rounded (benches/pgo-train.py --round).
+    "$profdata" merge --text -o "$out/tls.proftext" "$raw_tls"
+    python3 benches/pgo-train.py --round "$out/tls.proftext" "$out/tls-rounded.proftext"
+    tls_profile=("$out/tls-rounded.proftext")
+fi
+"$profdata" merge -o "$out/rsmodbus.profdata" "$raw" "${tls_profile[@]}"
 # Cargo rebuilds when RUSTFLAGS change, not when a file they name does: the profile's
 # name carries its hash.
 profile=$out/rsmodbus-$(sha256sum "$out/rsmodbus.profdata" | cut -c1-16).profdata

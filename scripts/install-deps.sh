@@ -4,11 +4,13 @@
 # consumer of libmodbus5; debhelper and dpkg-dev build the .deb packages
 # (scripts/build-deb.sh). python3-venv holds the interoperability tests' pinned pymodbus
 # (c-tests/suites/interop.sh, from PyPI). abigail-tools (abidw, abidiff) compares the
-# ABI with its baseline (c-tests/suites/abi-check.sh, scripts/abi-update.sh). At the
-# end: llvm-profdata for scripts/build-pgo.sh.
+# ABI with its baseline (c-tests/suites/abi-check.sh, scripts/abi-update.sh). openssl
+# makes the TLS certificates (c-tests/tls/make-certs.sh: the TLS tests, the benchmark,
+# the profile-guided build's training). At the end: llvm-profdata for
+# scripts/build-pgo.sh.
 set -euo pipefail
 packages=(gcc g++ make pkg-config binutils libmodbus-dev libmodbus5 socat mbpoll valgrind man-db
-    python3 debhelper dpkg-dev python3-venv abigail-tools)
+    python3 debhelper dpkg-dev python3-venv abigail-tools openssl)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")
