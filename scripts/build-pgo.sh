@@ -87,7 +87,19 @@ echo "build-pgo.sh: 2/3 training run"
 # The programs are built against our own headers and linked with the instrumented
 # library, so that Debian's libmodbus-dev is not needed here.
 MB_CFLAGS="-I$PWD/include" MB_LDFLAGS="-L$gen" benches/build.sh "$out/bin"
-python3 benches/pgo-train.py "$out/bin" "$gen" "$raw_tls"
+# Without address space randomisation (setarch -R: the processes' personality), where
+# it is allowed: the targets of indirect calls are recorded as addresses, and with the
+# library at a new address in every process, llvm-profdata named a target in one of
+# its processes and not in the others ("** External Symbol **"), a different one from
+# run to run (2 of 8 TCP-only trainings gave another profile). At one address: 8 of 8
+# the same, every target named.
+norandom=()
+if setarch "$(uname -m)" -R true 2>/dev/null; then
+    norandom=(setarch "$(uname -m)" -R)
+else
+    echo "build-pgo.sh: setarch -R is not allowed here: the profile may differ from run to run" >&2
+fi
+"${norandom[@]}" python3 benches/pgo-train.py "$out/bin" "$gen" "$raw_tls"
 tls_profile=()
 if [ -d "$raw_tls" ]; then
     # The TLS processes' profile, its counts rounded (benches/pgo-train.py --round).
