@@ -3,9 +3,11 @@
 # build the Debian packages ship and the benchmark measures. Three steps:
 #   1. a release library instrumented for profiling (DIR/gen);
 #   2. a training run: benches/pgo-train.py runs the benchmark's server and client,
-#      both loading that library, through every benchmark case over TCP loopback (a
-#      fixed number of transactions: the same source gives the same profile, and the
-#      same library);
+#      both loading that library, through every benchmark case over TCP loopback and
+#      two (read 125 registers, read 1 register) over TLS (a fixed number of
+#      transactions; the TLS profile's counts rounded to a multiple of it, which
+#      leaves out its handshakes' varying few: the same source gives the same profile,
+#      and the same library);
 #   3. the release library again, optimised with the merged profile
 #      (DIR/rsmodbus-HASH.profdata): DIR/release/libmodbus.so, .so.5, .a, libmodbus.pc.
 # Why: measured with benches/ab.py, the optimised library is about 1.5% faster
@@ -17,7 +19,8 @@
 #        scripts/build-pgo.sh --find-profdata   (prints the llvm-profdata it would use;
 #                                               exit 1 without one: install-deps.sh)
 # Needs: llvm-profdata of the LLVM that rustc was built with ($LLVM_PROFDATA, rustup's
-# llvm-tools component, or Debian's llvm-N), gcc and python3.
+# llvm-tools component, or Debian's llvm-N), gcc, python3 and openssl (the TLS
+# training's certificates, c-tests/tls/make-certs.sh).
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -47,19 +50,21 @@ if [ "${1:-}" = --find-profdata ]; then
 fi
 
 out=$(realpath -m "${1:-target/pgo}")
-for tool in cargo gcc python3; do
+for tool in cargo gcc python3 openssl; do
     command -v "$tool" >/dev/null || die "$tool not found (scripts/install-deps.sh installs it)"
 done
 
 # What the build reads: the tracked files (by their blob hashes), the toolchain, the
-# flags. When a library built from exactly these is in DIR, and none of these files is
+# flags, the training's knobs (PGO_TCP_TX, PGO_TLS_TX, PGO_TLS_CASES, PGO_RTU_TX). When a library built from exactly these is in DIR, and none of these files is
 # changed in the working tree, it is kept (the test run's packaging step would
 # otherwise build the same library a second time). Outside a git work tree: always
 # built.
-paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches scripts/build-pgo.sh)
+paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches c-tests/tls/make-certs.sh
+    scripts/build-pgo.sh)
 inputs=
 if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && [ -z "$(git status --porcelain -- "${paths[@]}")" ]; then
-    inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"; git ls-files -s -- "${paths[@]}"; } | sha256sum | cut -c1-32)
+    inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"; env | grep "^PGO_" | LC_ALL=C sort || true
+        git ls-files -s -- "${paths[@]}"; } | sha256sum | cut -c1-32)
 fi
 if [ -n "$inputs" ] && [ "$(cat "$out/inputs" 2>/dev/null)" = "$inputs" ] && [ -e "$out/release/libmodbus.so.5" ]; then
     echo "build-pgo.sh: $out/release is built from these sources already (inputs $inputs): kept"
@@ -71,8 +76,9 @@ rm -f "$out/inputs"
 # script, cbindgen and its own dependencies: those are neither instrumented (their runs
 # would add to the profile) nor rebuilt when the profile changes.
 raw=$out/profraw
+raw_tls=$out/profraw-tls
 gen=$out/gen/$host/release
-rm -rf "$raw" "$out"/rsmodbus*.profdata
+rm -rf "$raw" "$raw_tls" "$out"/tls*.proftext "$out"/rsmodbus*.profdata
 echo "build-pgo.sh: 1/3 instrumented library ($gen)"
 RUSTFLAGS="${RUSTFLAGS:-} -Cprofile-generate=$raw" \
     cargo build --release --locked --lib --quiet --target "$host" --target-dir "$out/gen"
@@ -81,8 +87,27 @@ echo "build-pgo.sh: 2/3 training run"
 # The programs are built against our own headers and linked with the instrumented
 # library, so that Debian's libmodbus-dev is not needed here.
 MB_CFLAGS="-I$PWD/include" MB_LDFLAGS="-L$gen" benches/build.sh "$out/bin"
-python3 benches/pgo-train.py "$out/bin" "$gen"
-"$profdata" merge -o "$out/rsmodbus.profdata" "$raw"
+# Without address space randomisation (setarch -R: the processes' personality), where
+# it is allowed: the targets of indirect calls are recorded as addresses, and with the
+# library at a new address in every process, llvm-profdata named a target in one of
+# its processes and not in the others ("** External Symbol **"), a different one from
+# run to run (2 of 8 TCP-only trainings gave another profile). At one address: 8 of 8
+# the same, every target named.
+norandom=()
+if setarch "$(uname -m)" -R true 2>/dev/null; then
+    norandom=(setarch "$(uname -m)" -R)
+else
+    echo "build-pgo.sh: setarch -R is not allowed here: the profile may differ from run to run" >&2
+fi
+"${norandom[@]}" python3 benches/pgo-train.py "$out/bin" "$gen" "$raw_tls"
+tls_profile=()
+if [ -d "$raw_tls" ]; then
+    # The TLS processes' profile, its counts rounded (benches/pgo-train.py --round).
+    "$profdata" merge --text -o "$out/tls.proftext" "$raw_tls"
+    python3 benches/pgo-train.py --round "$out/tls.proftext" "$out/tls-rounded.proftext"
+    tls_profile=("$out/tls-rounded.proftext")
+fi
+"$profdata" merge -o "$out/rsmodbus.profdata" "$raw" "${tls_profile[@]}"
 # Cargo rebuilds when RUSTFLAGS change, not when a file they name does: the profile's
 # name carries its hash.
 profile=$out/rsmodbus-$(sha256sum "$out/rsmodbus.profdata" | cut -c1-16).profdata

@@ -5,8 +5,9 @@
 # (scripts/build-deb.sh). python3-venv holds the interoperability tests' pinned pymodbus
 # (c-tests/suites/interop.sh, from PyPI). abigail-tools (abidw, abidiff) compares the
 # ABI with its baseline (c-tests/suites/abi-check.sh, scripts/abi-update.sh). openssl
-# makes the TLS tests' certificates (c-tests/tls/make-certs.sh, also in `cargo test`)
-# and is their other peer (s_client, s_server). At the end: llvm-profdata for
+# makes the TLS certificates (c-tests/tls/make-certs.sh: the TLS tests, also in
+# `cargo test`, the benchmark, the profile-guided build's training) and is the TLS
+# tests' other peer (s_client, s_server). At the end: llvm-profdata for
 # scripts/build-pgo.sh.
 set -euo pipefail
 packages=(gcc g++ make pkg-config binutils libmodbus-dev libmodbus5 socat mbpoll valgrind man-db openssl
