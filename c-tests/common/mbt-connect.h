@@ -74,8 +74,11 @@ static inline modbus_t *mbt_new_tls(const char *prog, int port)
 }
 
 /* A connected context for `transport` ("tcp", "rtu" or "tls") and `where` (port or
- * device), or NULL after printing "<prog>: connect: <reason>" on stderr. */
-static inline modbus_t *mbt_connect(const char *prog, const char *transport, const char *where)
+ * device), or NULL after printing "<prog>: connect: <reason>" on stderr. With
+ * `seconds` > 0 the response timeout is set to it before the connection (which a
+ * TLS handshake waits within: a peer under valgrind can take longer than 0.5 s). */
+static inline modbus_t *mbt_connect_within(const char *prog, const char *transport, const char *where,
+                                           long seconds)
 {
     modbus_t *ctx;
     if (strcmp(transport, "tcp") == 0) {
@@ -91,11 +94,19 @@ static inline modbus_t *mbt_connect(const char *prog, const char *transport, con
             modbus_set_slave(ctx, 1);
         }
     }
+    if (ctx != NULL && seconds > 0) {
+        modbus_set_response_timeout(ctx, (uint32_t) seconds, 0);
+    }
     if (ctx == NULL || modbus_connect(ctx) != 0) {
         fprintf(stderr, "%s: connect: %s\n", prog, modbus_strerror(errno));
         return NULL;
     }
     return ctx;
+}
+
+static inline modbus_t *mbt_connect(const char *prog, const char *transport, const char *where)
+{
+    return mbt_connect_within(prog, transport, where, 0);
 }
 
 #endif
