@@ -10,6 +10,8 @@
 #   scripts/fuzz.sh --all SECONDS        every target in turn
 #   scripts/fuzz.sh --replay [PATH...]   replay inputs (default: corpus + regressions)
 #   scripts/fuzz.sh --list               target names
+#   scripts/fuzz.sh --build              only build what --smoke runs (the targets; without
+#                                        libFuzzer, the replay tool)
 #   FUZZ_NO_BUILD=1 ...                  reuse the last build (a campaign while src/ changes)
 #
 # How: the targets in fuzz/fuzz_targets/ use libfuzzer-sys (libFuzzer compiled from its
@@ -118,6 +120,11 @@ case "${1:-}" in
 --list)
     printf '%s\n' "${TARGETS[@]}"
     ;;
+--build)
+    # (c-tests/suites/builds.sh builds it beside the other builds; --smoke then finds it built)
+    build_targets
+    [ "$LIBFUZZER_OK" = 1 ] || build_replay
+    ;;
 --replay)
     shift
     build_replay || exit 1
@@ -162,7 +169,7 @@ case "${1:-}" in
     exit $rc
     ;;
 "" | -h | --help)
-    sed -n '2,24p' "$0"
+    sed -n '2,27p' "$0"
     ;;
 *)
     t=$1
