@@ -54,13 +54,15 @@ for tool in cargo gcc python3 openssl; do
     command -v "$tool" >/dev/null || die "$tool not found (scripts/install-deps.sh installs it)"
 done
 
-# What the build reads: the tracked files (by their blob hashes), the toolchain, the
-# flags, the training's knobs (PGO_TCP_TX, PGO_TLS_TX, PGO_TLS_CASES, PGO_RTU_TX). When a library built from exactly these is in DIR, and none of these files is
-# changed in the working tree, it is kept (the test run's packaging step would
+# What the build reads: the tracked files (by their blob hashes; c-tests/common holds
+# the training programs' libinfo.c and mbt-connect.h and its runner's harness.py), the
+# toolchain, the flags, the training's knobs (PGO_TCP_TX, PGO_TLS_TX, PGO_TLS_CASES,
+# PGO_RTU_TX). When a library built from exactly these is in DIR, and none of these
+# files is changed in the working tree, it is kept (the test run's packaging step would
 # otherwise build the same library a second time). Outside a git work tree: always
 # built.
-paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches c-tests/tls/make-certs.sh
-    scripts/build-pgo.sh)
+paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches c-tests/common
+    c-tests/tls/make-certs.sh scripts/build-pgo.sh)
 inputs=
 if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && [ -z "$(git status --porcelain -- "${paths[@]}")" ]; then
     inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"; env | grep "^PGO_" | LC_ALL=C sort || true
