@@ -87,9 +87,10 @@ if [ "${BENCH_PGO:-1}" = 0 ]; then
     built=target/release
     export BENCH_OURS_BUILD="a plain cargo build --release (BENCH_PGO=0)"
 else
-    scripts/build-pgo.sh >/dev/null
+    # With the packages' flags: the library they ship (and the one the test run builds).
+    scripts/build-pgo.sh --debian-flags >/dev/null
     built=target/pgo/release
-    export BENCH_OURS_BUILD="the profile-guided build the Debian packages ship (scripts/build-pgo.sh)"
+    export BENCH_OURS_BUILD="the profile-guided build the Debian packages ship (scripts/build-pgo.sh --debian-flags)"
 fi
 benches/build.sh target/bench
 # Measure a copy: a rebuild of the library during the run must not change it.

@@ -15,12 +15,16 @@
 #
 # A library built from the same committed sources, toolchain and flags is kept (see
 # "What the build reads" below).
-# Usage: scripts/build-pgo.sh [DIR]      (default target/pgo)
+# Usage: scripts/build-pgo.sh [--debian-flags] [DIR]      (default target/pgo)
+#          --debian-flags: with the flags dh gives debian/rules (dpkg-buildflags: the
+#          hardening of the C code inside, ring's; SOURCE_DATE_EPOCH from
+#          debian/changelog): the library the packages ship, which their build then
+#          keeps (the test run builds it so)
 #        scripts/build-pgo.sh --find-profdata   (prints the llvm-profdata it would use;
 #                                               exit 1 without one: install-deps.sh)
 # Needs: llvm-profdata of the LLVM that rustc was built with ($LLVM_PROFDATA, rustup's
 # llvm-tools component, or Debian's llvm-N), gcc, python3 and openssl (the TLS
-# training's certificates, c-tests/tls/make-certs.sh).
+# training's certificates, c-tests/tls/make-certs.sh); with --debian-flags, dpkg-dev.
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -49,6 +53,12 @@ if [ "${1:-}" = --find-profdata ]; then
     exit 0
 fi
 
+if [ "${1:-}" = --debian-flags ]; then
+    shift
+    eval "$(dpkg-buildflags --export=sh)"
+    SOURCE_DATE_EPOCH=$(dpkg-parsechangelog -STimestamp)
+    export SOURCE_DATE_EPOCH
+fi
 out=$(realpath -m "${1:-target/pgo}")
 for tool in cargo gcc python3 openssl; do
     command -v "$tool" >/dev/null || die "$tool not found (scripts/install-deps.sh installs it)"
@@ -56,7 +66,9 @@ done
 
 # What the build reads: the tracked files (by their blob hashes; c-tests/common holds
 # the training programs' libinfo.c and mbt-connect.h and its runner's harness.py), the
-# toolchain, the flags, the training's knobs (PGO_TCP_TX, PGO_TLS_TX, PGO_TLS_CASES,
+# toolchain, the flags (RUSTFLAGS, and the C compiler's, which ring's C code takes: a
+# library built without dpkg-buildflags' hardening is not kept for the packages), the
+# training's knobs (PGO_TCP_TX, PGO_TLS_TX, PGO_TLS_CASES,
 # PGO_RTU_TX). When a library built from exactly these is in DIR, and none of these
 # files is changed in the working tree, it is kept (the test run's packaging step would
 # otherwise build the same library a second time). Outside a git work tree: always
@@ -65,7 +77,8 @@ paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches c-t
     c-tests/tls/make-certs.sh scripts/build-pgo.sh)
 inputs=
 if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && [ -z "$(git status --porcelain -- "${paths[@]}")" ]; then
-    inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"; env | grep "^PGO_" | LC_ALL=C sort || true
+    inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"
+        env | grep -E '^(PGO_|CC=|[A-Z_]*(CFLAGS|CPPFLAGS|LDFLAGS)=|SOURCE_DATE_EPOCH=)' | LC_ALL=C sort || true
         git ls-files -s -- "${paths[@]}"; } | sha256sum | cut -c1-32)
 fi
 if [ -n "$inputs" ] && [ "$(cat "$out/inputs" 2>/dev/null)" = "$inputs" ] && [ -e "$out/release/libmodbus.so.5" ]; then

@@ -265,6 +265,15 @@ if ! grep -q -e '\.symtab' -e '\.debug_' <<<"$(readelf -S "$so")"; then
 else
     bad "libmodbus.so.5.1.0 is stripped" "$(readelf -S "$so" | grep -e symtab -e debug_)"
 fi
+# dpkg-buildflags' hardening reaches the C code inside (ring's): compiled with
+# -fstack-protector-strong, it calls __stack_chk_fail. The test run builds the library
+# with the packages' flags (build-pgo.sh --debian-flags) for the packages to keep it;
+# a library built without them must not be taken instead (build-pgo.sh's inputs).
+if grep -qw __stack_chk_fail <<<"$(nm -D --undefined-only "$so")"; then
+    ok "libmodbus.so.5.1.0 carries dpkg-buildflags' stack protector (ring's C code calls __stack_chk_fail)"
+else
+    bad "libmodbus.so.5.1.0 carries dpkg-buildflags' stack protector" "no __stack_chk_fail among its undefined symbols"
+fi
 a=$RL/libmodbus.a
 a_before=$(stat -c %s $BUILT/libmodbus.a)
 a_after=$(stat -c %s "$a")
@@ -330,6 +339,11 @@ if [ "$(text_of "$gw_bin")" = "$(text_of $gw_built)" ]; then
     ok "the packaged rsmodbus-gateway is $gw_built, stripped: $(stat -c %s "$gw_bin") bytes ($(stat -c %s $gw_built))"
 else
     bad "the packaged rsmodbus-gateway is $gw_built" "their .text differ"
+fi
+if grep -qw __stack_chk_fail <<<"$(nm -D --undefined-only "$gw_bin")"; then
+    ok "rsmodbus-gateway carries dpkg-buildflags' stack protector (ring's C code calls __stack_chk_fail)"
+else
+    bad "rsmodbus-gateway carries dpkg-buildflags' stack protector" "no __stack_chk_fail among its undefined symbols"
 fi
 gw_dyn=$(readelf -d "$gw_bin")
 gw_seg=$(readelf -lW "$gw_bin")
