@@ -78,7 +78,8 @@ paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches c-t
 inputs=
 if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && [ -z "$(git status --porcelain -- "${paths[@]}")" ]; then
     inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"
-        env | grep -E '^(PGO_|CC=|[A-Z_]*(CFLAGS|CPPFLAGS|LDFLAGS)=|SOURCE_DATE_EPOCH=)' | LC_ALL=C sort || true
+        env | grep -E '^(PGO_[A-Z_]*|SOURCE_DATE_EPOCH|(TARGET_|HOST_)?(CC|CFLAGS|CPPFLAGS|LDFLAGS)(_[a-z0-9_-]*)?)=' |
+            LC_ALL=C sort || true
         git ls-files -s -- "${paths[@]}"; } | sha256sum | cut -c1-32)
 fi
 if [ -n "$inputs" ] && [ "$(cat "$out/inputs" 2>/dev/null)" = "$inputs" ] && [ -e "$out/release/libmodbus.so.5" ]; then
