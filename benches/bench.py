@@ -128,14 +128,17 @@ def tls_certs():
     return TLS_CERTS
 
 
+def with_certs(env, d, side):
+    """env plus the certificates in `d` (make-certs.sh's) of `side` ("client": role
+    Operator; "server")."""
+    name = "operator" if side == "client" else "server"
+    return dict(env, MB_TLS_CA=os.path.join(d, "ca.pem"), MB_TLS_CERT=os.path.join(d, f"{name}.pem"),
+                MB_TLS_KEY=os.path.join(d, f"{name}.key"))
+
+
 def with_tls(env, transport, side):
-    """env plus the certificates of `side` ("client": role Operator; "server") on TLS."""
-    if transport == "tls":
-        d = tls_certs()
-        name = "operator" if side == "client" else "server"
-        env = dict(env, MB_TLS_CA=os.path.join(d, "ca.pem"), MB_TLS_CERT=os.path.join(d, f"{name}.pem"),
-                   MB_TLS_KEY=os.path.join(d, f"{name}.key"))
-    return env
+    """env plus the certificates of `side` on TLS (this run's: tls_certs)."""
+    return with_certs(env, tls_certs(), side) if transport == "tls" else env
 
 
 def tps_line(tps):

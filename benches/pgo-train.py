@@ -39,7 +39,7 @@ import sys
 import tempfile
 
 # The benchmark's own helpers (with BENCH_PIN set, the training is pinned too).
-from bench import CASE_TITLES, PtyPair, harness, reap_client, start, wait_ready
+from bench import CASE_TITLES, PtyPair, harness, reap_client, start, wait_ready, with_certs
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # Transactions per case and transport.
@@ -48,13 +48,6 @@ COUNTS = {"tcp": int(os.environ.get("PGO_TCP_TX", "20000")), "tls": int(os.envir
 # The cases trained over TLS (TCP and RTU: every case).
 TLS_CASES = os.environ.get("PGO_TLS_CASES", "r125 r1").split()
 TIMEOUT = 120
-
-
-def with_certs(env, certs, side):
-    """env plus the TLS certificates of `side` ("server"; "client": role Operator)."""
-    name = "operator" if side == "client" else "server"
-    return dict(env, MB_TLS_CA=os.path.join(certs, "ca.pem"), MB_TLS_CERT=os.path.join(certs, f"{name}.pem"),
-                MB_TLS_KEY=os.path.join(certs, f"{name}.key"))
 
 
 def train(bin_dir, lib, transport, case, count, certs=None, tls_raw=None):

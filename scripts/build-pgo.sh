@@ -55,9 +55,8 @@ fi
 
 if [ "${1:-}" = --debian-flags ]; then
     shift
-    eval "$(dpkg-buildflags --export=sh)"
-    SOURCE_DATE_EPOCH=$(dpkg-parsechangelog -STimestamp)
-    export SOURCE_DATE_EPOCH
+    . scripts/deb-build-env.sh
+    deb_build_env || die "dpkg-buildflags or dpkg-parsechangelog failed (dpkg-dev)"
 fi
 out=$(realpath -m "${1:-target/pgo}")
 for tool in cargo gcc python3 openssl; do
@@ -74,7 +73,7 @@ done
 # otherwise build the same library a second time). Outside a git work tree: always
 # built.
 paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches c-tests/common
-    c-tests/tls/make-certs.sh scripts/build-pgo.sh)
+    c-tests/tls/make-certs.sh scripts/build-pgo.sh scripts/deb-build-env.sh)
 inputs=
 if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && [ -z "$(git status --porcelain -- "${paths[@]}")" ]; then
     inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"

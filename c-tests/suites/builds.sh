@@ -30,9 +30,8 @@ deb_gateway() {
     local gw
     gw=$(sed -n 's/^BUILD_GATEWAY = \$(CARGO) //p' debian/rules)
     [ -n "$gw" ] || { echo "no 'BUILD_GATEWAY = \$(CARGO) ...' line in debian/rules"; return 1; }
-    eval "$(dpkg-buildflags --export=sh)" || return 1
-    SOURCE_DATE_EPOCH=$(dpkg-parsechangelog -STimestamp) || return 1
-    export SOURCE_DATE_EPOCH
+    . scripts/deb-build-env.sh
+    deb_build_env || return 1
     # shellcheck disable=SC2086 # the arguments of the rules' line
     cargo $gw
 }

@@ -265,15 +265,19 @@ if ! grep -q -e '\.symtab' -e '\.debug_' <<<"$(readelf -S "$so")"; then
 else
     bad "libmodbus.so.5.1.0 is stripped" "$(readelf -S "$so" | grep -e symtab -e debug_)"
 fi
-# dpkg-buildflags' hardening reaches the C code inside (ring's): compiled with
-# -fstack-protector-strong, it calls __stack_chk_fail. The test run builds the library
-# with the packages' flags (build-pgo.sh --debian-flags) for the packages to keep it;
-# a library built without them must not be taken instead (build-pgo.sh's inputs).
-if grep -qw __stack_chk_fail <<<"$(nm -D --undefined-only "$so")"; then
-    ok "libmodbus.so.5.1.0 carries dpkg-buildflags' stack protector (ring's C code calls __stack_chk_fail)"
-else
-    bad "libmodbus.so.5.1.0 carries dpkg-buildflags' stack protector" "no __stack_chk_fail among its undefined symbols"
-fi
+# stack_protected FILE NAME: dpkg-buildflags' hardening reached the C code inside
+# FILE (ring's): compiled with -fstack-protector-strong, it calls __stack_chk_fail.
+# The test run builds the library with the packages' flags (build-pgo.sh
+# --debian-flags) for the packages to keep it; a library built without them must not
+# be taken instead (build-pgo.sh's inputs).
+stack_protected() {
+    if grep -qw __stack_chk_fail <<<"$(nm -D --undefined-only "$1")"; then
+        ok "$2 carries dpkg-buildflags' stack protector (ring's C code calls __stack_chk_fail)"
+    else
+        bad "$2 carries dpkg-buildflags' stack protector" "no __stack_chk_fail among its undefined symbols"
+    fi
+}
+stack_protected "$so" libmodbus.so.5.1.0
 a=$RL/libmodbus.a
 a_before=$(stat -c %s $BUILT/libmodbus.a)
 a_after=$(stat -c %s "$a")
@@ -340,11 +344,7 @@ if [ "$(text_of "$gw_bin")" = "$(text_of $gw_built)" ]; then
 else
     bad "the packaged rsmodbus-gateway is $gw_built" "their .text differ"
 fi
-if grep -qw __stack_chk_fail <<<"$(nm -D --undefined-only "$gw_bin")"; then
-    ok "rsmodbus-gateway carries dpkg-buildflags' stack protector (ring's C code calls __stack_chk_fail)"
-else
-    bad "rsmodbus-gateway carries dpkg-buildflags' stack protector" "no __stack_chk_fail among its undefined symbols"
-fi
+stack_protected "$gw_bin" rsmodbus-gateway
 gw_dyn=$(readelf -d "$gw_bin")
 gw_seg=$(readelf -lW "$gw_bin")
 if [ "$(readelf -h "$gw_bin" | awk '$1 == "Type:" {print $2}')" = DYN ] && grep -q GNU_RELRO <<<"$gw_seg" &&
