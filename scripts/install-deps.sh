@@ -7,11 +7,13 @@
 # ABI with its baseline (c-tests/suites/abi-check.sh, scripts/abi-update.sh). openssl
 # makes the TLS certificates (c-tests/tls/make-certs.sh: the TLS tests, also in
 # `cargo test`, the benchmark, the profile-guided build's training) and is the TLS
-# tests' other peer (s_client, s_server). At the end: llvm-profdata for
-# scripts/build-pgo.sh.
+# tests' other peer (s_client, s_server). cmake builds mbusd beside our gateway
+# (c-tests/suites/gateway.sh, when ../shared/anchors/mbusd is there). Every suite finds
+# what it needs here, so that none runs apt-get beside another (c-tests/run runs some
+# side by side). At the end: llvm-profdata for scripts/build-pgo.sh.
 set -euo pipefail
 packages=(gcc g++ make pkg-config binutils libmodbus-dev libmodbus5 socat mbpoll valgrind man-db openssl
-    python3 debhelper dpkg-dev python3-venv abigail-tools)
+    python3 debhelper dpkg-dev python3-venv abigail-tools cmake)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")

@@ -292,6 +292,18 @@ valgrind_clean() {
 }
 
 pymodbus_venv() {
+    local venv=$1 reqs=$2 logs=$3 install=$4 lock rc
+    mkdir -p "$(dirname "$venv")"
+    # One suite at a time makes or completes the venv (c-tests/run runs suites side
+    # by side): the others wait for the lock, then find it done.
+    exec {lock}>"$venv.lock"
+    flock "$lock"
+    _pymodbus_venv "$venv" "$reqs" "$logs" "$install"
+    rc=$?
+    exec {lock}>&-
+    return $rc
+}
+_pymodbus_venv() {
     local venv=$1 reqs=$2 logs=$3 install=$4
     PY=$venv/bin/python
     if [ ! -x "$PY" ]; then

@@ -379,12 +379,7 @@ fi
 # Interoperability with pymodbus (mutual TLS), both directions, IPv4 and IPv6: a
 # pymodbus client against our server (every libmodbus function code; a reader's
 # writes refused), our client against a pymodbus server.
-PY=$ROOT/target/interop/venv/bin/python
-if ! "$PY" -c 'import pymodbus' 2>/dev/null; then
-    /usr/bin/python3 -m venv "$ROOT/target/interop/venv" >"$WORK/venv.log" 2>&1 &&
-        "$PY" -m pip install -q --disable-pip-version-check -r c-tests/interop/requirements.txt >>"$WORK/venv.log" 2>&1
-fi
-if "$PY" -c 'import pymodbus' 2>/dev/null; then
+if pymodbus_venv "$ROOT/target/interop/venv" "$ROOT/c-tests/interop/requirements.txt" "$WORK" 1 >"$WORK/venv-setup.log" 2>&1; then
     ok "pymodbus $("$PY" -c 'import pymodbus; print(pymodbus.__version__)') in target/interop/venv"
     # pm_check NAME CMD...: every ok/FAIL line of a pymodbus run counts
     pm_check() {
@@ -415,7 +410,7 @@ if "$PY" -c 'import pymodbus' 2>/dev/null; then
         wait "$PM_PID" 2>/dev/null
     done
 else
-    bad "pymodbus for the interoperability checks" "$(tail -n 5 "$WORK/venv.log")"
+    bad "pymodbus for the interoperability checks" "$(tail -n 5 "$WORK/venv-setup.log")"
 fi
 
 # Every cipher suite of TLS 1.2 and 1.3 against OpenSSL, both ways: our server under
