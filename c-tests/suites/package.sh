@@ -22,7 +22,10 @@
 #     (LD_DEBUG=libs, /proc/PID/maps), and through the packaged rsmodbus-gateway in
 #     front of that pty (its -h too; it loads no libmodbus.so.5);
 #   - the packaged systemd unit: systemd-analyze verify, and systemd-analyze security
-#     --offline=yes rates its exposure 2.0 or below.
+#     --offline=yes rates its exposure 2.0 or below; the gateway's maintainer scripts
+#     (in a mount namespace with a scratch /run and a systemctl that notes its
+#     arguments): an upgrade restarts the template's running instances, a removal
+#     stops them.
 # Every process started here is stopped by its PID. Ends with "N passed, M failed".
 # Usage: c-tests/suites/package.sh [--no-build]   (--no-build: use target/debian/*.deb)
 # SPDX-License-Identifier: MIT OR Apache-2.0
@@ -394,6 +397,51 @@ if command -v systemd-analyze >/dev/null; then
 else
     bad "systemd-analyze is installed (apt-get install systemd) for the unit's checks"
 fi
+
+# The gateway's maintainer scripts (debian/rsmodbus-gateway.{postinst,prerm,postrm}), run
+# as dpkg runs them, each in a mount namespace of its own whose /run is a scratch tmpfs
+# (holding /run/systemd/system: systemd runs; or not), with a systemctl first on PATH
+# that writes down its arguments (and exits STATUS): an upgrade restarts the running
+# instances of the template, a removal stops them, a first install starts none.
+MS=$WORK/gateway-control
+rm -rf "$MS" "$WORK/stub"
+mkdir -p "$WORK/stub"
+dpkg-deb -e "$GW" "$MS"
+printf '#!/bin/sh\necho "$*" >>"%s"\nexit ${STATUS:-0}\n' "$WORK/systemctl.calls" >"$WORK/stub/systemctl"
+chmod +x "$WORK/stub/systemctl"
+# maint SYSTEMD STATUS SCRIPT ARG...: the calls to systemctl ("; " between them, or
+# "none"), and the script's exit status when not 0.
+maint() {
+    local systemd=$1 status=$2 script=$3 rc
+    shift 3
+    rm -f "$WORK/systemctl.calls"
+    STUB=$WORK/stub STATUS=$status unshare --mount --propagation private sh -c \
+        'mount -t tmpfs tmpfs /run || exit 99; [ "$1" = 0 ] || mkdir -p /run/systemd/system; shift; PATH="$STUB:$PATH" exec sh "$@"' \
+        maint "$systemd" "$MS/$script" "$@" >"$WORK/maint.out" 2>&1
+    rc=$?
+    if [ -s "$WORK/systemctl.calls" ]; then paste -sd';' "$WORK/systemctl.calls" | sed 's/;/; /g'; else echo none; fi
+    [ "$rc" = 0 ] || echo "exit $rc: $(head -c 300 "$WORK/maint.out")"
+}
+# expect_maint WHAT WANT SYSTEMD STATUS SCRIPT ARG...: one check of maint's answer.
+expect_maint() {
+    local what=$1 want=$2 got
+    shift 2
+    got=$(maint "$@")
+    if [ "$got" = "$want" ]; then ok "rsmodbus-gateway $what: $want"; else bad "rsmodbus-gateway $what" "want: $want" "got: $got"; fi
+}
+old=3.1.12+rs0.0.1
+for f in postinst prerm postrm; do
+    if [ -x "$MS/$f" ]; then ok "rsmodbus-gateway has a $f"; else bad "rsmodbus-gateway has a $f" "$(ls "$MS")"; fi
+done
+expect_maint "upgraded (postinst configure $old)" \
+    "--system daemon-reload; try-restart rsmodbus-gateway@*.service" 1 0 postinst configure "$old"
+expect_maint "installed (postinst configure)" "--system daemon-reload" 1 0 postinst configure ""
+expect_maint "upgraded without systemd running" none 0 0 postinst configure "$old"
+expect_maint "upgraded while systemctl fails (the upgrade goes on)" \
+    "--system daemon-reload; try-restart rsmodbus-gateway@*.service" 1 1 postinst configure "$old"
+expect_maint "removed (prerm remove)" "stop rsmodbus-gateway@*.service" 1 0 prerm remove
+expect_maint "upgraded (prerm upgrade: the instances run on)" none 1 0 prerm upgrade 3.1.12+rs0.2.0
+expect_maint "removed (postrm remove)" "--system daemon-reload" 1 0 postrm remove
 
 # --- examples against the extracted root --------------------------------------------
 B=$WORK/bin
