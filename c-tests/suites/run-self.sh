@@ -10,7 +10,8 @@
 #     after 60 s, failing, when run one after the other); never more than TEST_JOBS at
 #     once; a row without & runs alone; TEST_JOBS=1 runs them one after the other;
 #   - a & row's output is shown whole, after its start line;
-#   - an interrupted run (TERM) stops the suites running beside each other.
+#   - an interrupted run (TERM) stops the suites running beside each other and leaves
+#     no process of its own (the background rows' shells, their timeout watchers).
 # Ends with "N passed, M failed".
 # SPDX-License-Identifier: MIT OR Apache-2.0
 set -uo pipefail
@@ -113,8 +114,11 @@ else
 fi
 
 # --- interrupted -------------------------------------------------------------------------
+# The runner in a session of its own (setsid: its PID is the session's ID), so that
+# what it leaves behind is found: its sessions' processes (the rows' sleeps, each in a
+# session the runner made) and its own (the background rows' shells, their watchers).
 printf 'x suite& sleep 300 & echo $! >%s/x.pid; wait\ny suite& sleep 300 & echo $! >%s/y.pid; wait\n' "$W" "$W" >"$W/stop.txt"
-TEST_TABLE=$W/stop.txt TEST_LOGS=$W/logs-stop c-tests/run >"$W/stop" 2>&1 &
+TEST_TABLE=$W/stop.txt TEST_LOGS=$W/logs-stop setsid c-tests/run >"$W/stop" 2>&1 &
 runner=$!
 for _ in $(seq 300); do [ -s "$W/x.pid" ] && [ -s "$W/y.pid" ] && break; sleep 0.1; done
 kill -TERM "$runner"
@@ -125,10 +129,15 @@ for f in x y; do
     p=$(cat "$W/$f.pid" 2>/dev/null)
     if [ -z "$p" ]; then still+=("$f: never started"); elif alive "$p"; then still+=("$f: $p"); kill "$p"; fi
 done
-if [ "$rc" = 130 ] && [ ${#still[@]} -eq 0 ]; then
-    ok "an interrupted run stops the suites running beside each other (exit 130)"
+# Its own processes: gone when it has exited (zombies aside: init reaps them).
+own=$(ps -eo pid=,sid=,stat=,args= | awk -v s="$runner" '$2 == s && $3 !~ /^Z/')
+if [ "$rc" = 130 ] && [ ${#still[@]} -eq 0 ] && [ -z "$own" ]; then
+    ok "an interrupted run stops the suites running beside each other and leaves nothing (exit 130)"
 else
-    bad "an interrupted run stops the suites running beside each other" "exit $rc; left: ${still[*]}"
+    bad "an interrupted run stops the suites running beside each other and leaves nothing" \
+        "exit $rc; rows' processes left: ${still[*]}" "the runner's: $own"
+    # shellcheck disable=SC2046 # PIDs
+    [ -z "$own" ] || kill $(awk '{ print $1 }' <<<"$own") 2>/dev/null
 fi
 
 summary
