@@ -26,11 +26,13 @@ mkdir -p "$W"
 # alive PID: PID runs (a zombie has ended: its parent, init here, has not reaped it yet).
 alive() { local s; s=$(ps -o stat= -p "$1" 2>/dev/null) && [[ $s != Z* ]]; }
 
-# run TABLE OUT [VAR=VALUE...]: c-tests/run on TABLE, its logs in W/logs-OUT, its output in W/OUT.
+# run TABLE OUT [VAR=VALUE...]: c-tests/run on TABLE, two rows at a time (whatever
+# TEST_JOBS the run of this suite has) unless VAR=VALUE says, its logs in W/logs-OUT,
+# its output in W/OUT.
 run() {
     local table=$1 out=$2
     shift 2
-    env "$@" TEST_TABLE="$table" TEST_LOGS="$W/logs-$out" c-tests/run >"$W/$out" 2>&1
+    env TEST_JOBS=2 "$@" TEST_TABLE="$table" TEST_LOGS="$W/logs-$out" c-tests/run >"$W/$out" 2>&1
 }
 
 # --- counts, failures, a process left running ----------------------------------------
@@ -118,7 +120,7 @@ fi
 # what it leaves behind is found: its sessions' processes (the rows' sleeps, each in a
 # session the runner made) and its own (the background rows' shells, their watchers).
 printf 'x suite& sleep 300 & echo $! >%s/x.pid; wait\ny suite& sleep 300 & echo $! >%s/y.pid; wait\n' "$W" "$W" >"$W/stop.txt"
-TEST_TABLE=$W/stop.txt TEST_LOGS=$W/logs-stop setsid c-tests/run >"$W/stop" 2>&1 &
+TEST_JOBS=2 TEST_TABLE=$W/stop.txt TEST_LOGS=$W/logs-stop setsid c-tests/run >"$W/stop" 2>&1 &
 runner=$!
 for _ in $(seq 300); do [ -s "$W/x.pid" ] && [ -s "$W/y.pid" ] && break; sleep 0.1; done
 kill -TERM "$runner"
