@@ -45,7 +45,8 @@
 #   valgrind_clean NAME DIR  one check: no valgrind.*.log of DIR has a line
 #   pymodbus_venv VENV REQS LOGDIR INSTALL  PY=VENV/bin/python, a venv of Debian's
 #                           python3 holding the pinned versions of REQS (pip install
-#                           when INSTALL is 1); returns non-zero, saying why, if not
+#                           when INSTALL is 1); returns non-zero, saying why, if not.
+#                           Under a lock (VENV.lock): suites run side by side
 #
 # Building the C programs: c-tests/Makefile, the one build of them all (run-*.sh; ROOT set)
 #   c_build_dir [SAN]       where the Makefile puts a variant's programs: $CTEST_BUILD
