@@ -73,7 +73,7 @@ done
 # otherwise build the same library a second time). Outside a git work tree: always
 # built.
 paths=(Cargo.toml Cargo.lock build.rs src proto cbindgen abi include benches c-tests/common
-    c-tests/tls/make-certs.sh scripts/build-pgo.sh scripts/deb-build-env.sh)
+    c-tests/tls/make-certs.sh scripts/build-pgo.sh scripts/pgo-rustc.sh scripts/deb-build-env.sh)
 inputs=
 if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && [ -z "$(git status --porcelain -- "${paths[@]}")" ]; then
     inputs=$({ rustc -vV; echo "RUSTFLAGS=${RUSTFLAGS:-}"
@@ -92,6 +92,10 @@ rm -f "$out/inputs"
 # would add to the profile) nor rebuilt when the profile changes.
 raw=$out/profraw
 raw_tls=$out/profraw-tls
+# ring is compiled without the profile, instrumented neither (scripts/pgo-rustc.sh: with
+# it, LLVM stopped inlining ring's AES-GCM glue). A wrapper of the caller's runs after.
+export RSMODBUS_RUSTC_WRAPPER=${RUSTC_WRAPPER:-}
+export RUSTC_WRAPPER=$PWD/scripts/pgo-rustc.sh
 gen=$out/gen/$host/release
 rm -rf "$raw" "$raw_tls" "$out"/tls*.proftext "$out"/rsmodbus*.profdata
 echo "build-pgo.sh: 1/3 instrumented library ($gen)"
