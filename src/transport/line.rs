@@ -1052,6 +1052,5 @@ fn tls_write(
     timeout: Timeout,
 ) -> Result<usize> {
     let Some(session) = session.as_deref_mut() else { return Err(Error(EMBTLS)) };
-    let deadline = Some(super::now() + timeout.duration());
-    session.send(fd, frame, deadline, &|| stop.stopping())
+    session.send(fd, frame, timeout, &|| stop.stopping())
 }

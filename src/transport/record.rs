@@ -62,9 +62,9 @@ impl Direction {
 
     fn nonce(&self) -> [u8; 12] {
         let mut nonce = self.iv;
-        for (n, s) in nonce[4..].iter_mut().zip(self.seq.to_be_bytes()) {
-            *n ^= s;
-        }
+        let (_, low) = nonce.split_at_mut(4);
+        let xored = u64::from_be_bytes(low.try_into().unwrap_or_default()) ^ self.seq;
+        low.copy_from_slice(&xored.to_be_bytes());
         nonce
     }
 
@@ -123,9 +123,8 @@ impl Direction {
         let (head, body) = record.split_at_mut(HEADER);
         let typ = head[0];
         let opened = if self.tls13 {
-            let aad = [head[0], head[1], head[2], head[3], head[4]];
             let nonce = Nonce::assume_unique_for_key(self.nonce());
-            self.key.open_in_place(nonce, Aad::from(aad), body).map_err(|_| BadRecord)?.len()
+            self.key.open_in_place(nonce, Aad::from(&*head), body).map_err(|_| BadRecord)?.len()
         } else if self.explicit {
             if body.len() < EXPLICIT_NONCE + TAG {
                 return Err(BadRecord);

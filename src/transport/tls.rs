@@ -53,6 +53,7 @@ use crate::error::{
 };
 use crate::proto::security;
 pub use crate::proto::security::RecordCut;
+use crate::proto::session::Timeout;
 
 /// `MODBUS_TLS_1_2`, `MODBUS_TLS_1_3`: the protocol versions, as on the wire.
 pub const TLS_1_2: u16 = 0x0303;
@@ -490,10 +491,19 @@ impl Out {
         Ok(true)
     }
 
-    /// Sends the records, waiting for room until `deadline`.
-    fn flush_within(&mut self, fd: i32, deadline: Option<Duration>, stopping: &dyn Fn() -> bool) -> Result<()> {
+    /// Sends the records, waiting for room until `deadline`, which the first wait sets
+    /// to `timeout` from then if it is not set (a send that does not wait reads no
+    /// clock).
+    fn flush_within(
+        &mut self,
+        fd: i32,
+        timeout: Timeout,
+        deadline: &mut Option<Duration>,
+        stopping: &dyn Fn() -> bool,
+    ) -> Result<()> {
         while !self.flush(fd)? {
-            wait_until(fd, libc::POLLOUT, deadline, stopping)?;
+            let until = *deadline.get_or_insert_with(|| now() + timeout.duration());
+            wait_until(fd, libc::POLLOUT, Some(until), stopping)?;
         }
         Ok(())
     }
@@ -1153,19 +1163,15 @@ impl Session {
         n
     }
 
-    /// Sends `data` as application data, waiting for room until `deadline`.
-    pub fn send(
-        &mut self,
-        fd: i32,
-        data: &[u8],
-        deadline: Option<Duration>,
-        stopping: &dyn Fn() -> bool,
-    ) -> Result<usize> {
+    /// Sends `data` as application data, waiting for room up to `timeout` (from the
+    /// first wait: microseconds after the call, the time of a seal and a `send`).
+    pub fn send(&mut self, fd: i32, data: &[u8], timeout: Timeout, stopping: &dyn Fn() -> bool) -> Result<usize> {
+        let mut deadline = None;
         if self.output.waiting() {
-            self.output.flush_within(fd, deadline, stopping)?;
+            self.output.flush_within(fd, timeout, &mut deadline, stopping)?;
         }
         self.seal_data(data)?;
-        self.output.flush_within(fd, deadline, stopping)?;
+        self.output.flush_within(fd, timeout, &mut deadline, stopping)?;
         Ok(data.len())
     }
 

@@ -111,7 +111,7 @@ fn pair(client: TlsSettings, server: TlsSettings) -> ((Session, TcpStream), (Ses
 /// started again (the data's record is the first of a new key, or near it).
 fn send(s: &mut Session, fd: i32, data: &[u8]) -> Result<bool> {
     let before = s.tx.seq();
-    s.send(fd, data, deadline(), &|| false)?;
+    s.send(fd, data, Timeout::new(WAIT.as_secs() as u32, 0), &|| false)?;
     Ok(s.tx.seq() <= before)
 }
 
