@@ -57,21 +57,11 @@ fn sleep_us(ctx: &Context, us: i64) {
 /// response timeout), with the RTS sequence around it when the line has one.
 #[inline]
 fn write_adu(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    match g.line.write_at_once(adu) {
-        Some(written) => written,
-        None => write_waiting(g, adu),
-    }
-}
-
-/// [`write_adu`] on a line whose write waits: for room in a TLS session (up to the
-/// response timeout), or through the RTS sequence.
-#[inline(never)]
-fn write_waiting(g: &mut Guard<'_>, adu: &[u8]) -> Result<usize> {
-    if g.line.rts_around_writes() {
-        return write_with_rts(g, adu);
-    }
     let timeout = g.session.timeouts.response;
-    g.line.write(adu, timeout)
+    match g.line.write_at_once(adu, timeout) {
+        Some(written) => written,
+        None => write_with_rts(g, adu),
+    }
 }
 
 /// [`write_adu`] with the RTS sequence (the event-driven client's too).

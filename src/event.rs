@@ -571,7 +571,8 @@ fn write(g: &mut Guard<'_>, o: &mut Outstanding, now: Duration) -> bool {
     if g.debug {
         session::trace_sent(out);
     }
-    let written = match g.line.write_at_once(out) {
+    let timeout = g.session.timeouts.response;
+    let written = match g.line.write_at_once(out, timeout) {
         Some(r) => r,
         // A serial line with RTS direction control (modbus_rtu_set_rts, or the
         // application's hook): the same sequence as a blocking call's, the frame's

@@ -808,14 +808,18 @@ impl Line {
         }
     }
 
-    /// [`Line::write`] when it needs nothing but the system call (a socket, a serial
-    /// line without an RTS sequence); `None` otherwise (the driver then runs the RTS
-    /// sequence, or [`Line::write`] with its timeout).
+    /// [`Line::write`] when it needs nothing of the driver: a socket, a serial line
+    /// without an RTS sequence, a TLS session (which waits for room up to `timeout`
+    /// itself); `None` otherwise (the driver then runs the RTS sequence, or
+    /// [`Line::write`] queues the frame for the event-driven client).
     #[inline]
-    pub fn write_at_once(&mut self, frame: &[u8]) -> Option<Result<usize>> {
+    pub fn write_at_once(&mut self, frame: &[u8], timeout: Timeout) -> Option<Result<usize>> {
         match self.kind {
             Kind::Socket if self.held.queue.is_none() => {
                 Some(super::send(self.fd, frame, if self.held.client.is_some() { libc::MSG_DONTWAIT } else { 0 }))
+            }
+            Kind::Tls if self.held.queue.is_none() => {
+                Some(tls_write(self.fd, &mut self.held.session, &self.stop, frame, timeout))
             }
             Kind::Serial if !self.rts_around_writes() => Some(super::write(self.fd, frame)),
             Kind::Datagram => Some(datagram_write(self.fd, &self.held, frame)),

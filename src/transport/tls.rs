@@ -1099,13 +1099,13 @@ impl Session {
 
     /// Seals `data` of type `typ` into records in the output.
     fn seal(&mut self, typ: u8, data: &[u8]) {
-        let overhead = self.tx.overhead();
-        let room = self.output.room(data.len() + overhead * (1 + data.len() / MAX_FRAGMENT));
-        let mut at = 0;
-        for chunk in data.chunks(MAX_FRAGMENT) {
-            at += self.tx.seal(typ, chunk, &mut room[at..]);
+        let mut rest = data;
+        while !rest.is_empty() {
+            let (chunk, after) = rest.split_at(rest.len().min(MAX_FRAGMENT));
+            let room = self.output.room(chunk.len() + self.tx.overhead());
+            self.output.end += self.tx.seal(typ, chunk, room);
+            rest = after;
         }
-        self.output.end += at;
     }
 
     /// Seals application data, after a key update when the key has protected enough
