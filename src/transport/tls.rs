@@ -983,10 +983,13 @@ impl Session {
         Ok(())
     }
 
-    /// Opens every whole record held, in order, until the peer's end or a failure.
+    /// Opens every whole record held, in order, until the peer's end or a failure
+    /// (which only a record that is not application data brings).
     fn open_records(&mut self, fd: i32) {
-        while !self.readable_end() {
-            let Some(len) = record::record_len(&self.input[self.raw..self.have]) else { return };
+        if self.readable_end() {
+            return;
+        }
+        while let Some(len) = record::record_len(&self.input[self.raw..self.have]) {
             if len - 5 > if self.tls13 { MAX_BODY_TLS13 } else { MAX_BODY_TLS12 } {
                 return self.fatal(fd, RECORD_OVERFLOW, rustls::Error::PeerSentOversizedRecord);
             }
@@ -1001,10 +1004,16 @@ impl Session {
             };
             let (from, to) = (at + range.start, at + range.end);
             match typ {
-                record::APPLICATION_DATA => self.keep(from, to),
+                record::APPLICATION_DATA => {
+                    self.keep(from, to);
+                    continue;
+                }
                 record::ALERT => self.alert(from, to),
                 record::HANDSHAKE => self.post_handshake(fd, from, to),
                 _ => self.unexpected(fd),
+            }
+            if self.readable_end() {
+                return;
             }
         }
     }
