@@ -123,6 +123,10 @@ impl Direction {
         let (head, body) = record.split_at_mut(HEADER);
         let typ = head[0];
         let opened = if self.tls13 {
+            // Every record after the handshake is application data outside.
+            if typ != APPLICATION_DATA {
+                return Err(BadRecord);
+            }
             let nonce = Nonce::assume_unique_for_key(self.nonce());
             self.key.open_in_place(nonce, Aad::from(&*head), body).map_err(|_| BadRecord)?.len()
         } else if self.explicit {
@@ -142,21 +146,18 @@ impl Direction {
         };
         self.seq += 1;
         // open_within moves the plaintext to the start of the body.
-        let mut end = HEADER + opened;
+        let plain = &record[HEADER..HEADER + opened];
         if !self.tls13 {
             if opened > MAX_FRAGMENT {
                 return Err(BadRecord);
             }
-            return Ok((typ, HEADER..end));
+            return Ok((typ, HEADER..HEADER + opened));
         }
         // TLS 1.3: the content type is the last byte that is not padding.
-        while end > HEADER && record[end - 1] == 0 {
-            end -= 1;
+        match plain.iter().rposition(|&b| b != 0) {
+            Some(at) if at <= MAX_FRAGMENT => Ok((plain[at], HEADER..HEADER + at)),
+            _ => Err(BadRecord),
         }
-        if end == HEADER || typ != APPLICATION_DATA || end - 1 - HEADER > MAX_FRAGMENT {
-            return Err(BadRecord);
-        }
-        Ok((record[end - 1], HEADER..end - 1))
     }
 }
 
@@ -212,5 +213,33 @@ mod tests {
                 assert_eq!(rx.open(&mut out[len..len * 2]), Err(BadRecord), "out of order");
             }
         }
+    }
+
+    /// TLS 1.3 (RFC 8446 section 5.4): the content type is the last byte of the inner
+    /// plaintext that is not zero; the zeros after it are padding. A plaintext of
+    /// zeros has no type, and one over 2^14 bytes is too long; both do not open.
+    #[test]
+    fn tls13_padding_and_the_inner_type() {
+        let mut out = vec![0u8; MAX_FRAGMENT + 64];
+        // Sealed with the type 0: the inner plaintext is data, its type, zeros.
+        let cases: [(Vec<u8>, Result<(u8, usize), BadRecord>); 6] = [
+            ([b"abc".as_slice(), &[APPLICATION_DATA], &[0; 7]].concat(), Ok((APPLICATION_DATA, 3))),
+            ([&[ALERT][..], &[0; 1]].concat(), Ok((ALERT, 0))),
+            ([&[0u8, 5, 0][..], &[HANDSHAKE], &[0; 30]].concat(), Ok((HANDSHAKE, 3))),
+            (vec![0; 5], Err(BadRecord)),
+            ([vec![1; MAX_FRAGMENT], vec![APPLICATION_DATA]].concat(), Ok((APPLICATION_DATA, MAX_FRAGMENT))),
+            ([vec![1; MAX_FRAGMENT + 1], vec![APPLICATION_DATA]].concat(), Err(BadRecord)),
+        ];
+        for (inner, want) in cases {
+            let (mut tx, mut rx) = (direction(0, 0, true), direction(0, 0, true));
+            let len = tx.seal(0, &inner, &mut out);
+            let got = rx.open(&mut out[..len]).map(|(typ, at)| (typ, at.len()));
+            assert_eq!(got, want, "inner plaintext of {} bytes", inner.len() + 1);
+        }
+        // A TLS 1.3 record whose outer type is not application data does not open.
+        let (mut tx, mut rx) = (direction(0, 0, true), direction(0, 0, true));
+        let len = tx.seal(APPLICATION_DATA, b"x", &mut out);
+        out[0] = HANDSHAKE;
+        assert_eq!(rx.open(&mut out[..len]), Err(BadRecord));
     }
 }
