@@ -222,7 +222,7 @@ mod tests {
     fn tls13_padding_and_the_inner_type() {
         let mut out = vec![0u8; MAX_FRAGMENT + 64];
         // Sealed with the type 0: the inner plaintext is data, its type, zeros.
-        let cases: [(Vec<u8>, Result<(u8, usize), BadRecord>); 6] = [
+        let cases = [
             ([b"abc".as_slice(), &[APPLICATION_DATA], &[0; 7]].concat(), Ok((APPLICATION_DATA, 3))),
             ([&[ALERT][..], &[0; 1]].concat(), Ok((ALERT, 0))),
             ([&[0u8, 5, 0][..], &[HANDSHAKE], &[0; 30]].concat(), Ok((HANDSHAKE, 3))),
