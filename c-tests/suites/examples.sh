@@ -470,11 +470,41 @@ cp examples/tcp-client.c "$RB/app.c"
 # The installed prefix the "installed" blocks compile against (pkg-config libmodbus).
 RP=$WORK/readme-prefix
 scripts/install.sh --no-build --no-manifest --prefix="$RP" >"$RB/install.log" 2>&1 || bad "install.sh --prefix for the README's blocks"
-# The README's servers listen on 127.0.0.1:1502: wait while another program has it.
-for ((i = 0; i < 300; i++)); do
-    ss -Hltn 'sport = :1502' 2>/dev/null | grep -q . || break
-    sleep 0.2
-done
+# The README's servers listen on 127.0.0.1:1502, as written. A block that names the port
+# runs in a network namespace of its own (unshare -n, its loopback brought up), so that
+# the port is its own and no other program's: not taken by one, and taking none. Where
+# that cannot be done (not root), the block waits while another program has the port.
+own_net=()
+if unshare -n sh -c 'ip link set lo up' 2>/dev/null; then
+    own_net=(unshare -n sh -c 'ip link set lo up && exec "$@"' own-net)
+fi
+wait_for_1502() {
+    for ((i = 0; i < 300; i++)); do
+        ss -Hltn 'sport = :1502' 2>/dev/null | grep -q . || return 0
+        sleep 0.2
+    done
+}
+# With namespaces, 127.0.0.1:1502 is held outside them while the blocks run (unless
+# another program holds it already): a block that ran outside its namespace would find
+# the port taken and fail.
+holder=
+if [ ${#own_net[@]} -gt 0 ]; then
+    python3 -c 'import socket, sys, time
+s = socket.socket()
+try:
+    s.bind(("127.0.0.1", 1502))
+except OSError:
+    sys.exit(0)
+s.listen(1)
+print("held", flush=True)
+time.sleep(3600)' >"$RB/holder.out" 2>&1 &
+    holder=$!
+    for ((i = 0; i < 50; i++)); do
+        grep -q held "$RB/holder.out" && break
+        kill -0 "$holder" 2>/dev/null || break
+        sleep 0.1
+    done
+fi
 # block_pids SID: what a block left running (stopped by PID after it).
 block_pids() { ps -eo pid=,sid= | awk -v s="$1" '$2 == s { print $1 }'; }
 for block in "$RB"/[0-9][0-9].*; do
@@ -506,8 +536,14 @@ for block in "$RB"/[0-9][0-9].*; do
     mkdir -p "$dir"
     [ "$how" != scratch ] && [ "$how" != installed ] || cp "$RB/app.c" "$dir/"
     out=$RB/$base.out
-    # Its own session: what the block leaves running is found by the session id.
-    (cd "$dir" && exec env "${env[@]}" setsid "$shell" "$block" >"$out" 2>&1) &
+    net=()
+    if grep -q 1502 "$block"; then
+        net=("${own_net[@]}")
+        [ ${#net[@]} -gt 0 ] || wait_for_1502
+    fi
+    # Its own session: what the block leaves running is found by the session id (every
+    # step to the block's shell is an exec, so its PID is the subshell's).
+    (cd "$dir" && exec env "${env[@]}" "${net[@]}" setsid "$shell" "$block" >"$out" 2>&1) &
     bpid=$!
     start_s=$SECONDS
     while kill -0 "$bpid" 2>/dev/null && [ $((SECONDS - start_s)) -lt 600 ]; do sleep 0.2; done
@@ -522,7 +558,7 @@ for block in "$RB"/[0-9][0-9].*; do
     for p in $left; do kill "$p" 2>/dev/null; done
     if [ "$how" = scratch-root ]; then rm -f "$ROOT/app.c" "$ROOT/app"; fi
     if [ "$brc" -eq 0 ] && { [ -z "$want" ] || grep -qF -- "$want" "$out"; }; then
-        ok "$name: runs as written (${how/scratch-root/checkout}${want:+; prints \"$want\"})"
+        ok "$name: runs as written (${how/scratch-root/checkout}${net:+; its own network namespace}${want:+; prints \"$want\"})"
     else
         bad "$name: runs as written" "exit $brc${left:+; left running: $left}" "$(tail -n 15 "$out")"
     fi
@@ -535,5 +571,13 @@ for block in "$RB"/[0-9][0-9].*; do
         [ -x "$dir/app" ] && ldd "$dir/app" >/dev/null 2>&1 || bad "$name: makes ./app" ;;
     esac
 done
+if [ -n "$holder" ]; then
+    held=$(grep -c held "$RB/holder.out" || true)
+    kill "$holder" 2>/dev/null
+    wait "$holder" 2>/dev/null
+    if [ "$held" -gt 0 ]; then
+        ok "the README's blocks on port 1502 ran while 127.0.0.1:1502 was held outside their network namespaces"
+    fi
+fi
 
 summary
