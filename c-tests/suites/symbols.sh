@@ -25,10 +25,20 @@ set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 cd "$ROOT"
 
+case ${1:-} in
+-h | --help)
+    sed -n '2,/^set -euo/{/^set -euo/d;s/^# \{0,1\}//;p}' "$0"
+    exit 0 ;;
+-*)
+    echo "symbols.sh: unknown option $1 (usage: c-tests/suites/symbols.sh [path/to/libmodbus.so])" >&2
+    exit 2 ;;
+esac
+
 NAME=check-symbols
 PROFILE=${PROFILE:-release}
 LIB=${1:-${CARGO_TARGET_DIR:-target}/$PROFILE/libmodbus.so}
-LIBDIR=$(cd "$(dirname "$LIB")" && pwd)
+[ -e "$LIB" ] || { echo "symbols.sh: $LIB not found (run \`cargo build --release\` first)" >&2; exit 2; }
+LIBDIR=$(cd "$(dirname -- "$LIB")" && pwd)
 DEB_NM=abi/debian-libmodbus5.nm
 DEB_SYMBOLS=abi/debian-libmodbus5.symbols
 INTENDED=abi/symbols-intended-differences.txt
