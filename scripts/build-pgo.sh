@@ -94,8 +94,14 @@ raw=$out/profraw
 raw_tls=$out/profraw-tls
 # ring is compiled without the profile, instrumented neither (scripts/pgo-rustc.sh: with
 # it, LLVM stopped inlining ring's AES-GCM glue). A wrapper of the caller's runs after.
-export RSMODBUS_RUSTC_WRAPPER=${RUSTC_WRAPPER:-}
-export RUSTC_WRAPPER=$PWD/scripts/pgo-rustc.sh
+wrapper=$(realpath scripts/pgo-rustc.sh)
+if [ "$(realpath -m "${RUSTC_WRAPPER:-/}")" != "$wrapper" ]; then
+    export RSMODBUS_RUSTC_WRAPPER=${RUSTC_WRAPPER:-}
+fi
+export RUSTC_WRAPPER=$wrapper
+[ "$(RSMODBUS_RUSTC_WRAPPER= "$wrapper" echo --crate-name ring -Cprofile-use=/p -Copt-level=3)" = "--crate-name ring -Copt-level=3" ] &&
+    [ "$(RSMODBUS_RUSTC_WRAPPER= "$wrapper" echo --crate-name x -Cprofile-use=/p)" = "--crate-name x -Cprofile-use=/p" ] ||
+    die "scripts/pgo-rustc.sh does not take the profile's flags off ring's alone"
 gen=$out/gen/$host/release
 rm -rf "$raw" "$raw_tls" "$out"/tls*.proftext "$out"/rsmodbus*.profdata
 echo "build-pgo.sh: 1/3 instrumented library ($gen)"
@@ -123,6 +129,10 @@ tls_profile=()
 if [ -d "$raw_tls" ]; then
     # The TLS processes' profile, its counts rounded (benches/pgo-train.py --round).
     "$profdata" merge --text -o "$out/tls.proftext" "$raw_tls"
+    # ring's functions ran in the TLS training: none may have a count (pgo-rustc.sh).
+    if grep -q '_ZN4ring' "$out/tls.proftext"; then
+        die "ring's functions have counts in the TLS profile: scripts/pgo-rustc.sh did not apply, or the library instantiates a generic function of ring's"
+    fi
     python3 benches/pgo-train.py --round "$out/tls.proftext" "$out/tls-rounded.proftext"
     tls_profile=("$out/tls-rounded.proftext")
 fi
