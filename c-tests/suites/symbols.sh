@@ -37,7 +37,7 @@ esac
 NAME=check-symbols
 PROFILE=${PROFILE:-release}
 LIB=${1:-${CARGO_TARGET_DIR:-target}/$PROFILE/libmodbus.so}
-[ -e "$LIB" ] || { echo "symbols.sh: $LIB not found (run \`cargo build --release\` first)" >&2; exit 2; }
+[[ -f "$LIB" ]] || { echo "FAIL: $NAME: $LIB not found (run cargo build --release)"; exit 1; }
 LIBDIR=$(cd "$(dirname -- "$LIB")" && pwd)
 DEB_NM=abi/debian-libmodbus5.nm
 DEB_SYMBOLS=abi/debian-libmodbus5.symbols
@@ -57,7 +57,6 @@ trim() {
     printf '%s' "${s%"${s##*[![:space:]]}"}"
 }
 
-[[ -f "$LIB" ]] || { echo "FAIL: $NAME: $LIB not found (run cargo build --release)"; exit 1; }
 for tool in nm objdump readelf; do
     command -v "$tool" >/dev/null || { echo "FAIL: $NAME: $tool not found (binutils)"; exit 1; }
 done
