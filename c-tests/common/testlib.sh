@@ -66,6 +66,7 @@
 # still runs when the script exits or is interrupted is stopped then.
 #   start_bg OUT ERR CMD... CMD in the background, stdout to OUT, stderr to ERR (ERR
 #                           may be OUT); sets LAST_PID; PIDS lists the running ones
+#   session_pids SID        the live processes of session SID (c-tests/common/session.sh)
 #   stop_pid PID            TERM, KILL after STOP_GRACE seconds (3), reap
 #   wait_pid PID            wait for it to end by itself; returns its exit status
 #   start NAME CMD...       start_bg with output in $WORK/NAME.log, known by NAME
@@ -395,6 +396,8 @@ c_build_group() {
 }
 
 # ------------------------------------------------------------ processes
+# shellcheck source=c-tests/common/session.sh
+. "$(dirname "${BASH_SOURCE[0]}")/session.sh"
 declare -a PIDS=()
 declare -A _pids=()
 LAST_PID=

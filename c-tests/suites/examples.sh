@@ -505,8 +505,6 @@ time.sleep(3600)' >"$RB/holder.out" 2>&1 &
         sleep 0.1
     done
 fi
-# block_pids SID: what a block left running (stopped by PID after it).
-block_pids() { ps -eo pid=,sid= | awk -v s="$1" '$2 == s { print $1 }'; }
 for block in "$RB"/[0-9][0-9].*; do
     case $block in *.line | *.out) continue ;; esac
     lang=${block##*.}
@@ -551,7 +549,8 @@ for block in "$RB"/[0-9][0-9].*; do
         echo "(timed out after 600 s)" >>"$out"
     fi
     # setsid made the block's shell (bpid) a session leader: the session's id is its PID.
-    left=$(block_pids "$bpid" | grep -vx "$bpid" | tr '\n' ' ')
+    # What the block left running in it is stopped by PID after it.
+    left=$(session_pids "$bpid" | grep -vx "$bpid" | tr '\n' ' ')
     kill "$bpid" 2>/dev/null
     wait "$bpid"
     brc=$?

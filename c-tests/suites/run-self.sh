@@ -132,7 +132,7 @@ for f in x y; do
     if [ -z "$p" ]; then still+=("$f: never started"); elif alive "$p"; then still+=("$f: $p"); kill "$p"; fi
 done
 # Its own processes: gone when it has exited (zombies aside: init reaps them).
-own=$(ps -eo pid=,sid=,stat=,args= | awk -v s="$runner" '$2 == s && $3 !~ /^Z/')
+own=$(ps -o pid=,args= -p "$(session_pids "$runner" | paste -sd, -)" 2>/dev/null)
 if [ "$rc" = 130 ] && [ ${#still[@]} -eq 0 ] && [ -z "$own" ]; then
     ok "an interrupted run stops the suites running beside each other and leaves nothing (exit 130)"
 else
