@@ -115,6 +115,18 @@ else
     bad "TEST_JOBS=1 runs & rows one after the other" "$(grep ' met ' "$W/serial")"
 fi
 
+# --- a suite past SUITE_TIMEOUT ---------------------------------------------------------------
+printf 'slow suite& sleep 300 & echo $! >%s/slow.pid; wait\nquick suite& true\n' "$W" >"$W/timeout.txt"
+run "$W/timeout.txt" timeout SUITE_TIMEOUT=2
+p=$(cat "$W/slow.pid" 2>/dev/null)
+if grep -q '^=== slow: still running after 2s: stopped$' "$W/timeout" && grep -q '^3 passed, 1 failed$' "$W/timeout" &&
+    [ -n "$p" ] && ! alive "$p"; then
+    ok "a suite still running after SUITE_TIMEOUT is stopped and fails; the others pass"
+else
+    bad "a suite still running after SUITE_TIMEOUT is stopped and fails" "$(tail -n 8 "$W/timeout")"
+    [ -z "$p" ] || kill "$p" 2>/dev/null
+fi
+
 # --- interrupted -------------------------------------------------------------------------
 # The runner in a session of its own (setsid: its PID is the session's ID), so that
 # what it leaves behind is found: its sessions' processes (the rows' sleeps, each in a
