@@ -146,7 +146,6 @@ impl Direction {
         };
         self.seq += 1;
         // open_within moves the plaintext to the start of the body.
-        let plain = &record[HEADER..HEADER + opened];
         if !self.tls13 {
             if opened > MAX_FRAGMENT {
                 return Err(BadRecord);
@@ -154,6 +153,7 @@ impl Direction {
             return Ok((typ, HEADER..HEADER + opened));
         }
         // TLS 1.3: the content type is the last byte that is not padding.
+        let plain = &record[HEADER..HEADER + opened];
         match plain.iter().rposition(|&b| b != 0) {
             Some(at) if at <= MAX_FRAGMENT => Ok((plain[at], HEADER..HEADER + at)),
             _ => Err(BadRecord),
