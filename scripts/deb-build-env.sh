@@ -6,8 +6,11 @@
 # these variables in). Run from the project's root; needs dpkg-dev.
 # SPDX-License-Identifier: MIT OR Apache-2.0
 deb_build_env() {
-    # debian/rules' DEB_CFLAGS_MAINT_APPEND: ring's C code at -O3 (see there).
-    eval "$(DEB_CFLAGS_MAINT_APPEND=-O3 dpkg-buildflags --export=sh)" || return 1
+    # With debian/rules' own additions to the flags (DEB_CFLAGS_MAINT_APPEND: ring's C
+    # code at -O3), read from there.
+    local append
+    append=$(sed -n 's/^export DEB_CFLAGS_MAINT_APPEND *= *//p' debian/rules)
+    eval "$(DEB_CFLAGS_MAINT_APPEND=$append dpkg-buildflags --export=sh)" || return 1
     SOURCE_DATE_EPOCH=$(dpkg-parsechangelog -STimestamp) || return 1
     export SOURCE_DATE_EPOCH
 }
