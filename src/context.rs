@@ -6,13 +6,14 @@ use std::sync::Arc;
 
 use crate::error::{Error, Result};
 use crate::outstanding::Outstanding;
-use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
+use crate::proto::frame::{Framing, MsgKind};
 use crate::proto::limits::TCP_SLAVE;
 use crate::proto::session::client::ClientSession;
 use crate::proto::session::receive::{LineCaps, Settings};
 use crate::proto::session::server::ServerSession;
 use crate::stdio::{self, DebugSink};
 use crate::stop::Stop;
+use crate::transport::AduBuf;
 
 /// `MODBUS_QUIRK_MAX_SLAVE`: accept slave ids 248..255.
 pub const QUIRK_MAX_SLAVE: u32 = 1 << 1;
@@ -151,19 +152,19 @@ pub enum Shut {
 /// then neither allocates nor zeroes 260 bytes per frame (it only ever reads what it
 /// wrote). Allocated on first use, freed with the context.
 #[derive(Debug, Default)]
-pub struct SpareFrames([Option<Box<[u8; MAX_ADU_LENGTH]>>; 2]);
+pub struct SpareFrames([Option<Box<AduBuf>>; 2]);
 
 impl SpareFrames {
     #[inline]
-    pub fn take(&mut self) -> Box<[u8; MAX_ADU_LENGTH]> {
+    pub fn take(&mut self) -> Box<AduBuf> {
         match self.0[0].take() {
             Some(frame) => frame,
-            None => self.0[1].take().unwrap_or_else(|| Box::new([0; MAX_ADU_LENGTH])),
+            None => self.0[1].take().unwrap_or_else(|| Box::new(AduBuf::new())),
         }
     }
 
     #[inline]
-    pub fn give(&mut self, frame: Box<[u8; MAX_ADU_LENGTH]>) {
+    pub fn give(&mut self, frame: Box<AduBuf>) {
         let slot = if self.0[0].is_none() { &mut self.0[0] } else { &mut self.0[1] };
         *slot = Some(frame);
     }

@@ -8,21 +8,21 @@ use crate::context::{Context, RtsHook};
 use crate::error::{Error, Result};
 use crate::lock::OwnerGuard;
 use crate::proto::confirm::{self, Rejection};
-use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
+use crate::proto::frame::{Framing, MsgKind};
 use crate::proto::request::Request;
 use crate::proto::session::receive::{self, Finished, Receiver, Step};
 use crate::proto::session::{self, Recovery};
 use crate::proto::{Diag, ascii};
 use crate::session::{Driver, Received, Recovered, conclude, error_print, flush_reporting};
 use crate::session::{Waiting, execute, pause, recover, sleep_response_timeout, trace_sent};
-use crate::transport;
+use crate::transport::{self, Room};
 
 /// A locked context. Functions that may call back into the application (the custom
 /// RTS callback) take the guard so they can release the lock around the call.
 pub type Guard<'a> = OwnerGuard<'a, Context>;
 
-/// One ADU buffer, large enough for any framing.
-pub type AduBuf = [u8; MAX_ADU_LENGTH];
+/// One ADU buffer, large enough for any framing, with room around it for a read.
+pub use crate::transport::AduBuf;
 
 /// Drives the RTS line of a serial context through the application's callback
 /// (with the context unlocked, so the callback may call `modbus_get_socket` and
@@ -150,7 +150,7 @@ fn send_after_failure(g: &mut Guard<'_>, wire: &[u8], len: usize, mut written: R
 /// read, never a byte past it; a serial line is waited on, then read without waiting
 /// until it is empty. A close of the context from a signal handler or another
 /// thread ends the receive after the step it interrupts, with `Error::STOPPED`.
-pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<Received> {
+pub fn receive_msg(ctx: &mut Context, room: &mut Room<'_>, kind: MsgKind) -> Result<Received> {
     if ctx.debug || ctx.fd() < 0 {
         let mut diag = ctx.diag();
         match kind {
@@ -162,12 +162,12 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
             return Err(Error::UNCHANGED);
         }
     }
-    debug_assert!(buf.len() >= ctx.framing().max_adu_length());
+    debug_assert!(room.size() >= ctx.framing().max_adu_length());
     let expecting = if kind == MsgKind::Confirmation { ctx.client.take_expecting() } else { None };
     crate::session::prepare(ctx, kind, expecting);
     // The usual first steps need no state of the receive: it is built when a step
     // does not end the receive (see `receive::first_step`).
-    let first = receive::first_step(&ctx.session, &ctx.rx, buf.len());
+    let first = receive::first_step(&ctx.session, &ctx.rx, room.size());
     let mut machine: Option<Receiver> = None;
     let mut started = None;
     let mut step = match first {
@@ -180,16 +180,16 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
         }
         None => {
             let m = machine.insert(Receiver::new(&ctx.session, transport::now));
-            m.start(&ctx.session, buf, &mut ctx.rx, transport::now)
+            m.start(&ctx.session, room.msg(), &mut ctx.rx, transport::now)
         }
     };
     loop {
         let result = match step {
             Step::Frame(len) if !ctx.debug => return Ok(Received::Frame(len)),
-            Step::Frame(len) => return finish(ctx, buf, Finished::frame(len)),
-            Step::Done(finished) => return finish(ctx, buf, finished),
+            Step::Frame(len) => return finish(ctx, room.msg_ref(), Finished::frame(len)),
+            Step::Done(finished) => return finish(ctx, room.msg_ref(), finished),
             _ => {
-                let Some(r) = execute(&mut ctx.line, &mut ctx.rx, buf, step, ctx.debug, &mut Waiting::Block) else {
+                let Some(r) = execute(&mut ctx.line, &mut ctx.rx, room, step, ctx.debug, &mut Waiting::Block) else {
                     unreachable!("a blocking step always ends")
                 };
                 r
@@ -198,10 +198,11 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
         if let (Step::Peek { .. }, Ok(n)) = (step, result) {
             // A whole message queued: taken at once, exactly (never a byte past it).
             let whole = match &machine {
-                None => receive::whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
-                Some(m) => m.whole_after_peek(&ctx.session, &ctx.rx.buf[..n], buf.len()),
+                None => receive::whole_after_peek(&ctx.session, &ctx.rx.buf[..n], room.size()),
+                Some(m) => m.whole_after_peek(&ctx.session, &ctx.rx.buf[..n], room.size()),
             };
             if let Some(len) = whole {
+                let buf = room.msg();
                 let read = ctx.line.take(&mut buf[..len]);
                 if !ctx.stopping() {
                     step = match &mut machine {
@@ -227,9 +228,9 @@ pub fn receive_msg(ctx: &mut Context, buf: &mut [u8], kind: MsgKind) -> Result<R
         };
         if ctx.stopping() {
             m.stopped();
-            step = m.step(&ctx.session, buf, &mut ctx.rx, transport::now);
+            step = m.step(&ctx.session, room.msg(), &mut ctx.rx, transport::now);
         } else {
-            step = m.next(&ctx.session, result, buf, &mut ctx.rx, transport::now);
+            step = m.next(&ctx.session, result, room.msg(), &mut ctx.rx, transport::now);
         }
     }
 }
@@ -326,7 +327,7 @@ fn exchange_with(g: &mut Guard<'_>, req: &Request<'_>, out: &mut AduBuf, rsp: &m
 fn receive_answer(g: &mut Guard<'_>, rsp: &mut AduBuf, req: &[u8]) -> Result<Received> {
     let tcp = g.framing() == Framing::Tcp;
     loop {
-        match receive_msg(g, rsp, MsgKind::Confirmation) {
+        match receive_msg(g, &mut rsp.room(), MsgKind::Confirmation) {
             Ok(Received::Frame(len)) if tcp && len >= 2 && rsp[..2] != req[..2] => {
                 let tid = u16::from_be_bytes([rsp[0], rsp[1]]);
                 if g.line.is_datagram() {
@@ -352,7 +353,7 @@ fn receive_answer(g: &mut Guard<'_>, rsp: &mut AduBuf, req: &[u8]) -> Result<Rec
 /// `modbus_send_raw_request[_tid]`: `raw[0]` is the unit, the rest is the PDU.
 pub fn send_raw(g: &mut Guard<'_>, raw: &[u8], tid: u16) -> Result<usize> {
     g.idle()?;
-    let mut out: AduBuf = [0; MAX_ADU_LENGTH];
+    let mut out = AduBuf::new();
     let h = g.framing().write_header(&mut out, raw[0], tid);
     let pdu = &raw[1..];
     out[h..h + pdu.len()].copy_from_slice(pdu);

@@ -21,7 +21,7 @@ use crate::error::{Error, Result};
 use crate::outstanding::{Completion, Deliver, Done, Outstanding, Ready, Receiving, Wake};
 use crate::proto::confirm::{self, Rejection};
 use crate::proto::decode::counted_data;
-use crate::proto::frame::{Framing, MAX_ADU_LENGTH, MsgKind};
+use crate::proto::frame::{Framing, MsgKind};
 use crate::proto::request::Request;
 use crate::proto::session::client::answer_length;
 use crate::proto::session::pipeline::{Answer, End, Entry, MAX_PENDING};
@@ -136,7 +136,7 @@ fn queue(
     if state(ctx)?.pending() >= MAX_PENDING {
         return Err(Error(libc::EAGAIN));
     }
-    let mut buf: AduBuf = [0; MAX_ADU_LENGTH];
+    let mut buf = AduBuf::new();
     let n = engine::build_request(ctx, req, &mut buf);
     let framing = ctx.framing();
     let len = framing.seal(&mut buf, n);
@@ -639,8 +639,7 @@ fn receive(g: &mut Guard<'_>, o: &mut Outstanding, readable: &mut bool) -> Optio
         let left = deadline.saturating_sub(now).max(Duration::from_micros(1));
         s.timeouts.response = Timeout::new(left.as_secs() as u32, left.subsec_micros().max(1));
         let machine = Receiver::new(&s, || now);
-        let mut r =
-            Box::new(Receiving { machine, settings: s, step: Step::Wait { until: None }, msg: [0; MAX_ADU_LENGTH] });
+        let mut r = Box::new(Receiving { machine, settings: s, step: Step::Wait { until: None }, msg: AduBuf::new() });
         let started = &mut *r;
         started.step = started.machine.start(&s, &mut started.msg[..], &mut g.rx, || now);
         o.receiving = Some(r);

@@ -11,9 +11,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
 
 use crate::handle::lock::OwnerMutex;
+use crate::transport::AduBuf;
 use crate::transport::epoll::{Registered, WakeSet};
 
-use crate::proto::frame::{Framing, MAX_ADU_LENGTH};
+use crate::proto::frame::Framing;
 use crate::proto::session::pipeline::Pipeline;
 use crate::proto::session::receive::{Receiver, Settings, Step};
 
@@ -119,7 +120,7 @@ pub struct Receiving {
     /// The settings it runs with (the context's, with this receive's time limit).
     pub settings: Settings,
     pub step: Step,
-    pub msg: [u8; MAX_ADU_LENGTH],
+    pub msg: AduBuf,
 }
 
 /// The event-driven client's state of one context.

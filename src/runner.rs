@@ -39,7 +39,7 @@ use crate::proto::session::receive::{Finished, Receiver, Step};
 use crate::proto::session::server::Taken;
 use crate::proto::session::{Recovery, Timeout};
 use crate::session::{self, Driver};
-use crate::transport::{self, epoll, listen};
+use crate::transport::{self, AduBuf, epoll, listen};
 
 /// What the runner asks of the C layer for each request.
 pub trait Answer {
@@ -953,9 +953,7 @@ fn start(g: &mut Guard<'_>, spare: &mut Option<Box<Receiving>>, any_unit: bool) 
             r.settings = s;
             r
         }
-        None => {
-            Box::new(Receiving { machine, settings: s, step: Step::Wait { until: None }, msg: [0; MAX_ADU_LENGTH] })
-        }
+        None => Box::new(Receiving { machine, settings: s, step: Step::Wait { until: None }, msg: AduBuf::new() }),
     };
     let started = &mut *r;
     started.step = started.machine.start(&s, &mut started.msg[..], &mut g.rx, || now);

@@ -20,6 +20,7 @@ use crate::proto::security;
 use crate::proto::session::Recovery;
 use crate::proto::session::server::Taken;
 use crate::session::{self, Driver, Received, Recovered};
+use crate::transport::Room;
 use crate::transport::udp::Peer;
 
 /// A UDP server remembers this many senders; the least recent goes first (and gets
@@ -78,7 +79,7 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) 
     if g.framing() == Framing::Tcp && g.server_ext.is_none() {
         // The usual server: a request, nothing to count (no other slave's answer
         // follows a request on TCP).
-        return match engine::receive_msg(g, buf, MsgKind::Indication)? {
+        return match engine::receive_msg(g, &mut Room::bare(buf), MsgKind::Indication)? {
             Received::Frame(len) => Ok(len),
             Received::Ignored(_) => Ok(0),
         };
@@ -86,7 +87,7 @@ pub fn receive(g: &mut Guard<'_>, buf: &mut [u8], units: Option<&mut dyn Data>) 
     let kind = g.server.kind();
     let any_unit = units.is_some() && kind == MsgKind::Indication && g.framing() != Framing::Tcp;
     g.session.any_unit = any_unit;
-    let r = engine::receive_msg(g, buf, kind);
+    let r = engine::receive_msg(g, &mut Room::bare(buf), kind);
     g.session.any_unit = false;
     if g.server_ext.is_none() && kind == MsgKind::Indication {
         // The usual request: nothing to count, nothing to skip.
@@ -164,11 +165,11 @@ pub fn reply<D: Data>(g: &mut Guard<'_>, req: &[u8], req_length: i32, data: &mut
     let mut out = g.spare.take();
     let result = match g.server_ext.as_deref_mut() {
         None => {
-            let outcome = server.answer(req, req_length, data, &mut sink, &mut out);
+            let outcome = server.answer(req, req_length, data, &mut sink, out.adu_mut());
             perform(g, outcome, &mut out).0
         }
         Some(ext) => {
-            let answer = ext.reply(server, req, req_length, data, &mut sink, &mut out);
+            let answer = ext.reply(server, req, req_length, data, &mut sink, out.adu_mut());
             let (result, delivery) = perform(g, answer.outcome, &mut out);
             if let Some(ext) = g.server_ext.as_deref_mut() {
                 ext.complete(&answer, delivery);
@@ -238,7 +239,7 @@ fn exception_reply(g: &mut Guard<'_>, req: &[u8], code: u32) -> Result<usize> {
         }
     }
     let mut out = g.spare.take();
-    let len = exception_response(framing, req, code as u8, &mut out);
+    let len = exception_response(framing, req, code as u8, out.adu_mut());
     let r = engine::send_msg(g, &mut out[..], len);
     g.spare.give(out);
     if let Some(ext) = g.server_ext.as_deref_mut() {

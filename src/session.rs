@@ -17,6 +17,7 @@ use crate::proto::frame::{Framing, MsgKind};
 use crate::proto::session::Recovery;
 use crate::proto::session::receive::{Dest, Finished, Outcome, ReadAhead, ReadHow, Settings, Step};
 use crate::proto::session::server::{Taken, bus_event};
+use crate::transport::Room;
 use crate::transport::line::Line;
 use crate::transport::{self, Ready};
 
@@ -122,7 +123,7 @@ pub enum Waiting<'a> {
 pub fn execute(
     line: &mut Line,
     rx: &mut ReadAhead,
-    msg: &mut [u8],
+    msg: &mut Room<'_>,
     step: Step,
     debug: bool,
     waiting: &mut Waiting<'_>,
@@ -131,11 +132,11 @@ pub fn execute(
     Some(match step {
         Step::Peek { block } => line.peek(&mut rx.buf, block && blocking),
         Step::Read { dest, how } => {
-            let room = match dest {
-                Dest::Message { from, to } => &mut msg[from..to],
-                Dest::ReadAhead => &mut rx.buf[..],
-            };
-            line.read(room, if blocking { how } else { ReadHow::Queued }, debug)
+            let how = if blocking { how } else { ReadHow::Queued };
+            match dest {
+                Dest::Message { from, to } => line.read_message(msg, from..to, how, debug),
+                Dest::ReadAhead => line.read(&mut rx.buf[..], how, debug),
+            }
         }
         Step::Wait { until } => match waiting {
             Waiting::Block => line.wait(until, debug).map(|()| 0),
@@ -165,7 +166,7 @@ pub fn drive_ready(ctx: &mut Context, r: &mut Receiving, readable: &mut bool) ->
             Step::Frame(len) => return Some(Finished::frame(len)),
             Step::Done(f) => return Some(f),
             step => {
-                let result = execute(&mut ctx.line, &mut ctx.rx, &mut r.msg[..], step, ctx.debug, &mut waiting)?;
+                let result = execute(&mut ctx.line, &mut ctx.rx, &mut r.msg.room(), step, ctx.debug, &mut waiting)?;
                 r.step = r.machine.next(&r.settings, result, &mut r.msg[..], &mut ctx.rx, transport::now);
             }
         }

@@ -57,9 +57,9 @@ fn receive_timeout(fd: i32) -> Duration {
 
 /// Waits for a confirmation that must time out; returns how long that took.
 fn wait_for_timeout(g: &mut Guard<'_>) -> Duration {
-    let mut buf = [0u8; MAX_ADU_LENGTH];
+    let mut buf = AduBuf::new();
     let started = Instant::now();
-    assert_eq!(receive_msg(g, &mut buf, MsgKind::Confirmation), Err(Error::TIMED_OUT));
+    assert_eq!(receive_msg(g, &mut buf.room(), MsgKind::Confirmation), Err(Error::TIMED_OUT));
     started.elapsed()
 }
 
@@ -91,7 +91,7 @@ fn confirmation_split_into_single_bytes(client_socket: bool) {
         peer
     });
     let mut g = m.lock();
-    let mut rsp = [0u8; MAX_ADU_LENGTH];
+    let mut rsp = AduBuf::new();
     let req = Request::ReadRegisters { function: 3, addr: 0, nb: 2 };
     let done = exchange(&mut g, &req, &mut rsp).unwrap();
     assert_eq!((done.len, done.count), (13, 2));
@@ -107,11 +107,11 @@ fn silence_is_a_timeout_and_close_is_a_reset() {
     let mut g = m.lock();
     g.session.timeouts.response = Timeout::new(0, 50_000);
     assert!(wait_for_timeout(&mut g) >= Duration::from_millis(45));
-    let mut buf = [0u8; MAX_ADU_LENGTH];
+    let mut buf = AduBuf::new();
     // Half a frame, then the peer goes away.
     transport::write(peer, &[0, 1, 0, 0, 0, 7]).unwrap();
     transport::close(peer);
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::CONN_RESET));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Confirmation), Err(Error::CONN_RESET));
     transport::close(ours);
 }
 
@@ -229,8 +229,8 @@ fn oversized_announcement_is_refused() {
     let mut g = m.lock();
     // Read response announcing 255 data bytes: 9 + 255 > 260.
     transport::write(peer, &[0, 1, 0, 0, 1, 2, 0xFF, 3, 0xFF]).unwrap();
-    let mut buf = [0u8; MAX_ADU_LENGTH];
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_DATA));
+    let mut buf = AduBuf::new();
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Confirmation), Err(Error::BAD_DATA));
     transport::close(peer);
     transport::close(ours);
 }
@@ -249,7 +249,7 @@ fn wrong_transaction_id_is_bad_data() {
         peer
     });
     let mut g = m.lock();
-    let mut rsp = [0u8; MAX_ADU_LENGTH];
+    let mut rsp = AduBuf::new();
     let req = Request::ReadRegisters { function: 3, addr: 0, nb: 2 };
     assert_eq!(exchange(&mut g, &req, &mut rsp).err(), Some(Error::BAD_DATA));
     transport::close(writer.join().unwrap());
@@ -260,8 +260,8 @@ fn wrong_transaction_id_is_bad_data() {
 fn not_connected_leaves_errno_alone() {
     let m = tcp_context(-1);
     let mut g = m.lock();
-    let mut buf = [0u8; MAX_ADU_LENGTH];
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::UNCHANGED));
+    let mut buf = AduBuf::new();
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Err(Error::UNCHANGED));
 }
 
 #[test]
@@ -277,15 +277,15 @@ fn rtu_frame_for_another_slave_is_ignored_and_bad_crc_refused() {
         f.extend(modbus::proto::crc::crc16(&f).to_le_bytes());
         f
     };
-    let mut buf = [0u8; MAX_ADU_LENGTH];
+    let mut buf = AduBuf::new();
     transport::write(peer, &frame(0x12)).unwrap();
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Ignored(8)));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Ok(Received::Ignored(8)));
     transport::write(peer, &frame(0x11)).unwrap();
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(8)));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Ok(Received::Frame(8)));
     let mut bad = frame(0x12);
     bad[7] ^= 0xFF;
     transport::write(peer, &bad).unwrap();
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::BAD_CRC));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Err(Error::BAD_CRC));
     transport::close(peer);
     transport::close(ours);
 }
@@ -311,12 +311,12 @@ fn serial_requests_in_pieces_and_back_to_back() {
     };
     let read = rtu(&[0x11, 0x03, 0x00, 0x6B, 0x00, 0x03]);
     let write = rtu(&[0x11, 0x10, 0x00, 0x01, 0x00, 0x02, 0x04, 0x00, 0x0A, 0x01, 0x02]);
-    let mut buf = [0u8; MAX_ADU_LENGTH];
+    let mut buf = AduBuf::new();
 
     // Back to back: each receive takes exactly one request.
     transport::write(peer, &[read.clone(), write.clone(), read.clone()].concat()).unwrap();
     for expected in [&read, &write, &read] {
-        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(expected.len())));
+        assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Ok(Received::Frame(expected.len())));
         assert_eq!(&buf[..expected.len()], &expected[..]);
     }
 
@@ -333,14 +333,14 @@ fn serial_requests_in_pieces_and_back_to_back() {
                 }
             }
         });
-        assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(read.len())));
+        assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Ok(Received::Frame(read.len())));
         assert_eq!(&buf[..read.len()], &read[..]);
         sender.join().unwrap();
     }
 
     // Nothing arrives: the indication timeout.
     g.session.timeouts.indication = modbus::context::Timeout::new(0, 50_000);
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Err(Error::TIMED_OUT));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Err(Error::TIMED_OUT));
     transport::close(peer);
     transport::close(ours);
 }
@@ -366,7 +366,7 @@ fn ascii_exchange_over_a_stream() {
         (peer, got)
     });
     let mut g = m.lock();
-    let mut rsp = [0u8; MAX_ADU_LENGTH];
+    let mut rsp = AduBuf::new();
     let done = exchange(&mut g, &Request::ReadRegisters { function: 3, addr: 0, nb: 1 }, &mut rsp).unwrap();
     assert_eq!(done.count, 1);
     assert_eq!(rsp[..done.len], [0x01, 0x03, 0x02, 0x01, 0xA2, 0x57]);
@@ -374,12 +374,12 @@ fn ascii_exchange_over_a_stream() {
     assert_eq!(request, b":010300000001FB\r\n");
     // A wrong LRC is a checksum error.
     transport::write(peer, b":010302000100F0\r\n").unwrap();
-    let mut buf = [0u8; MAX_ADU_LENGTH];
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_CRC));
+    let mut buf = AduBuf::new();
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Confirmation), Err(Error::BAD_CRC));
     // Another slave's frame is ignored, a broadcast accepted.
     transport::write(peer, b":020300000001FA\r\n:000300000001FC\r\n").unwrap();
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Ignored(7)));
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Indication), Ok(Received::Frame(7)));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Ok(Received::Ignored(7)));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Indication), Ok(Received::Frame(7)));
     transport::close(peer);
     transport::close(ours);
 }
@@ -392,25 +392,25 @@ fn ascii_frames_shorter_than_their_content_are_refused() {
     ctx.session.slave = 0xEF;
     let m = Mutex::new(ctx);
     let mut g = m.lock();
-    let mut buf = [0u8; MAX_ADU_LENGTH];
+    let mut buf = AduBuf::new();
     // Fuzz finding F4: [EF][11] decodes with a good LRC but has no function code
     // (11 is the LRC): it must be refused, not reach the response checks.
     transport::write(peer, b":EF11\r\n").unwrap();
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_DATA));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Confirmation), Err(Error::BAD_DATA));
     // F3: report slave id claiming 255 bytes with 11 in the frame.
     let mut body = vec![0xEF, 0x11, 0xFF, 0xB4, 0xFF, b'L', b'M', b'B', b'3', b'.', b'1', b'.', b'1', b'2'];
     body.push(ascii::lrc(&body));
     let mut text = [0u8; ascii::MAX_ENCODED];
     let n = ascii::encode(&body, &mut text);
     transport::write(peer, &text[..n]).unwrap();
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Err(Error::BAD_DATA));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Confirmation), Err(Error::BAD_DATA));
     // The same answer with its true byte count is fine.
     body[2] = 11;
     body.pop();
     body.push(ascii::lrc(&body));
     let n = ascii::encode(&body, &mut text);
     transport::write(peer, &text[..n]).unwrap();
-    assert_eq!(receive_msg(&mut g, &mut buf, MsgKind::Confirmation), Ok(Received::Frame(15)));
+    assert_eq!(receive_msg(&mut g, &mut buf.room(), MsgKind::Confirmation), Ok(Received::Frame(15)));
     transport::close(peer);
     transport::close(ours);
 }

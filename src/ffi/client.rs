@@ -9,7 +9,7 @@ use crate::error::{Error, Result};
 use crate::ffi::{Modbus, with_ctx};
 use crate::proto::data::registers_from_be;
 use crate::proto::fc;
-use crate::proto::frame::{MAX_ADU_LENGTH, MsgKind};
+use crate::proto::frame::MsgKind;
 use crate::proto::limits::{MAX_PDU_LENGTH, MAX_READ_BITS, MAX_READ_REGISTERS};
 use crate::proto::request::{Request, check_read_count, check_write_and_read_counts, check_write_count};
 use crate::session::Received;
@@ -308,7 +308,7 @@ pub unsafe extern "C" fn modbus_report_slave_id(ctx: *mut Modbus, max_dest: c_in
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let mut rsp = AduBuf::new();
             let done = engine::exchange(g, &Request::ReportSlaveId, &mut rsp)?;
             let h = g.framing().header_length();
             let n = (done.count as usize).min(max_dest as usize);
@@ -375,8 +375,8 @@ pub unsafe extern "C" fn modbus_receive_confirmation(ctx: *mut Modbus, rsp: *mut
     // SAFETY: forwarded caller contract.
     unsafe {
         with_ctx(ctx, |g| {
-            let mut buf: AduBuf = [0; MAX_ADU_LENGTH];
-            let (len, rc) = match engine::receive_msg(g, &mut buf, MsgKind::Confirmation)? {
+            let mut buf = AduBuf::new();
+            let (len, rc) = match engine::receive_msg(g, &mut buf.room(), MsgKind::Confirmation)? {
                 Received::Frame(len) => (len, len),
                 Received::Ignored(len) => (len, 0),
             };

@@ -10,7 +10,6 @@ use crate::error::{Error, Result};
 use crate::ffi::{Modbus, fail, with_ctx};
 use crate::outstanding::{DecodeArgs, DecodeFn};
 use crate::proto::decode;
-use crate::proto::frame::MAX_ADU_LENGTH;
 use crate::proto::request::{
     MAX_DIAGNOSTICS_WORDS, MAX_FIFO_COUNT, MAX_FILE_READ_REGISTERS, MAX_FILE_RECORD, MAX_FILE_WRITE_REGISTERS, Request,
 };
@@ -39,7 +38,7 @@ unsafe fn copy_words(values: impl Iterator<Item = u16>, dest: *mut u16) {
 /// # Safety
 /// The pointers among `args` are valid for what `decode` writes.
 unsafe fn blocking(g: &mut Guard<'_>, req: &Request<'_>, decode: DecodeFn, args: &DecodeArgs) -> Result<c_int> {
-    let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+    let mut rsp = AduBuf::new();
     let (pdu, count) = exchange(g, req, &mut rsp)?;
     // SAFETY: forwarded caller contract.
     Ok(unsafe { decode(pdu, count, args) })
@@ -214,7 +213,7 @@ pub unsafe extern "C" fn modbus_diagnostics(
     unsafe {
         with_ctx(ctx, |g| {
             if sub_function == 4 {
-                let mut out: AduBuf = [0; MAX_ADU_LENGTH];
+                let mut out = AduBuf::new();
                 let n = engine::build_request(g, &req, &mut out);
                 engine::send_msg(g, &mut out, n)?;
                 return Ok(0);
@@ -328,7 +327,7 @@ pub unsafe extern "C" fn modbus_write_file_record(
             check_file_args(file, record, nb, MAX_FILE_WRITE_REGISTERS)?;
             let values = slice::from_raw_parts(src, nb as usize);
             let req = Request::WriteFileRecord { file: file as u16, record: record as u16, values };
-            let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+            let mut rsp = AduBuf::new();
             exchange(g, &req, &mut rsp).map(|(_, n)| n)
         })
     }
@@ -417,7 +416,7 @@ fn read_device_id(
     // Each round trip returns at least one object or ends the stream, so 256 rounds
     // cover every object id; the bound keeps a misbehaving device from looping us.
     for round in 0..DEVICE_ID_ROUNDS {
-        let mut rsp: AduBuf = [0; MAX_ADU_LENGTH];
+        let mut rsp = AduBuf::new();
         let (pdu, count) = exchange(g, &Request::ReadDeviceId { read_code, object_id }, &mut rsp)?;
         match device_id_round(pdu, count, out, conformity.as_deref_mut(), &mut stored, read_code, object_id) {
             Some(next) if round + 1 < DEVICE_ID_ROUNDS => object_id = next,

@@ -18,10 +18,12 @@
 //! whose peer has gone is dropped when its socket stops being current.
 
 use std::ffi::CStr;
+use std::ops::Range;
 use std::sync::Arc;
 use std::time::Duration;
 
 use super::link::{Link, RTU_RTS_NONE, RTU_RTS_UP, RtsHook, RtuLink};
+use super::room::Room;
 use super::tcp::{self, ConnectError};
 use super::tls::{self, Session, Tls};
 use super::udp::{self, Datagram};
@@ -741,17 +743,41 @@ impl Line {
                 Ok(0) if matches!(how, ReadHow::Queued) => Err(Error(libc::EAGAIN)),
                 r => r,
             },
-            Kind::Tls => tls_read(fd, &mut self.held, room, how),
+            Kind::Tls => {
+                let all = 0..room.len();
+                tls_read(fd, &mut self.held, room, all, how)
+            }
             Kind::Datagram => datagram_read(fd, &mut self.held, room, how),
         }
     }
 
+    /// [`Line::read`] into a message's room `msg`: a TLS session may use the bytes
+    /// around it (see `tls::Session::read_into`).
+    #[inline]
+    pub fn read_message(
+        &mut self,
+        msg: &mut Room<'_>,
+        range: Range<usize>,
+        how: ReadHow,
+        debug: bool,
+    ) -> Result<usize> {
+        let (whole, at) = msg.around(range);
+        if self.kind == Kind::Tls {
+            return tls_read(self.fd, &mut self.held, whole, at, how);
+        }
+        self.read(&mut whole[at], how, debug)
+    }
+
     /// Takes the whole message a [`Line::peek`] showed, `room` long: one read of what
-    /// is there.
+    /// is there (on a TLS session, of the plaintext the peek showed).
     #[inline]
     pub fn take(&mut self, room: &mut [u8]) -> Result<usize> {
         match self.kind {
             Kind::Socket => super::recv(self.fd, room, 0),
+            Kind::Tls => match self.held.session.as_deref_mut() {
+                Some(session) => session.take(room),
+                None => Err(no_session(self.fd)),
+            },
             Kind::Datagram => {
                 let n = self.read(room, ReadHow::Ready, false);
                 // The message is the datagram: what follows it in there is no message.
@@ -1027,11 +1053,12 @@ fn tls_peek(fd: i32, session: &mut Option<Box<Session>>, room: &mut [u8], block:
     }
 }
 
-/// [`Line::read`] on a TLS session: takes plaintext; reads records from the socket
-/// only when none is left, one `recv` at most (a part of a record, or a record with
-/// no application data, leaves nothing to take: EAGAIN, and the machine waits again).
+/// [`Line::read`] on a TLS session into `buf[at]`: takes plaintext; reads records
+/// from the socket only when none is left, one `recv` at most (a part of a record, or
+/// a record with no application data, leaves nothing to take: EAGAIN, and the machine
+/// waits again).
 #[inline(never)]
-fn tls_read(fd: i32, held: &mut Held, room: &mut [u8], how: ReadHow) -> Result<usize> {
+fn tls_read(fd: i32, held: &mut Held, buf: &mut [u8], at: Range<usize>, how: ReadHow) -> Result<usize> {
     let Held { session, client, .. } = held;
     let Some(session) = session.as_deref_mut() else { return Err(no_session(fd)) };
     let flags = match how {
@@ -1040,10 +1067,7 @@ fn tls_read(fd: i32, held: &mut Held, room: &mut [u8], how: ReadHow) -> Result<u
         ReadHow::Within(timeout) if receive_timeout_set(fd, client, timeout) => 0,
         ReadHow::Within(_) => libc::MSG_DONTWAIT,
     };
-    if !session.readable() {
-        session.fill(fd, flags)?;
-    }
-    session.take(room)
+    session.read_into(fd, flags, buf, at)
 }
 
 /// [`Line::write`] on a TLS session.

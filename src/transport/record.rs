@@ -19,9 +19,9 @@ pub const APPLICATION_DATA: u8 = 23;
 
 /// The most plaintext one record carries (2^14).
 pub const MAX_FRAGMENT: usize = 16384;
-const HEADER: usize = 5;
-const TAG: usize = 16;
-const EXPLICIT_NONCE: usize = 8;
+pub const HEADER: usize = 5;
+pub const TAG: usize = 16;
+pub const EXPLICIT_NONCE: usize = 8;
 
 /// One direction's key, IV and sequence number.
 pub struct Direction {

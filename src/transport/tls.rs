@@ -31,6 +31,7 @@
 use std::collections::HashMap;
 use std::ffi::{CStr, CString};
 use std::io;
+use std::ops::Range;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -46,6 +47,7 @@ use rustls::{
 };
 
 use super::record::{self, MAX_FRAGMENT};
+use super::room;
 use super::{Ready, now, to_timespec, wait_or_wake};
 use crate::error::{
     EMBTLS, EMBTLSCACERT, EMBTLSCONFIG, EMBTLSEXPIRED, EMBTLSNAME, EMBTLSNOCERT, EMBTLSPASSWORD, EMBTLSUNKNOWNCA,
@@ -1003,15 +1005,13 @@ impl Session {
                 Err(record::BadRecord) => return self.fatal(fd, BAD_RECORD_MAC, rustls::Error::DecryptError),
             };
             let (from, to) = (at + range.start, at + range.end);
-            match typ {
-                record::APPLICATION_DATA => {
-                    self.keep(from, to);
-                    continue;
-                }
-                record::ALERT => self.alert(from, to),
-                record::HANDSHAKE => self.post_handshake(fd, from, to),
-                _ => self.unexpected(fd),
+            if typ == record::APPLICATION_DATA {
+                self.keep(from, to);
+                continue;
             }
+            let input = core::mem::take(&mut self.input);
+            self.control(fd, typ, &input[from..to]);
+            self.input = input;
             if self.readable_end() {
                 return;
             }
@@ -1028,10 +1028,19 @@ impl Session {
         }
     }
 
+    /// A record that is not application data, its plaintext `plain`.
+    fn control(&mut self, fd: i32, typ: u8, plain: &[u8]) {
+        match typ {
+            record::ALERT => self.alert(plain),
+            record::HANDSHAKE => self.post_handshake(fd, plain),
+            _ => self.unexpected(fd),
+        }
+    }
+
     /// An alert from the peer: close_notify ends the session; a warning (TLS 1.2) or
     /// user_canceled is passed over; anything else is the peer's refusal.
-    fn alert(&mut self, from: usize, to: usize) {
-        let [level, description] = self.input[from..to] else {
+    fn alert(&mut self, plain: &[u8]) {
+        let [level, description] = *plain else {
             self.failed = Some(Error(EMBTLS));
             return;
         };
@@ -1046,29 +1055,29 @@ impl Session {
     /// Handshake messages after the handshake (TLS 1.3): session tickets (a client
     /// gives them to rustls for resumption) and key updates. Each must be whole in
     /// its record (rustls and OpenSSL send them so).
-    fn post_handshake(&mut self, fd: i32, from: usize, to: usize) {
+    fn post_handshake(&mut self, fd: i32, plain: &[u8]) {
         if !self.tls13 {
             // A TLS 1.2 HelloRequest: renegotiation is not supported, the request is
             // passed over (as rustls does); anything else is unexpected.
-            if self.input[from..to] != [0, 0, 0, 0] {
+            if plain != [0, 0, 0, 0] {
                 self.unexpected(fd);
             }
             return;
         }
-        let mut at = from;
-        while at < to {
-            let Some(&[typ, a, b, c]) = self.input.get(at..at + 4) else {
+        let mut at = 0;
+        while at < plain.len() {
+            let Some(&[typ, a, b, c]) = plain.get(at..at + 4) else {
                 return self.fatal(fd, DECODE_ERROR, rustls::Error::DecryptError);
             };
             let len = u32::from_be_bytes([0, a, b, c]) as usize;
             let body = at + 4..at + 4 + len;
-            if body.end > to {
+            if body.end > plain.len() {
                 return self.fatal(fd, DECODE_ERROR, rustls::Error::DecryptError);
             }
             at = body.end;
             let done = match (typ, &mut self.kernel) {
-                (4, Kernel::Client(k)) => k.handle_new_session_ticket(&self.input[body]),
-                (24, _) if len == 1 => self.key_update(self.input[body.start] == 1),
+                (4, Kernel::Client(k)) => k.handle_new_session_ticket(&plain[body]),
+                (24, _) if len == 1 => self.key_update(plain[body.start] == 1),
                 _ => return self.unexpected(fd),
             };
             if let Err(e) = done {
@@ -1128,6 +1137,62 @@ impl Session {
         }
         self.seal(record::APPLICATION_DATA, data);
         Ok(())
+    }
+
+    /// Takes plaintext into `buf[at]` ([`Session::take`]), after one `recv` (with
+    /// `flags`) of records when none is there to take. When nothing at all is held
+    /// (the usual read of an answer), the `recv` lands in `buf` from [`room::BEFORE`]
+    /// bytes before `at`, and what does not fit up to [`room::AFTER`] bytes after it
+    /// in the input: a single record of application data, the usual answer, is then
+    /// opened in place in `buf`, its plaintext exactly at `at`, with no copy. Any
+    /// other bytes move into the input first and are opened there.
+    pub fn read_into(&mut self, fd: i32, flags: i32, buf: &mut [u8], at: Range<usize>) -> Result<usize> {
+        if !self.readable() {
+            if self.raw == self.have && at.start >= room::BEFORE {
+                return self.read_direct(fd, flags, buf, at);
+            }
+            self.fill(fd, flags)?;
+        }
+        self.take(&mut buf[at])
+    }
+
+    /// [`Session::read_into`] when nothing is held.
+    fn read_direct(&mut self, fd: i32, flags: i32, buf: &mut [u8], at: Range<usize>) -> Result<usize> {
+        let lo = at.start - room::BEFORE;
+        let hi = buf.len().min(at.end + self.rx.overhead() - room::BEFORE);
+        let n = match super::recv_split(fd, &mut buf[lo..hi], self.input_room(), flags) {
+            Ok(0) => {
+                self.ended = true;
+                return Ok(0);
+            }
+            Ok(n) => n,
+            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => return Err(e),
+            Err(e) => {
+                self.failed = Some(e);
+                return Err(e);
+            }
+        };
+        let direct = hi - lo;
+        if n <= direct && record::record_len(&buf[lo..lo + n]) == Some(n) {
+            match self.rx.open(&mut buf[lo..lo + n]) {
+                Ok((record::APPLICATION_DATA, range)) if !range.is_empty() => return Ok(range.len()),
+                Ok((record::APPLICATION_DATA, _)) => {}
+                Ok((typ, range)) => self.control(fd, typ, &buf[lo + range.start..lo + range.end]),
+                Err(record::BadRecord) => self.fatal(fd, BAD_RECORD_MAC, rustls::Error::DecryptError),
+            }
+            return self.take(&mut buf[at]);
+        }
+        // Not one whole record: the bytes join the input in order (the input was
+        // empty: `input_room` started it at 0), to be opened there.
+        let first = n.min(direct);
+        if n > self.input.len() {
+            self.input.resize(n, 0);
+        }
+        self.input.copy_within(0..n - first, first);
+        self.input[..first].copy_from_slice(&buf[lo..lo + first]);
+        self.have = n;
+        self.open_records(fd);
+        self.take(&mut buf[at])
     }
 
     /// Copies plaintext into `room` without taking it.

@@ -12,6 +12,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 
+use crate::proto::frame::MAX_ADU_LENGTH as MAX_ADU;
+
 /// How long any step may take before the test fails instead of hanging.
 const WAIT: Duration = Duration::from_secs(20);
 /// The limit the tests lower a session's to: a key protects 3 records.
@@ -320,4 +322,123 @@ fn an_idle_session_keeps_a_transactions_room_after_its_handshake() {
         assert_eq!(receive(&mut client.session, cfd, data.len()).unwrap(), data);
     }
     assert!(server.session.output.buf.capacity() > big.len(), "grown again for the larger message");
+}
+
+/// Waits until `fd` has at least `bytes` bytes to read.
+fn queued(fd: i32, bytes: usize) {
+    let until = now() + WAIT;
+    loop {
+        let mut n: libc::c_int = 0;
+        // SAFETY: FIONREAD writes one int into the live local.
+        assert_eq!(unsafe { libc::ioctl(fd, libc::FIONREAD, &mut n) }, 0);
+        if n as usize >= bytes {
+            return;
+        }
+        assert!(now() < until, "{n} bytes queued, waited for {bytes}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// Seals each of `messages` into its own record and sends them all with one `send`.
+fn send_together(s: &mut Session, fd: i32, messages: &[&[u8]]) -> usize {
+    for m in messages {
+        s.seal_data(m).unwrap();
+    }
+    let len = s.output.end;
+    s.output.flush_within(fd, Timeout::new(WAIT.as_secs() as u32, 0), &mut None, &|| false).unwrap();
+    len
+}
+
+/// `Session::read_into`, as a client reads an answer into an ADU buffer with room
+/// around it (`room::AduBuf`), TLS 1.3 and 1.2:
+/// - one record alone is opened where it landed: its plaintext is the message, and
+///   nothing entered the session's input (a copy into it would leave records there);
+/// - two records in one `recv`, within the buffer's room or past it (into the
+///   input), are read as a stream: the message's room gets their plaintext in order,
+///   the rest is pending;
+/// - a part of a record is kept until the rest comes;
+/// - a record that is not application data (a key update) leaves nothing to take,
+///   and the next record opens under the new key;
+/// - a changed byte fails the read, and so does every read after it.
+#[test]
+fn read_into_opens_a_lone_record_in_place_and_the_rest_in_the_input() {
+    for tls13 in [true, false] {
+        let mut ours = settings("operator", if tls13 { TLS_1_3 } else { TLS_1_2 });
+        if !tls13 {
+            tls12_only(&mut ours);
+        }
+        let ((mut client, cs), (mut server, ss)) = pair(ours, settings("server", TLS_1_2));
+        assert_eq!(client.tls13, tls13);
+        let (cfd, sfd) = (cs.as_raw_fd(), ss.as_raw_fd());
+        let mut adu = room::AduBuf::new();
+        let at = room::BEFORE..room::BEFORE + MAX_ADU;
+        // The server's session tickets (TLS 1.3) come first: read them away.
+        if tls13 {
+            send(&mut server, sfd, b"x").unwrap();
+            assert_eq!(receive(&mut client, cfd, 1).unwrap(), b"x");
+        }
+        let read = |client: &mut Session, adu: &mut room::AduBuf| {
+            let mut room = adu.room();
+            let (whole, range) = room.around(0..MAX_ADU);
+            assert_eq!(range, at);
+            client.read_into(cfd, libc::MSG_DONTWAIT, whole, range)
+        };
+
+        // One record alone.
+        let answer: Vec<u8> = (0..259).map(|i| (i * 7) as u8).collect();
+        let len = send_together(&mut server, sfd, &[&answer]);
+        queued(cfd, len);
+        assert_eq!(read(&mut client, &mut adu), Ok(259), "tls13 {tls13}");
+        assert_eq!(&adu[..259], &answer[..]);
+        assert_eq!((client.have, client.pending()), (0, 0), "tls13 {tls13}: the record went through the input");
+
+        // Two records within the buffer's room, then two past it.
+        for n in [100, 250] {
+            let (a, b) = (vec![1u8; n], vec![2u8; n]);
+            let len = send_together(&mut server, sfd, &[&a, &b]);
+            queued(cfd, len);
+            let got = read(&mut client, &mut adu).unwrap();
+            assert_eq!(got, (2 * n).min(MAX_ADU), "tls13 {tls13}, {n}");
+            assert_eq!(&adu[..got], &[a, b].concat()[..got]);
+            assert_eq!(client.pending(), 2 * n - got);
+            client.discard();
+        }
+
+        // A part of a record, then the rest.
+        server.seal_data(&answer).unwrap();
+        let record = server.output.buf[..server.output.end].to_vec();
+        server.output.end = 0;
+        super::super::send(sfd, &record[..100], 0).unwrap();
+        queued(cfd, 100);
+        assert_eq!(read(&mut client, &mut adu), Err(Error(libc::EAGAIN)));
+        super::super::send(sfd, &record[100..], 0).unwrap();
+        queued(cfd, record.len() - 100);
+        assert_eq!(read(&mut client, &mut adu), Ok(259));
+        assert_eq!(&adu[..259], &answer[..]);
+
+        if tls13 {
+            // A key update alone, then a message under the new key.
+            let seq = client.rx.seq();
+            server.update_keys().unwrap();
+            let len = server.output.end;
+            server.output.flush(sfd).unwrap();
+            queued(cfd, len);
+            assert_eq!(read(&mut client, &mut adu), Err(Error(libc::EAGAIN)));
+            assert!(client.rx.seq() < seq, "the client's receiving key was updated");
+            let len = send_together(&mut server, sfd, &[b"after"]);
+            queued(cfd, len);
+            assert_eq!(read(&mut client, &mut adu), Ok(5));
+            assert_eq!(&adu[..5], b"after");
+        }
+
+        // A record with a changed byte.
+        server.seal_data(&answer).unwrap();
+        let end = server.output.end;
+        server.output.buf[end - 1] ^= 1;
+        server.output.flush(sfd).unwrap();
+        queued(cfd, end);
+        let failed = read(&mut client, &mut adu);
+        assert!(matches!(failed, Err(e) if e.0 != libc::EAGAIN), "tls13 {tls13}: {failed:?}");
+        assert_eq!(read(&mut client, &mut adu), failed, "and stays failed");
+    }
 }
