@@ -145,23 +145,6 @@ pub fn recv(fd: i32, buf: &mut [u8], flags: i32) -> Result<usize> {
     if n < 0 { Err(last_error()) } else { Ok(n as usize) }
 }
 
-/// One `recvmsg(2)` (with `flags`) into `first`, then, for what does not fit there,
-/// into `second`: what one `recv` into a buffer of both would read.
-pub fn recv_split(fd: i32, first: &mut [u8], second: &mut [u8], flags: i32) -> Result<usize> {
-    let mut iov = [
-        libc::iovec { iov_base: first.as_mut_ptr().cast(), iov_len: first.len() },
-        libc::iovec { iov_base: second.as_mut_ptr().cast(), iov_len: second.len() },
-    ];
-    // SAFETY: an all-zero msghdr is a valid one (no name, no control data).
-    let mut msg: libc::msghdr = unsafe { core::mem::zeroed() };
-    msg.msg_iov = iov.as_mut_ptr();
-    msg.msg_iovlen = iov.len();
-    // SAFETY: the kernel writes at most each iovec's length into its live slice, and
-    // reads `msg` and `iov`, live locals, only during the call.
-    let n = unsafe { libc::recvmsg(fd, &mut msg, flags) };
-    if n < 0 { Err(last_error()) } else { Ok(n as usize) }
-}
-
 /// One `send(2)` without SIGPIPE, with `flags` added.
 pub fn send(fd: i32, buf: &[u8], flags: i32) -> Result<usize> {
     // SAFETY: the kernel reads at most `buf.len()` bytes from the live slice.

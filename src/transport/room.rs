@@ -102,10 +102,38 @@ impl<'a> Room<'a> {
         self.len
     }
 
-    /// The whole buffer and where `msg()[range]` lies in it.
+    /// The bytes a read into `msg()[range]` may use, and where `msg()[range]` lies in
+    /// them: from the start of the buffer when the read is the message's first (the
+    /// bytes before the room are free), else from `range.start` (the message's bytes
+    /// before it are kept); up to the end of the buffer.
     #[inline]
     pub fn around(&mut self, range: Range<usize>) -> (&mut [u8], Range<usize>) {
         debug_assert!(range.start <= range.end && range.end <= self.len);
-        (&mut *self.whole, self.at + range.start..self.at + range.end)
+        let from = if range.start == 0 { 0 } else { self.at + range.start };
+        (&mut self.whole[from..], self.at + range.start - from..self.at + range.end - from)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A message's first read may use the bytes before the room; a later read of the
+    /// same message sees none of the bytes already read.
+    #[test]
+    fn around_keeps_what_was_read() {
+        let mut adu = AduBuf::new();
+        let mut room = adu.room();
+        let (whole, at) = room.around(0..MAX_ADU_LENGTH);
+        assert_eq!((whole.len(), at.clone()), (BEFORE + MAX_ADU_LENGTH + AFTER, BEFORE..BEFORE + MAX_ADU_LENGTH));
+        whole[at.start..at.start + 3].copy_from_slice(b"abc");
+        let (whole, at) = room.around(3..MAX_ADU_LENGTH);
+        assert_eq!((whole.len(), at.clone()), (MAX_ADU_LENGTH - 3 + AFTER, 0..MAX_ADU_LENGTH - 3));
+        whole[at].fill(b'z');
+        assert_eq!(&room.msg_ref()[..4], b"abcz");
+        let mut bare = [0u8; 8];
+        let mut room = Room::bare(&mut bare);
+        assert_eq!(room.around(0..8).1, 0..8);
+        assert_eq!(room.around(2..6).1, 0..4);
     }
 }

@@ -1140,15 +1140,18 @@ impl Session {
     }
 
     /// Takes plaintext into `buf[at]` ([`Session::take`]), after one `recv` (with
-    /// `flags`) of records when none is there to take. When nothing at all is held
-    /// (the usual read of an answer), the `recv` lands in `buf` from [`room::BEFORE`]
-    /// bytes before `at`, and what does not fit up to [`room::AFTER`] bytes after it
-    /// in the input: a single record of application data, the usual answer, is then
-    /// opened in place in `buf`, its plaintext exactly at `at`, with no copy. Any
-    /// other bytes move into the input first and are opened there.
-    pub fn read_into(&mut self, fd: i32, flags: i32, buf: &mut [u8], at: Range<usize>) -> Result<usize> {
+    /// `flags`) of records when none is there to take. A read for `one` answer (a
+    /// read that waits for it) when nothing at all is held, the usual read of an
+    /// answer, reads at most the record of a plaintext as long as `at`, into `buf`
+    /// from [`room::BEFORE`] bytes before `at` (up to [`room::AFTER`] bytes after
+    /// it): that record alone is opened in place there, its plaintext exactly at
+    /// `at`, with no copy. Any other bytes move into the input and are opened there
+    /// (what did not fit stays in the socket for the next `recv`). A read that is not
+    /// for one answer (of what is queued: the event-driven client's, the runner's)
+    /// reads all that is there into the input.
+    pub fn read_into(&mut self, fd: i32, flags: i32, buf: &mut [u8], at: Range<usize>, one: bool) -> Result<usize> {
         if !self.readable() {
-            if self.raw == self.have && at.start >= room::BEFORE {
+            if one && self.raw == self.have && at.start >= room::BEFORE {
                 return self.read_direct(fd, flags, buf, at);
             }
             self.fill(fd, flags)?;
@@ -1160,7 +1163,7 @@ impl Session {
     fn read_direct(&mut self, fd: i32, flags: i32, buf: &mut [u8], at: Range<usize>) -> Result<usize> {
         let lo = at.start - room::BEFORE;
         let hi = buf.len().min(at.end + self.rx.overhead() - room::BEFORE);
-        let n = match super::recv_split(fd, &mut buf[lo..hi], self.input_room(), flags) {
+        let n = match super::recv(fd, &mut buf[lo..hi], flags) {
             Ok(0) => {
                 self.ended = true;
                 return Ok(0);
@@ -1172,8 +1175,7 @@ impl Session {
                 return Err(e);
             }
         };
-        let direct = hi - lo;
-        if n <= direct && record::record_len(&buf[lo..lo + n]) == Some(n) {
+        if record::record_len(&buf[lo..lo + n]) == Some(n) {
             match self.rx.open(&mut buf[lo..lo + n]) {
                 Ok((record::APPLICATION_DATA, range)) if !range.is_empty() => return Ok(range.len()),
                 Ok((record::APPLICATION_DATA, _)) => {}
@@ -1182,14 +1184,9 @@ impl Session {
             }
             return self.take(&mut buf[at]);
         }
-        // Not one whole record: the bytes join the input in order (the input was
-        // empty: `input_room` started it at 0), to be opened there.
-        let first = n.min(direct);
-        if n > self.input.len() {
-            self.input.resize(n, 0);
-        }
-        self.input.copy_within(0..n - first, first);
-        self.input[..first].copy_from_slice(&buf[lo..lo + first]);
+        // Not one whole record: the bytes go into the input (empty: `input_room` starts
+        // it at 0, with room for more than a record here), to be opened there.
+        self.input_room()[..n].copy_from_slice(&buf[lo..lo + n]);
         self.have = n;
         self.open_records(fd);
         self.take(&mut buf[at])

@@ -353,9 +353,10 @@ fn send_together(s: &mut Session, fd: i32, messages: &[&[u8]]) -> usize {
 /// around it (`room::AduBuf`), TLS 1.3 and 1.2:
 /// - one record alone is opened where it landed: its plaintext is the message, and
 ///   nothing entered the session's input (a copy into it would leave records there);
-/// - two records in one `recv`, within the buffer's room or past it (into the
-///   input), are read as a stream: the message's room gets their plaintext in order,
-///   the rest is pending;
+///   a read that is not for one answer reads it into the input;
+/// - two records that arrived together are read as a stream: within the buffer's
+///   room, both at once (the message's room gets their plaintext in order); past it,
+///   the first, then the second from the socket;
 /// - a part of a record is kept until the rest comes;
 /// - a record that is not application data (a key update) leaves nothing to take,
 ///   and the next record opens under the new key;
@@ -377,32 +378,52 @@ fn read_into_opens_a_lone_record_in_place_and_the_rest_in_the_input() {
             send(&mut server, sfd, b"x").unwrap();
             assert_eq!(receive(&mut client, cfd, 1).unwrap(), b"x");
         }
-        let read = |client: &mut Session, adu: &mut room::AduBuf| {
+        let read_one = |client: &mut Session, adu: &mut room::AduBuf, one: bool| {
             let mut room = adu.room();
             let (whole, range) = room.around(0..MAX_ADU);
             assert_eq!(range, at);
-            client.read_into(cfd, libc::MSG_DONTWAIT, whole, range)
+            client.read_into(cfd, libc::MSG_DONTWAIT, whole, range, one)
         };
+        let read = |client: &mut Session, adu: &mut room::AduBuf| read_one(client, adu, true);
 
         // One record alone.
         let answer: Vec<u8> = (0..259).map(|i| (i * 7) as u8).collect();
         let len = send_together(&mut server, sfd, &[&answer]);
         queued(cfd, len);
+        let held = client.have;
         assert_eq!(read(&mut client, &mut adu), Ok(259), "tls13 {tls13}");
         assert_eq!(&adu[..259], &answer[..]);
-        assert_eq!((client.have, client.pending()), (0, 0), "tls13 {tls13}: the record went through the input");
+        assert_eq!((client.have, client.pending()), (held, 0), "tls13 {tls13}: the record went through the input");
+        let len = send_together(&mut server, sfd, &[&answer]);
+        queued(cfd, len);
+        assert_eq!(read_one(&mut client, &mut adu, false), Ok(259));
+        assert_eq!(&adu[..259], &answer[..]);
+        assert_eq!(client.have, len, "tls13 {tls13}: a read of what is queued takes it into the input");
 
         // Two records within the buffer's room, then two past it.
-        for n in [100, 250] {
-            let (a, b) = (vec![1u8; n], vec![2u8; n]);
-            let len = send_together(&mut server, sfd, &[&a, &b]);
-            queued(cfd, len);
-            let got = read(&mut client, &mut adu).unwrap();
-            assert_eq!(got, (2 * n).min(MAX_ADU), "tls13 {tls13}, {n}");
-            assert_eq!(&adu[..got], &[a, b].concat()[..got]);
-            assert_eq!(client.pending(), 2 * n - got);
-            client.discard();
+        let (a, b) = (vec![1u8; 100], vec![2u8; 100]);
+        let len = send_together(&mut server, sfd, &[&a, &b]);
+        queued(cfd, len);
+        assert_eq!(read(&mut client, &mut adu), Ok(200), "tls13 {tls13}");
+        assert_eq!(&adu[..200], &[a, b].concat()[..]);
+        let (a, b) = (vec![3u8; 250], vec![4u8; 250]);
+        let len = send_together(&mut server, sfd, &[&a, &b]);
+        queued(cfd, len);
+        for want in [a, b] {
+            assert_eq!(read(&mut client, &mut adu), Ok(250), "tls13 {tls13}");
+            assert_eq!(&adu[..250], &want[..]);
         }
+        assert_eq!(client.pending(), 0);
+
+        // The rest of a message after its first bytes: those stay as they are.
+        adu[..100].fill(9);
+        let len = send_together(&mut server, sfd, &[&answer[..150]]);
+        queued(cfd, len);
+        let mut room = adu.room();
+        let (whole, range) = room.around(100..MAX_ADU);
+        assert_eq!(client.read_into(cfd, libc::MSG_DONTWAIT, whole, range, true), Ok(150));
+        assert_eq!(&adu[..100], &[9; 100][..], "tls13 {tls13}: the message's first bytes changed");
+        assert_eq!(&adu[100..250], &answer[..150]);
 
         // A part of a record, then the rest.
         server.seal_data(&answer).unwrap();
