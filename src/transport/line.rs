@@ -750,7 +750,8 @@ impl Line {
         }
     }
 
-    /// [`Line::read`] into `msg()[range]` of a message's room.
+    /// [`Line::read`] into `msg()[range]` of a message's room (on a TLS session, with
+    /// the bytes around it that [`Room::around`] gives).
     #[inline]
     pub fn read_message(
         &mut self,
@@ -759,8 +760,11 @@ impl Line {
         how: ReadHow,
         debug: bool,
     ) -> Result<usize> {
-        let (whole, at) = msg.around(range);
-        self.read(whole, at, how, debug)
+        if self.kind == Kind::Tls {
+            let (whole, at) = msg.around(range);
+            return tls_read(self.fd, &mut self.held, whole, at, how);
+        }
+        self.read_all(&mut msg.msg()[range], how, debug)
     }
 
     /// [`Line::read`] into all of `room`.

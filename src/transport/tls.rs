@@ -861,6 +861,11 @@ pub struct Session {
     key_update_at: u64,
     /// The peer closed: close_notify (a clean end) or the socket's end of stream.
     ended: bool,
+    /// The last read left nothing held: the next answer may come alone, to be read in
+    /// place ([`Session::read_into`]). Not at first: a TLS 1.3 server's session
+    /// tickets (RFC 8446 section 4.6.1) come after the handshake, with the first
+    /// answer or before it.
+    alone: bool,
     /// A record that failed (decryption, a fatal alert): reported by the next read.
     failed: Option<Error>,
     role: Option<CString>,
@@ -924,6 +929,7 @@ impl Session {
             output,
             key_update_at: KEY_UPDATE_AT,
             ended: peer_closed,
+            alone: false,
             failed: None,
             role,
             cookie: super::socket_cookie(fd),
@@ -1141,22 +1147,25 @@ impl Session {
 
     /// Takes plaintext into `buf[at]` ([`Session::take`]), after one `recv` (with
     /// `flags`) of records when none is there to take. A read for `one` answer (a
-    /// read that waits for it) when nothing at all is held, the usual read of an
-    /// answer, reads at most the record of a plaintext as long as `at`, into `buf`
-    /// from [`room::BEFORE`] bytes before `at` (up to [`room::AFTER`] bytes after
-    /// it): that record alone is opened in place there, its plaintext exactly at
-    /// `at`, with no copy. Any other bytes move into the input and are opened there
-    /// (what did not fit stays in the socket for the next `recv`). A read that is not
-    /// for one answer (of what is queued: the event-driven client's, the runner's)
-    /// reads all that is there into the input.
+    /// read that waits for it) when nothing at all is held and the last read left
+    /// nothing either, the usual read of an answer, reads at most the record of a
+    /// plaintext as long as `at`, into `buf` from [`room::BEFORE`] bytes before `at`
+    /// (up to [`room::AFTER`] bytes after it): that record alone is opened in place
+    /// there, its plaintext exactly at `at`, with no copy. Any other bytes move into
+    /// the input and are opened there (what did not fit stays in the socket), and the
+    /// next read takes all that is there. A read that is not for one answer (of what
+    /// is queued: the event-driven client's, the runner's) reads all that is there
+    /// into the input.
     pub fn read_into(&mut self, fd: i32, flags: i32, buf: &mut [u8], at: Range<usize>, one: bool) -> Result<usize> {
         if !self.readable() {
-            if one && self.raw == self.have && at.start >= room::BEFORE {
+            if one && self.alone && self.raw == self.have && at.start >= room::BEFORE {
                 return self.read_direct(fd, flags, buf, at);
             }
             self.fill(fd, flags)?;
         }
-        self.take(&mut buf[at])
+        let taken = self.take(&mut buf[at]);
+        self.alone = self.start == self.pend && self.raw == self.have;
+        taken
     }
 
     /// [`Session::read_into`] when nothing is held.
@@ -1188,6 +1197,7 @@ impl Session {
         // it at 0, with room for more than a record here), to be opened there.
         self.input_room()[..n].copy_from_slice(&buf[lo..lo + n]);
         self.have = n;
+        self.alone = false;
         self.open_records(fd);
         self.take(&mut buf[at])
     }

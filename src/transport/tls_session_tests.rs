@@ -351,12 +351,16 @@ fn send_together(s: &mut Session, fd: i32, messages: &[&[u8]]) -> usize {
 
 /// `Session::read_into`, as a client reads an answer into an ADU buffer with room
 /// around it (`room::AduBuf`), TLS 1.3 and 1.2:
-/// - one record alone is opened where it landed: its plaintext is the message, and
-///   nothing entered the session's input (a copy into it would leave records there);
-///   a read that is not for one answer reads it into the input;
+/// - the session's first answer is read whole into the session's input (the server's
+///   session tickets may come with it);
+/// - after a read that left nothing held, one record alone is opened where it
+///   landed: its plaintext is the message, and nothing entered the session's input (a
+///   copy into it would leave records there); a read that is not for one answer
+///   reads it into the input;
 /// - two records that arrived together are read as a stream: within the buffer's
 ///   room, both at once (the message's room gets their plaintext in order); past it,
-///   the first, then the second from the socket;
+///   the first, then the second from the socket; the read after them takes all that
+///   is there into the input;
 /// - a part of a record is kept until the rest comes;
 /// - a record that is not application data (a key update) leaves nothing to take,
 ///   and the next record opens under the new key;
@@ -386,8 +390,14 @@ fn read_into_opens_a_lone_record_in_place_and_the_rest_in_the_input() {
         };
         let read = |client: &mut Session, adu: &mut room::AduBuf| read_one(client, adu, true);
 
-        // One record alone.
+        // The first answer, then one record alone.
         let answer: Vec<u8> = (0..259).map(|i| (i * 7) as u8).collect();
+        let len = send_together(&mut server, sfd, &[&answer]);
+        queued(cfd, len);
+        let held = client.have;
+        assert_eq!(read(&mut client, &mut adu), Ok(259), "tls13 {tls13}");
+        assert_eq!(&adu[..259], &answer[..]);
+        assert_ne!(client.have, held, "tls13 {tls13}: the first answer went around the input");
         let len = send_together(&mut server, sfd, &[&answer]);
         queued(cfd, len);
         let held = client.have;
@@ -406,6 +416,11 @@ fn read_into_opens_a_lone_record_in_place_and_the_rest_in_the_input() {
         queued(cfd, len);
         assert_eq!(read(&mut client, &mut adu), Ok(200), "tls13 {tls13}");
         assert_eq!(&adu[..200], &[a, b].concat()[..]);
+        let len = send_together(&mut server, sfd, &[&answer]);
+        queued(cfd, len);
+        let held = client.have;
+        assert_eq!(read(&mut client, &mut adu), Ok(259), "tls13 {tls13}");
+        assert_ne!(client.have, held, "tls13 {tls13}: the read after two records went around the input");
         let (a, b) = (vec![3u8; 250], vec![4u8; 250]);
         let len = send_together(&mut server, sfd, &[&a, &b]);
         queued(cfd, len);
