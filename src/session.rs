@@ -135,7 +135,7 @@ pub fn execute(
             let how = if blocking { how } else { ReadHow::Queued };
             match dest {
                 Dest::Message { from, to } => line.read_message(msg, from..to, how, debug),
-                Dest::ReadAhead => line.read_all(&mut rx.buf[..], how, debug),
+                Dest::ReadAhead => line.read(&mut rx.buf[..], how, debug),
             }
         }
         Step::Wait { until } => match waiting {

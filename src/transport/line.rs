@@ -727,26 +727,27 @@ impl Line {
     /// wheel, which may fire up to an eighth of the time plus a tick or two late, so
     /// it is set to 3/4 of the response timeout; when it fires (EAGAIN), the machine
     /// waits for the rest, which therefore ends when libmodbus's `select` would).
-    /// The read is into `buf[at]`; a TLS session may use the bytes of `buf` around it
-    /// (see `tls::Session::read_into`).
     #[inline]
-    pub fn read(&mut self, buf: &mut [u8], at: Range<usize>, how: ReadHow, debug: bool) -> Result<usize> {
+    pub fn read(&mut self, room: &mut [u8], how: ReadHow, debug: bool) -> Result<usize> {
         let fd = self.fd;
         match self.kind {
             Kind::Socket => match how {
-                ReadHow::Ready => super::recv(fd, &mut buf[at], 0),
-                ReadHow::Queued => super::recv(fd, &mut buf[at], libc::MSG_DONTWAIT),
-                ReadHow::Within(timeout) => read_within(fd, &mut self.held.client, &mut buf[at], timeout, debug),
+                ReadHow::Ready => super::recv(fd, room, 0),
+                ReadHow::Queued => super::recv(fd, room, libc::MSG_DONTWAIT),
+                ReadHow::Within(timeout) => read_within(fd, &mut self.held.client, room, timeout, debug),
             },
             // A serial line read when a readiness driver only thought it readable
             // (a hint given without a wait): a terminal read empty is nothing there
             // yet (VMIN 0), not a line that ended, as a socket's EAGAIN.
-            Kind::Serial => match super::read(fd, &mut buf[at]) {
+            Kind::Serial => match super::read(fd, room) {
                 Ok(0) if matches!(how, ReadHow::Queued) => Err(Error(libc::EAGAIN)),
                 r => r,
             },
-            Kind::Tls => tls_read(fd, &mut self.held, buf, at, how),
-            Kind::Datagram => datagram_read(fd, &mut self.held, &mut buf[at], how),
+            Kind::Tls => {
+                let all = 0..room.len();
+                tls_read(fd, &mut self.held, room, all, how)
+            }
+            Kind::Datagram => datagram_read(fd, &mut self.held, room, how),
         }
     }
 
@@ -764,14 +765,7 @@ impl Line {
             let (whole, at) = msg.around(range);
             return tls_read(self.fd, &mut self.held, whole, at, how);
         }
-        self.read_all(&mut msg.msg()[range], how, debug)
-    }
-
-    /// [`Line::read`] into all of `room`.
-    #[inline]
-    pub fn read_all(&mut self, room: &mut [u8], how: ReadHow, debug: bool) -> Result<usize> {
-        let all = 0..room.len();
-        self.read(room, all, how, debug)
+        self.read(&mut msg.msg()[range], how, debug)
     }
 
     /// Takes the whole message a [`Line::peek`] showed, `room` long: one read of what
@@ -785,12 +779,12 @@ impl Line {
                 None => Err(no_session(self.fd)),
             },
             Kind::Datagram => {
-                let n = self.read_all(room, ReadHow::Ready, false);
+                let n = self.read(room, ReadHow::Ready, false);
                 // The message is the datagram: what follows it in there is no message.
                 self.held.datagram.as_deref_mut().map(Datagram::discard);
                 n
             }
-            _ => self.read_all(room, ReadHow::Ready, false),
+            _ => self.read(room, ReadHow::Ready, false),
         }
     }
 

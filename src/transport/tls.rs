@@ -1186,7 +1186,11 @@ impl Session {
         };
         if record::record_len(&buf[lo..lo + n]) == Some(n) {
             match self.rx.open(&mut buf[lo..lo + n]) {
-                Ok((record::APPLICATION_DATA, range)) if !range.is_empty() => return Ok(range.len()),
+                Ok((record::APPLICATION_DATA, range)) if !range.is_empty() => {
+                    // The plaintext starts right after the header: at `at`.
+                    debug_assert_eq!(range.start, room::BEFORE);
+                    return Ok(range.len());
+                }
                 Ok((record::APPLICATION_DATA, _)) => {}
                 Ok((typ, range)) => self.control(fd, typ, &buf[lo + range.start..lo + range.end]),
                 Err(record::BadRecord) => self.fatal(fd, BAD_RECORD_MAC, rustls::Error::DecryptError),
