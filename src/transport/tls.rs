@@ -978,17 +978,26 @@ impl Session {
     /// for EAGAIN (nothing came) and EINTR; a failed socket or record is kept for the
     /// read to report.
     pub fn fill(&mut self, fd: i32, flags: i32) -> Result<()> {
-        match super::recv(fd, self.input_room(), flags) {
+        let received = super::recv(fd, self.input_room(), flags);
+        if let Some(n) = self.received(received)? {
+            self.have += n;
+            self.open_records(fd);
+        }
+        Ok(())
+    }
+
+    /// What a `recv` of records brought: `Some(n)` bytes, or `None` when the stream
+    /// ended or the socket failed (kept for the read to report); `Err` only for
+    /// EAGAIN (nothing came) and EINTR.
+    fn received(&mut self, received: Result<usize>) -> Result<Option<usize>> {
+        match received {
             Ok(0) => self.ended = true,
-            Ok(n) => {
-                self.have += n;
-                self.open_records(fd);
-            }
+            Ok(n) => return Ok(Some(n)),
             Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => return Err(e),
             // A reset or another failure of the socket: reported by the read.
             Err(e) => self.failed = Some(e),
         }
-        Ok(())
+        Ok(None)
     }
 
     /// Opens every whole record held, in order, until the peer's end or a failure
@@ -1172,17 +1181,8 @@ impl Session {
     fn read_direct(&mut self, fd: i32, flags: i32, buf: &mut [u8], at: Range<usize>) -> Result<usize> {
         let lo = at.start - room::BEFORE;
         let hi = buf.len().min(at.end + self.rx.overhead() - room::BEFORE);
-        let n = match super::recv(fd, &mut buf[lo..hi], flags) {
-            Ok(0) => {
-                self.ended = true;
-                return Ok(0);
-            }
-            Ok(n) => n,
-            Err(e) if e.0 == libc::EAGAIN || e.0 == libc::EINTR => return Err(e),
-            Err(e) => {
-                self.failed = Some(e);
-                return Err(e);
-            }
+        let Some(n) = self.received(super::recv(fd, &mut buf[lo..hi], flags))? else {
+            return self.take(&mut buf[at]);
         };
         if record::record_len(&buf[lo..lo + n]) == Some(n) {
             match self.rx.open(&mut buf[lo..lo + n]) {
